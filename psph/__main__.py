@@ -1,0 +1,3 @@
+from psph.cli import main
+
+raise SystemExit(main())

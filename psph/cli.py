@@ -1,0 +1,181 @@
+"""Command line: `psph run SCENE`, `psph info SCENE`.
+
+Options psph does not know and that start with a single dash are PETSc options and pass through
+untouched (`-iips_pc_type hypre -log_view`). Errors print one line `psph: error: ...` and exit non-zero
+(2 for bad input) without a traceback; an unexpected failure on one rank aborts all ranks.
+"""
+
+import argparse
+import os
+import sys
+import traceback
+
+from psph.errors import PsphError, SceneError, UsageError
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, no usage dump
+        raise UsageError(message)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="psph", description="Distributed SPH with implicit iterative particle shifting.",
+                     epilog="Unknown options starting with a single dash are passed to PETSc.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    def scene_args(p):
+        p.add_argument("scene", help="scene file (TOML)")
+        p.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
+                       help="override a scene key; the value is a TOML literal, a bare word a string")
+
+    run = sub.add_parser("run", help="run a scene")
+    scene_args(run)
+    run.add_argument("--out", help="output directory (default: ./<scene name>_out)")
+    run.add_argument("--overwrite", action="store_true", help="replace results already in the output directory")
+    run.add_argument("--allow-large", action="store_true",
+                     help="run even if the estimated memory exceeds this machine's")
+    run.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    info = sub.add_parser("info", help="print the resolved scene, its model terms and estimated size")
+    scene_args(info)
+    sub.add_parser("keys", help="list every scene key with its type, default and meaning")
+    return parser
+
+
+def split_petsc_options(argv):
+    """Separate PETSc options (single-dash tokens and their values) from psph's arguments."""
+    ours, petsc = [], []
+    k = 0
+    while k < len(argv):
+        tok = argv[k]
+        if tok.startswith("-") and not tok.startswith("--") and len(tok) > 2 and not _is_number(tok):
+            petsc.append(tok)
+            if k + 1 < len(argv) and (not argv[k + 1].startswith("-") or _is_number(argv[k + 1])):
+                petsc.append(argv[k + 1])
+                k += 1
+        else:
+            ours.append(tok)
+        k += 1
+    return ours, petsc
+
+
+def _is_number(tok: str) -> bool:
+    try:
+        float(tok)
+        return True
+    except ValueError:
+        return False
+
+
+def _say(comm, quiet=False):
+    def log(msg):
+        if comm.rank == 0 and not quiet:
+            print(msg, flush=True)
+    return log
+
+
+def cmd_info(args, petsc_options, comm) -> int:
+    from psph.drivers import describe_model
+    from psph.scene.load import load_scene
+    from psph.scene.validate import to_table
+    from psph.simulation import estimate_resources
+
+    scene = load_scene(args.scene, args.set)
+    if comm.rank == 0:
+        print(f"# scene {scene.name!r} from {args.scene}")
+        _print_table(to_table(scene))
+        print("# model terms (only these run)")
+        for line in describe_model(scene):
+            print(f"#   {line}")
+        n, nbytes, per_particle = estimate_resources(scene)
+        print(f"# estimated particles: {n}, memory: {nbytes / 2**30:.3g} GiB "
+              f"({per_particle:.0f} bytes per particle)")
+    return 0
+
+
+def _print_table(table, prefix=""):
+    scalars = {k: v for k, v in table.items() if not isinstance(v, dict)}
+    for k, v in scalars.items():
+        print(f"{prefix}{k} = {_toml_value(v)}")
+    for k, v in table.items():
+        if isinstance(v, dict):
+            print(f"\n[{prefix}{k}]")
+            _print_table(v, "")
+
+
+def _toml_value(v):
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return repr(v)
+
+
+def cmd_run(args, petsc_options, comm) -> int:
+    from psph.drivers import driver_for
+    from psph.io.files import holds_results
+    from psph.scene.load import load_scene
+    from psph.simulation import check_resources
+    from psph.solvers.petsc import initialize
+
+    scene = load_scene(args.scene, args.set)
+    check_resources(scene, allow_large=args.allow_large)
+    out = os.path.abspath(args.out or f"{scene.name}_out")
+    if holds_results(out) and not args.overwrite:
+        raise UsageError(f"output directory {out!r} already holds results; choose another --out or pass --overwrite")
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise UsageError(f"output path {out!r} exists and is not a directory")
+    initialize(petsc_options)
+    if comm.rank == 0:
+        os.makedirs(out, exist_ok=True)
+    comm.Barrier()
+    log = _say(comm, args.quiet)
+    log(f"psph: running scene {scene.name!r} on {comm.size} rank(s)")
+    summary = driver_for(scene)(scene, comm, out, log=log).run()
+    log(f"psph: {summary['n_particles']} particles, {summary['steps']} steps, "
+        f"{summary['wall_time_s']:.2f} s; results in {out}")
+    return 0
+
+
+def cmd_keys(args, petsc_options, comm) -> int:
+    from psph.scene.schema import Scene
+    from psph.scene.validate import describe_keys
+
+    if comm.rank == 0:
+        for key, kind, default, doc in describe_keys(Scene):
+            print(f"{key:34s} {kind:17s} {'required' if default == 'required' else _toml_value(default):>12s}  {doc}")
+    return 0
+
+
+COMMANDS = {"run": cmd_run, "info": cmd_info, "keys": cmd_keys}
+
+
+def main(argv=None) -> int:
+    from mpi4py import MPI
+
+    comm = MPI.COMM_WORLD  # the application entry point owns the world communicator
+    argv = sys.argv[1:] if argv is None else list(argv)
+    try:
+        ours, petsc_options = split_petsc_options(argv)
+        args = _parser().parse_args(ours)
+        return COMMANDS[args.command](args, petsc_options, comm)
+    except PsphError as err:
+        collective = isinstance(err, (SceneError, UsageError)) or getattr(err, "collective", False)
+        if comm.size == 1 or collective:
+            if comm.rank == 0:
+                print(f"psph: error: {err}", file=sys.stderr, flush=True)
+            return err.exit_code
+        print(f"psph: error on rank {comm.rank}: {err}", file=sys.stderr, flush=True)
+        comm.Abort(err.exit_code)
+    except KeyboardInterrupt:
+        print("psph: interrupted", file=sys.stderr, flush=True)
+        if comm.size > 1:
+            comm.Abort(130)
+        return 130
+    except Exception:  # a bug: show it, and never leave other ranks waiting in a collective
+        traceback.print_exc()
+        print(f"psph: internal error on rank {comm.rank} (a bug; please report it)", file=sys.stderr, flush=True)
+        if comm.size > 1:
+            comm.Abort(1)
+        return 1

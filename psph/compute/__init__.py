@@ -1,0 +1,1 @@
+"""Compute kernels: numba functions over flat arrays and CSR neighbour lists; they never communicate."""

@@ -1,0 +1,300 @@
+"""Smoothing kernels: value, gradient and Hessian (numba).
+
+All kernels have compact support 2h (thesis 000, section 4.1.2). Wendland kernels use q = r / (2h) and
+the same polynomial in 1-D, 2-D and 3-D; the cubic spline uses q = r / h (thesis eq. 4.25).
+
+    Wendland C2  f(q) = (1-q)^4 (4q + 1)                      (thesis eq. 4.27)
+    Wendland C4  f(q) = (1-q)^6 (35q^2 + 18q + 3)             (thesis eq. 4.28)
+    Wendland C6  f(q) = (1-q)^8 (32q^3 + 25q^2 + 8q + 1)      (thesis eq. 4.29, corrected: 32, not 35)
+    cubic spline f(q) = 1 - 3/2 q^2 + 3/4 q^3 (q < 1), 1/4 (2-q)^3 (1 <= q < 2)
+
+W(r) = alpha_d / h^d f(q). The normalisation constants alpha_d below were derived symbolically and are
+checked by quadrature to 1e-10 in tests/compute/test_smoothing.py. They differ from the thesis where the
+thesis is misprinted: C6 (39/(14 pi), 15/16 in 1-D: seeds/README.md) and the 1-D constants of C2 and C4,
+which the thesis takes from the genuinely 1-D Wendland functions (5/8, 3/4) instead of the polynomials it
+prints; with the printed polynomials they are 3/4 and 9/32.
+
+Compute kernels call three scalar functions of the distance r with kp = (kernel id, h, alpha_d / h^d):
+
+    kernel_w(r, kp)    W(r)
+    kernel_f(r, kp)    W'(r) / r      so that  grad_i W_ij = f(r_ij) (x_i - x_j)  (finite at r = 0)
+    kernel_d2(r, kp)   W''(r)
+
+(an integer id rather than a function argument, because numba's on-disk cache does not recognise
+function-typed arguments across processes)
+and the Hessian of W at x is  H(x) = f I + (d2 - f) x x^T / r^2  (= f I at r = 0, see hessian()).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+# alpha_d for d = 1, 2, 3 (index d - 1); W = alpha_d / h^d f(q)
+_NORMALISATION = {
+    "wendland_c2": (3.0 / 4.0, 7.0 / (4.0 * np.pi), 21.0 / (16.0 * np.pi)),
+    "wendland_c4": (9.0 / 32.0, 3.0 / (4.0 * np.pi), 165.0 / (256.0 * np.pi)),
+    "wendland_c6": (15.0 / 16.0, 39.0 / (14.0 * np.pi), 1365.0 / (512.0 * np.pi)),
+    "cubic_spline": (2.0 / 3.0, 10.0 / (7.0 * np.pi), 1.0 / np.pi),
+}
+
+KERNEL_NAMES = tuple(_NORMALISATION)
+
+
+# ---------------------------------------------------------------- Wendland C2
+@njit(cache=True)
+def _c2_w(r, h, a):
+    q = r / (2.0 * h)
+    if q >= 1.0:
+        return 0.0
+    t = 1.0 - q
+    t2 = t * t
+    return a * t2 * t2 * (4.0 * q + 1.0)
+
+
+@njit(cache=True)
+def _c2_f(r, h, a):
+    q = r / (2.0 * h)
+    if q >= 1.0:
+        return 0.0
+    t = 1.0 - q
+    # f'(q)/q = -20 (1-q)^3
+    return a * (-20.0 * t * t * t) / (4.0 * h * h)
+
+
+@njit(cache=True)
+def _c2_d2(r, h, a):
+    q = r / (2.0 * h)
+    if q >= 1.0:
+        return 0.0
+    t = 1.0 - q
+    # f''(q) = 20 (1-q)^2 (4q - 1)
+    return a * 20.0 * t * t * (4.0 * q - 1.0) / (4.0 * h * h)
+
+
+# ---------------------------------------------------------------- Wendland C4
+@njit(cache=True)
+def _c4_w(r, h, a):
+    q = r / (2.0 * h)
+    if q >= 1.0:
+        return 0.0
+    t = 1.0 - q
+    t2 = t * t
+    return a * t2 * t2 * t2 * (35.0 * q * q + 18.0 * q + 3.0)
+
+
+@njit(cache=True)
+def _c4_f(r, h, a):
+    q = r / (2.0 * h)
+    if q >= 1.0:
+        return 0.0
+    t = 1.0 - q
+    t2 = t * t
+    # f'(q)/q = -56 (1-q)^5 (5q + 1)
+    return a * (-56.0 * t2 * t2 * t * (5.0 * q + 1.0)) / (4.0 * h * h)
+
+
+@njit(cache=True)
+def _c4_d2(r, h, a):
+    q = r / (2.0 * h)
+    if q >= 1.0:
+        return 0.0
+    t = 1.0 - q
+    t2 = t * t
+    # f''(q) = 56 (1-q)^4 (35q^2 - 4q - 1)
+    return a * 56.0 * t2 * t2 * (35.0 * q * q - 4.0 * q - 1.0) / (4.0 * h * h)
+
+
+# ---------------------------------------------------------------- Wendland C6
+@njit(cache=True)
+def _c6_w(r, h, a):
+    q = r / (2.0 * h)
+    if q >= 1.0:
+        return 0.0
+    t = 1.0 - q
+    t2 = t * t
+    t4 = t2 * t2
+    return a * t4 * t4 * (((32.0 * q + 25.0) * q + 8.0) * q + 1.0)
+
+
+@njit(cache=True)
+def _c6_f(r, h, a):
+    q = r / (2.0 * h)
+    if q >= 1.0:
+        return 0.0
+    t = 1.0 - q
+    t2 = t * t
+    t4 = t2 * t2
+    # f'(q)/q = -22 (1-q)^7 (16q^2 + 7q + 1)
+    return a * (-22.0 * t4 * t2 * t * ((16.0 * q + 7.0) * q + 1.0)) / (4.0 * h * h)
+
+
+@njit(cache=True)
+def _c6_d2(r, h, a):
+    q = r / (2.0 * h)
+    if q >= 1.0:
+        return 0.0
+    t = 1.0 - q
+    t2 = t * t
+    t4 = t2 * t2
+    # f''(q) = 22 (1-q)^6 (160q^3 + 15q^2 - 6q - 1)
+    return a * 22.0 * t4 * t2 * (((160.0 * q + 15.0) * q - 6.0) * q - 1.0) / (4.0 * h * h)
+
+
+# ---------------------------------------------------------------- cubic spline
+@njit(cache=True)
+def _cubic_w(r, h, a):
+    q = r / h
+    if q >= 2.0:
+        return 0.0
+    if q < 1.0:
+        return a * (1.0 - 1.5 * q * q + 0.75 * q * q * q)
+    t = 2.0 - q
+    return a * 0.25 * t * t * t
+
+
+@njit(cache=True)
+def _cubic_f(r, h, a):
+    q = r / h
+    if q >= 2.0:
+        return 0.0
+    if q < 1.0:
+        # f'(q)/q = 3/4 (3q - 4)
+        return a * 0.75 * (3.0 * q - 4.0) / (h * h)
+    t = 2.0 - q
+    # f'(q)/q = -3/4 (2-q)^2 / q   (q >= 1, no singularity)
+    return a * (-0.75 * t * t / q) / (h * h)
+
+
+@njit(cache=True)
+def _cubic_d2(r, h, a):
+    q = r / h
+    if q >= 2.0:
+        return 0.0
+    if q < 1.0:
+        return a * (4.5 * q - 3.0) / (h * h)
+    return a * 1.5 * (2.0 - q) / (h * h)
+
+
+KERNEL_IDS = {"wendland_c2": 0, "wendland_c4": 1, "wendland_c6": 2, "cubic_spline": 3}
+
+
+@njit(cache=True, inline="always")
+def kernel_w(r, kp):
+    """W(r) for kernel parameters kp = (kernel id, h, alpha_d / h^d)."""
+    kid = kp[0]
+    if kid == 2:
+        return _c6_w(r, kp[1], kp[2])
+    if kid == 0:
+        return _c2_w(r, kp[1], kp[2])
+    if kid == 1:
+        return _c4_w(r, kp[1], kp[2])
+    return _cubic_w(r, kp[1], kp[2])
+
+
+@njit(cache=True, inline="always")
+def kernel_f(r, kp):
+    """W'(r) / r: grad_i W_ij = kernel_f(r_ij, kp) (x_i - x_j); finite at r = 0."""
+    kid = kp[0]
+    if kid == 2:
+        return _c6_f(r, kp[1], kp[2])
+    if kid == 0:
+        return _c2_f(r, kp[1], kp[2])
+    if kid == 1:
+        return _c4_f(r, kp[1], kp[2])
+    return _cubic_f(r, kp[1], kp[2])
+
+
+@njit(cache=True, inline="always")
+def kernel_d2(r, kp):
+    """W''(r)."""
+    kid = kp[0]
+    if kid == 2:
+        return _c6_d2(r, kp[1], kp[2])
+    if kid == 0:
+        return _c2_d2(r, kp[1], kp[2])
+    if kid == 1:
+        return _c4_d2(r, kp[1], kp[2])
+    return _cubic_d2(r, kp[1], kp[2])
+
+
+@njit(cache=True)
+def hessian_coefficients(r, kp):
+    """(a, b) with HessW(x) = a I + b x x^T at |x| = r (b = 0 at r = 0, where HessW = a I)."""
+    a = kernel_f(r, kp)
+    if r > 0.0:
+        return a, (kernel_d2(r, kp) - a) / (r * r)
+    return a, 0.0
+
+
+@njit(cache=True)
+def _evaluate(which, r, kp):
+    out = np.empty(r.size)
+    flat = r.ravel()
+    for k in range(flat.size):
+        if which == 0:
+            out[k] = kernel_w(flat[k], kp)
+        elif which == 1:
+            out[k] = kernel_f(flat[k], kp)
+        else:
+            out[k] = kernel_d2(flat[k], kp)
+    return out.reshape(r.shape)
+
+
+@dataclass(frozen=True)
+class Kernel:
+    """A smoothing kernel bound to a dimension and a smoothing length.
+
+    `params` = (kernel id, h, alpha_d / h^d) is what compute kernels take (kernel_w/f/d2(r, params)).
+    The methods below evaluate on numpy arrays, for tests and set-up, not hot loops.
+    """
+
+    name: str
+    dim: int
+    h: float
+    params: tuple
+
+    @property
+    def support(self) -> float:
+        """Support radius 2h."""
+        return 2.0 * self.h
+
+    def value(self, r):
+        """W(r) for an array of distances."""
+        return _evaluate(0, np.asarray(r, dtype=np.float64), self.params)
+
+    def radial(self, r):
+        """W'(r)/r for an array of distances."""
+        return _evaluate(1, np.asarray(r, dtype=np.float64), self.params)
+
+    def gradient(self, x):
+        """grad W(x) for displacement vectors x of shape (n, dim)."""
+        x = np.asarray(x, dtype=np.float64).reshape(-1, self.dim)
+        return self.radial(np.sqrt((x * x).sum(axis=1)))[:, None] * x
+
+    def hessian(self, x):
+        """HessW(x) for displacement vectors x of shape (n, dim); returns (n, dim, dim)."""
+        x = np.asarray(x, dtype=np.float64).reshape(-1, self.dim)
+        r = np.sqrt((x * x).sum(axis=1))
+        a = self.radial(r)
+        d2 = _evaluate(2, r, self.params)
+        safe = np.where(r > 0.0, r * r, 1.0)
+        b = np.where(r > 0.0, (d2 - a) / safe, 0.0)
+        return a[:, None, None] * np.eye(self.dim) + b[:, None, None] * x[:, :, None] * x[:, None, :]
+
+
+def normalisation(name: str, dim: int) -> float:
+    """alpha_d of kernel `name` in `dim` dimensions (W = alpha_d / h^d f(q))."""
+    return _NORMALISATION[name][dim - 1]
+
+
+def make_kernel(name: str, dim: int, h: float) -> Kernel:
+    """Kernel `name` (one of KERNEL_NAMES) in `dim` dimensions with smoothing length `h`."""
+    if name not in _NORMALISATION:
+        raise ValueError(f"unknown kernel {name!r}; choose one of {', '.join(KERNEL_NAMES)}")
+    if dim not in (1, 2, 3):
+        raise ValueError(f"dimension must be 1, 2 or 3, got {dim}")
+    if not h > 0.0:
+        raise ValueError(f"smoothing length must be > 0, got {h}")
+    a = normalisation(name, dim) / h**dim
+    return Kernel(name=name, dim=dim, h=float(h), params=(KERNEL_IDS[name], float(h), float(a)))

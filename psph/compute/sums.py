@@ -1,0 +1,237 @@
+"""Per-particle SPH sums over CSR neighbour lists (numba; no communication).
+
+Conventions (thesis 000 section 4.1.3, seed 001 section 3):
+    x_ij = x_i - x_j,  r = |x_ij|,  grad_i W_ij = f(r) x_ij  with f = W'(r)/r (compute.smoothing),
+    V_j  = particle volume (the thesis' omega_j).
+Every function fills `out` for the rows 0..n_rows-1 of the list (n_rows = ptr.size - 1, the owned
+particles); neighbours j index all local particles (owned + halo), whose fields must be current.
+"""
+
+import numpy as np
+from numba import njit
+
+from psph.compute.smoothing import kernel_f, kernel_w
+
+
+@njit(cache=True)
+def pair(pos, i, j, d):
+    """(x_ij components padded to 3, r) for particles i, j."""
+    r0 = pos[i, 0] - pos[j, 0]
+    r1 = pos[i, 1] - pos[j, 1] if d > 1 else 0.0
+    r2 = pos[i, 2] - pos[j, 2] if d > 2 else 0.0
+    return r0, r1, r2, np.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+
+
+@njit(cache=True)
+def store(out, i, d, g0, g1, g2):
+    out[i, 0] = g0
+    if d > 1:
+        out[i, 1] = g1
+    if d > 2:
+        out[i, 2] = g2
+
+
+@njit(cache=True)
+def concentration(pos, vol, ptr, idx, kp, out):
+    """C_i = sum_j W_ij V_j including the self term (thesis eq. 4.33, 6.8)."""
+    d = pos.shape[1]
+    w0 = kernel_w(0.0, kp)
+    for i in range(ptr.size - 1):
+        c = w0 * vol[i]
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            c += kernel_w(pair(pos, i, j, d)[3], kp) * vol[j]
+        out[i] = c
+
+
+@njit(cache=True)
+def grad_concentration(pos, vol, ptr, idx, kp, out):
+    """grad C_i = sum_j grad_i W_ij V_j (thesis eq. 4.34, 8.18-8.19 up to the sign convention)."""
+    d = pos.shape[1]
+    for i in range(ptr.size - 1):
+        g0 = 0.0
+        g1 = 0.0
+        g2 = 0.0
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            r0, r1, r2, r = pair(pos, i, j, d)
+            s = kernel_f(r, kp) * vol[j]
+            g0 += s * r0
+            g1 += s * r1
+            g2 += s * r2
+        store(out, i, d, g0, g1, g2)
+
+
+@njit(cache=True)
+def gradient(pos, vol, ptr, idx, kp, phi, out):
+    """Plain SPH gradient of a scalar: sum_j phi_j grad_i W_ij V_j (thesis eq. 4.31)."""
+    d = pos.shape[1]
+    for i in range(ptr.size - 1):
+        g0 = 0.0
+        g1 = 0.0
+        g2 = 0.0
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            r0, r1, r2, r = pair(pos, i, j, d)
+            s = kernel_f(r, kp) * vol[j] * phi[j]
+            g0 += s * r0
+            g1 += s * r1
+            g2 += s * r2
+        store(out, i, d, g0, g1, g2)
+
+
+@njit(cache=True)
+def gradient_difference(pos, vol, ptr, idx, kp, phi, out):
+    """Difference-form gradient of a scalar: sum_j (phi_j - phi_i) grad_i W_ij V_j."""
+    d = pos.shape[1]
+    for i in range(ptr.size - 1):
+        g0 = 0.0
+        g1 = 0.0
+        g2 = 0.0
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            r0, r1, r2, r = pair(pos, i, j, d)
+            s = kernel_f(r, kp) * vol[j] * (phi[j] - phi[i])
+            g0 += s * r0
+            g1 += s * r1
+            g2 += s * r2
+        store(out, i, d, g0, g1, g2)
+
+
+@njit(cache=True)
+def apply_renormalisation(lmat, grad):
+    """grad_i <- L_i grad_i in place (renormalised gradient, seed 001 eq. 15)."""
+    n, d = grad.shape
+    tmp = np.empty(d)
+    for i in range(n):
+        for a in range(d):
+            s = 0.0
+            for b in range(d):
+                s += lmat[i, a, b] * grad[i, b]
+            tmp[a] = s
+        for a in range(d):
+            grad[i, a] = tmp[a]
+
+
+@njit(cache=True)
+def divergence(pos, vol, ptr, idx, kp, u, out):
+    """Difference-form divergence: sum_j (u_j - u_i) . grad_i W_ij V_j (seed 001 eq. 11)."""
+    d = pos.shape[1]
+    for i in range(ptr.size - 1):
+        s = 0.0
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            r0, r1, r2, r = pair(pos, i, j, d)
+            du = (u[j, 0] - u[i, 0]) * r0
+            if d > 1:
+                du += (u[j, 1] - u[i, 1]) * r1
+            if d > 2:
+                du += (u[j, 2] - u[i, 2]) * r2
+            s += kernel_f(r, kp) * vol[j] * du
+        out[i] = s
+
+
+@njit(cache=True)
+def laplacian_morris(pos, vol, ptr, idx, kp, phi, out):
+    """Morris Laplacian of a scalar: 2 sum_j (phi_j - phi_i) F_ij V_j, F_ij = x_ji.grad_i W_ij / r^2.
+
+    F_ij is the seed 001 eq. 14 kernel factor; with grad_i W_ij = f x_ij it equals -f(r) >= 0.
+    """
+    for i in range(ptr.size - 1):
+        s = 0.0
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            r = pair(pos, i, j, pos.shape[1])[3]
+            s -= kernel_f(r, kp) * vol[j] * (phi[j] - phi[i])
+        out[i] = 2.0 * s
+
+
+@njit(cache=True)
+def viscous_pi(pos, vol, ptr, idx, kp, u, out):
+    """sum_j pi_ij grad_i W_ij V_j with pi_ij = K (u_j - u_i).x_ji / |x_ji|^2, K = 2 (d + 2).
+
+    Seed 001 eq. 11: mu times this sum approximates div of the viscous stress (mu lap u for a
+    divergence-free u). Coincident pairs (r = 0) contribute nothing.
+    """
+    d = pos.shape[1]
+    kk = 2.0 * (d + 2)
+    for i in range(ptr.size - 1):
+        g0 = 0.0
+        g1 = 0.0
+        g2 = 0.0
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            r0, r1, r2, r = pair(pos, i, j, d)
+            if r == 0.0:
+                continue
+            # (u_j - u_i) . x_ji = -(u_j - u_i) . x_ij
+            du = (u[j, 0] - u[i, 0]) * r0
+            if d > 1:
+                du += (u[j, 1] - u[i, 1]) * r1
+            if d > 2:
+                du += (u[j, 2] - u[i, 2]) * r2
+            s = -kk * du / (r * r) * kernel_f(r, kp) * vol[j]
+            g0 += s * r0
+            g1 += s * r1
+            g2 += s * r2
+        store(out, i, d, g0, g1, g2)
+
+
+@njit(cache=True)
+def renormalisation_matrix(pos, vol, ptr, idx, kp, out):
+    """M_i = sum_j (x_j - x_i) (x) grad_i W_ij V_j (symmetric; = I on a full, regular support).
+
+    The renormalisation matrix of seed 001 eq. 15 (index misprint corrected, seeds/README.md) is
+    L_i = M_i^{-1}: see invert_renormalisation.
+    """
+    d = pos.shape[1]
+    for i in range(ptr.size - 1):
+        for a in range(d):
+            for b in range(d):
+                out[i, a, b] = 0.0
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            r0, r1, r2, r = pair(pos, i, j, d)
+            s = -kernel_f(r, kp) * vol[j]
+            out[i, 0, 0] += s * r0 * r0
+            if d > 1:
+                out[i, 0, 1] += s * r0 * r1
+                out[i, 1, 1] += s * r1 * r1
+            if d > 2:
+                out[i, 0, 2] += s * r0 * r2
+                out[i, 1, 2] += s * r1 * r2
+                out[i, 2, 2] += s * r2 * r2
+        for a in range(d):
+            for b in range(a):
+                out[i, a, b] = out[i, b, a]
+
+
+@njit(cache=True)
+def smallest_eigenvalue(mat, out):
+    """Smallest eigenvalue of each symmetric d x d matrix (lambda_min of M_i, free-surface indicator)."""
+    n = mat.shape[0]
+    d = mat.shape[1]
+    for i in range(n):
+        if d == 1:
+            out[i] = mat[i, 0, 0]
+        elif d == 2:
+            a = mat[i, 0, 0]
+            b = mat[i, 0, 1]
+            c = mat[i, 1, 1]
+            out[i] = 0.5 * (a + c) - np.sqrt(0.25 * (a - c) * (a - c) + b * b)
+        else:
+            out[i] = np.linalg.eigvalsh(np.ascontiguousarray(mat[i]))[0]
+
+
+@njit(cache=True)
+def invert_renormalisation(mat, lambda_min, tol, out):
+    """L_i = M_i^{-1} where lambda_min(M_i) > tol, else the identity (no renormalisation)."""
+    n = mat.shape[0]
+    d = mat.shape[1]
+    for i in range(n):
+        if lambda_min[i] > tol:
+            out[i] = np.linalg.inv(np.ascontiguousarray(mat[i]))
+        else:
+            for a in range(d):
+                for b in range(d):
+                    out[i, a, b] = 1.0 if a == b else 0.0

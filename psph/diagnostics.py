@@ -1,0 +1,69 @@
+"""Particle-distribution and interpolation-accuracy diagnostics (collective: they reduce over ranks).
+
+L2(grad C)   = h sqrt(sum_i |grad C_i|^2 / n)          thesis eq. 3.4
+Linf(grad C) = h max_i |grad C_i|                      thesis eq. 3.5
+L2(d f/dx)   = sqrt(sum_i (d_x f_i^SPH - d_x f_i)^2 / n) thesis eq. 3.7, plain SPH gradient (eq. 4.31)
+
+with the test function (thesis eq. 3.6, written with its wavelength l, see DiagnosticsSpec)
+f = sin(2 pi x / l) + cos(2 pi y / l). Sums run over FLUID particles.
+"""
+
+import numpy as np
+
+from psph.compute import sums
+from psph.parallel.comm import allreduce_max, allreduce_sum
+from psph.particles import Kind
+
+
+def grad_c(system) -> np.ndarray:
+    """grad C of the owned particles (the halo positions and volumes must be current)."""
+    p = system.particles
+    k = system.kernel
+    out = np.zeros((p.n_owned, p.dim))
+    sums.grad_concentration(p["position"], p["volume"], system.nbr_ptr, system.nbr_idx, k.params, out)
+    return out
+
+
+def fluid_mask(system) -> np.ndarray:
+    return system.particles.owned("kind") == Kind.FLUID
+
+
+def norms(comm, values: np.ndarray, mask: np.ndarray, scale: float = 1.0) -> tuple:
+    """(scale * RMS, scale * max) of |values| over the masked rows of all ranks. Collective."""
+    v = values[mask]
+    mag2 = np.sum(v * v, axis=tuple(range(1, v.ndim)))
+    total = allreduce_sum(comm, np.array([mag2.sum(), float(len(v))]))
+    peak = allreduce_max(comm, float(np.sqrt(mag2.max())) if len(v) else 0.0)
+    rms = np.sqrt(total[0] / total[1]) if total[1] > 0 else 0.0
+    return scale * rms, scale * peak
+
+
+def test_function(pos: np.ndarray, wavelength: float):
+    """(f, d f/dx) of the test function at `pos`."""
+    k = 2.0 * np.pi / wavelength
+    f = np.sin(k * pos[:, 0])
+    if pos.shape[1] > 1:
+        f = f + np.cos(k * pos[:, 1])
+    return f, k * np.cos(k * pos[:, 0])
+
+
+def dfdx_sph(system, wavelength: float) -> np.ndarray:
+    """Plain SPH x-derivative of the test function at the owned particles."""
+    p = system.particles
+    k = system.kernel
+    f, _ = test_function(p["position"], wavelength)
+    out = np.zeros((p.n_owned, p.dim))
+    sums.gradient(p["position"], p["volume"], system.nbr_ptr, system.nbr_idx, k.params, f, out)
+    return out[:, 0]
+
+
+def distribution_report(system, wavelength: float, grad=None) -> dict:
+    """L2_grad_c, Linf_grad_c and L2_dfdx of the current distribution. Collective."""
+    if grad is None:
+        grad = grad_c(system)
+    mask = fluid_mask(system)
+    l2, linf = norms(system.comm, grad, mask, system.kernel.h)
+    exact = test_function(system.particles.owned("position"), wavelength)[1]
+    err = dfdx_sph(system, wavelength) - exact
+    l2_dfdx, _ = norms(system.comm, err, mask)
+    return {"L2_grad_c": l2, "Linf_grad_c": linf, "L2_dfdx": l2_dfdx}

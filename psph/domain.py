@@ -1,0 +1,53 @@
+"""The computational box: bounds and periodicity."""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Domain:
+    """Axis-aligned box [lower, upper) with per-axis periodicity.
+
+    Along a periodic axis positions are wrapped into [lower, upper); along a non-periodic axis the box
+    only bounds where particles may be (walls included) and a particle outside it has escaped.
+    """
+
+    lower: tuple
+    upper: tuple
+    periodic: tuple
+
+    @property
+    def dim(self) -> int:
+        return len(self.lower)
+
+    @property
+    def length(self) -> np.ndarray:
+        return np.asarray(self.upper, dtype=np.float64) - np.asarray(self.lower, dtype=np.float64)
+
+    def wrap(self, pos: np.ndarray) -> None:
+        """Wrap positions into the box along periodic axes, in place."""
+        lo = np.asarray(self.lower)
+        length = self.length
+        for a in range(self.dim):
+            if self.periodic[a]:
+                pos[:, a] = lo[a] + np.mod(pos[:, a] - lo[a], length[a])
+                # mod can return exactly `length` for tiny negative inputs
+                pos[pos[:, a] >= self.upper[a], a] = lo[a]
+
+    def outside(self, pos: np.ndarray) -> np.ndarray:
+        """Mask of positions outside the box along non-periodic axes (escaped particles)."""
+        mask = np.zeros(len(pos), dtype=bool)
+        for a in range(self.dim):
+            if not self.periodic[a]:
+                mask |= (pos[:, a] < self.lower[a]) | (pos[:, a] > self.upper[a])
+        return mask
+
+    def minimum_image(self, dx: np.ndarray) -> np.ndarray:
+        """Displacement vectors reduced to the nearest periodic image (a copy)."""
+        out = np.array(dx, dtype=np.float64)
+        length = self.length
+        for a in range(self.dim):
+            if self.periodic[a]:
+                out[..., a] -= length[a] * np.round(out[..., a] / length[a])
+        return out

@@ -1,0 +1,55 @@
+"""Typed errors. Each carries a one-line message meant for the user (the CLI prints it, no traceback)."""
+
+
+class PsphError(Exception):
+    """Base class: an error psph diagnoses and reports in one line."""
+
+    exit_code = 1
+
+
+class SceneError(PsphError):
+    """Invalid scene: names the key path of the offending value."""
+
+    exit_code = 2
+
+    def __init__(self, key: str, message: str):
+        self.key = key
+        super().__init__(f"{key}: {message}" if key else message)
+
+
+class UsageError(PsphError):
+    """Invalid command line (bad --set, missing file, output directory in use)."""
+
+    exit_code = 2
+
+
+class NumericalError(PsphError):
+    """The computation broke down (NaN, escaped particle, stalled iteration): stop and diagnose."""
+
+    def __init__(self, message: str, *, step=None, time=None, gid=None, position=None):
+        self.step, self.time, self.gid, self.position = step, time, gid, position
+        where = []
+        if step is not None:
+            where.append(f"step {step}")
+        if time is not None:
+            where.append(f"t = {time:.6g}")
+        if gid is not None:
+            where.append(f"particle gid {gid}")
+        if position is not None:
+            where.append("at (" + ", ".join(f"{v:.6g}" for v in position) + ")")
+        super().__init__(message + (" [" + ", ".join(where) + "]" if where else ""))
+
+
+class SolverError(NumericalError):
+    """A PETSc linear solve did not converge: carries the converged reason and iteration count."""
+
+    def __init__(self, solver: str, reason: str, iterations: int, **where):
+        self.solver, self.reason, self.iterations = solver, reason, iterations
+        super().__init__(f"{solver} linear solve diverged: {reason} after {iterations} iterations", **where)
+
+
+def rebuild_error(cls, message: str) -> PsphError:
+    """An instance of `cls` carrying `message` as is (used to re-raise another rank's error)."""
+    err = cls.__new__(cls)
+    Exception.__init__(err, message)
+    return err

@@ -1,0 +1,1 @@
+"""Output: snapshots, XDMF, history and summary files."""

@@ -1,0 +1,64 @@
+"""history.csv (one row per output step or iteration) and summary.json, written by rank 0 atomically."""
+
+import csv
+import io
+import math
+from pathlib import Path
+
+from psph.io.files import write_json_atomic, write_text_atomic
+
+HISTORY_NAME = "history.csv"
+SUMMARY_NAME = "summary.json"
+
+
+class History:
+    """Diagnostics rows with a `time` column; the file is rewritten whole (temporary file + rename).
+
+    Columns are fixed by the first row; later rows may not add columns (a programming error).
+    """
+
+    def __init__(self, comm, out_dir):
+        self.comm = comm
+        self.path = Path(out_dir) / HISTORY_NAME
+        self.columns = None
+        self.rows = []
+
+    def append(self, row: dict, flush=True) -> None:
+        if "time" not in row:
+            raise KeyError("history rows need a 'time' column")
+        if self.columns is None:
+            self.columns = ["time"] + [k for k in row if k != "time"]
+        elif set(row) - set(self.columns):
+            raise KeyError(f"history columns {sorted(set(row) - set(self.columns))} not in the first row")
+        self.rows.append(dict(row))
+        if flush:
+            self.flush()
+
+    def flush(self) -> None:
+        if self.comm.rank != 0 or self.columns is None:
+            return
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=self.columns, restval="", lineterminator="\n")
+        writer.writeheader()
+        for row in self.rows:
+            writer.writerow({k: _fmt(v) for k, v in row.items()})
+        write_text_atomic(self.path, buf.getvalue())
+
+
+def _fmt(value):
+    if isinstance(value, float):
+        return repr(value) if math.isfinite(value) else str(value)
+    return value
+
+
+def read_history(path) -> list:
+    """Rows of a history.csv as dicts of floats (empty cells -> None)."""
+    with open(path, newline="") as f:
+        return [{k: (float(v) if v not in ("", None) else None) for k, v in row.items()}
+                for row in csv.DictReader(f)]
+
+
+def write_summary(comm, out_dir, summary: dict) -> None:
+    """summary.json (rank 0): wall_time_s, ranks, n_particles, steps, final diagnostics, ..."""
+    if comm.rank == 0:
+        write_json_atomic(Path(out_dir) / SUMMARY_NAME, summary)

@@ -1,0 +1,142 @@
+"""Snapshots: collective parallel HDF5 in gid order, indexed by an XDMF time series for ParaView.
+
+Output contract (read by tools and tests; keep stable):
+    OUT/snapshot_NNNNNN.h5   /particles/position (n x d, rows in ascending gid), /particles/gid,
+                             /particles/kind, one dataset per field; attributes `time`, `step`
+    OUT/psph.xdmf            temporal collection of all snapshots (ParaView: File > Open, Xdmf Reader)
+Each file is written to a temporary name and renamed once complete.
+"""
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from psph.io.files import replace_atomically, write_text_atomic
+from psph.parallel.ordering import to_gid_blocks
+
+# Debian's h5py picks its MPI build only under mpiexec unless told otherwise; psph always wants it.
+os.environ.setdefault("H5PY_ALWAYS_USE_MPI", "1")
+import h5py  # noqa: E402
+
+XDMF_NAME = "psph.xdmf"
+
+
+def h5py_has_mpi() -> bool:
+    return bool(h5py.get_config().mpi)
+
+
+def snapshot_name(index: int) -> str:
+    return f"snapshot_{index:06d}.h5"
+
+
+def _write_collective(comm, path, start, total, data, attrs):
+    with h5py.File(path, "w", driver="mpio", comm=comm) as f:
+        grp = f.create_group("particles")
+        for name, arr in data.items():
+            ds = grp.create_dataset(name, shape=(total,) + arr.shape[1:], dtype=arr.dtype)
+            with ds.collective:
+                ds[start:start + len(arr)] = arr
+        for k, v in attrs.items():
+            f.attrs[k] = v
+
+
+def _write_gathered(comm, path, data, attrs):
+    """Fallback for an h5py without MPI: rank 0 gathers the (gid-ordered) blocks and writes."""
+    parts = {name: comm.gather(arr, root=0) for name, arr in data.items()}
+    if comm.rank == 0:
+        with h5py.File(path, "w") as f:
+            grp = f.create_group("particles")
+            for name, blocks in parts.items():
+                grp.create_dataset(name, data=np.concatenate(blocks))
+            for k, v in attrs.items():
+                f.attrs[k] = v
+
+
+class SnapshotWriter:
+    """Writes snapshots into `out_dir` and keeps the XDMF index current. Collective `write`."""
+
+    def __init__(self, comm, out_dir, domain):
+        self.comm = comm
+        self.out_dir = Path(out_dir)
+        self.domain = domain
+        self.entries = []  # (file name, time, step, {field: (shape tail, dtype)})
+
+    def write(self, particles, step: int, time: float, extra=None, names=None, exclude=("row",)) -> Path:
+        """Write owned particles' fields (all but `exclude`, or `names`) plus `extra` owned arrays."""
+        if names is None:
+            names = [n for n in particles.names if n not in exclude]
+        data = {n: particles.owned(n) for n in names}
+        data["position"] = data["position"].copy()
+        self.domain.wrap(data["position"])
+        for name, arr in (extra or {}).items():
+            data[name] = np.asarray(arr)
+        start, total, ordered = to_gid_blocks(self.comm, particles.owned("gid"), data)
+        if particles.dim == 1:
+            ordered["position_xyz"] = np.concatenate(
+                [ordered["position"], np.zeros((len(ordered["position"]), 2))], axis=1)
+        name = snapshot_name(len(self.entries))
+        path = self.out_dir / name
+        tmp = path.with_name(name + ".tmp")
+        attrs = {"time": float(time), "step": int(step)}
+        if h5py_has_mpi():
+            _write_collective(self.comm, str(tmp), start, total, ordered, attrs)
+        else:
+            _write_gathered(self.comm, str(tmp), ordered, attrs)
+        self.comm.Barrier()
+        meta = {n: (a.shape[1:], a.dtype) for n, a in ordered.items()}
+        self.entries.append((name, float(time), int(step), total, meta))
+        if self.comm.rank == 0:
+            replace_atomically(tmp, path)
+            write_text_atomic(self.out_dir / XDMF_NAME, xdmf_document(self.entries, particles.dim))
+        self.comm.Barrier()
+        return path
+
+
+def _number_type(dtype) -> tuple:
+    dtype = np.dtype(dtype)
+    if dtype.kind == "f":
+        return "Float", dtype.itemsize
+    if dtype.kind in "iu":
+        if dtype.itemsize == 1:
+            return ("Char" if dtype.kind == "i" else "UChar"), 1
+        return ("Int" if dtype.kind == "i" else "UInt"), dtype.itemsize
+    return None
+
+
+def _data_item(file, dataset, dims, dtype) -> str:
+    number, precision = _number_type(dtype)
+    shape = " ".join(str(d) for d in dims)
+    return (f'<DataItem Dimensions="{shape}" NumberType="{number}" Precision="{precision}" Format="HDF">'
+            f"{file}:/particles/{dataset}</DataItem>")
+
+
+def xdmf_document(entries, dim: int) -> str:
+    """XDMF 2 temporal collection of Polyvertex grids, one per snapshot (scalars and vectors)."""
+    grids = []
+    for file, time, step, total, meta in entries:
+        if dim == 1:
+            geom = ('<Geometry GeometryType="XYZ">'
+                    + _data_item(file, "position_xyz", (total, 3), np.float64) + "</Geometry>")
+        else:
+            geom = (f'<Geometry GeometryType="{"XY" if dim == 2 else "XYZ"}">'
+                    + _data_item(file, "position", (total, dim), np.float64) + "</Geometry>")
+        attrs = []
+        for name, (tail, dtype) in meta.items():
+            if name in ("position", "position_xyz") or _number_type(dtype) is None:
+                continue
+            if tail == ():
+                kind = "Scalar"
+            elif tail == (dim,) and dim > 1:
+                kind = "Vector"
+            else:
+                continue  # tensors stay in the HDF5 file only
+            attrs.append(f'<Attribute Name="{name}" AttributeType="{kind}" Center="Node">'
+                         + _data_item(file, name, (total,) + tuple(tail), dtype) + "</Attribute>")
+        grids.append(
+            f'<Grid Name="step_{step}" GridType="Uniform"><Time Value="{time!r}"/>'
+            f'<Topology TopologyType="Polyvertex" NumberOfElements="{total}" NodesPerElement="1"/>'
+            + geom + "".join(attrs) + "</Grid>")
+    return ('<?xml version="1.0" ?>\n<Xdmf Version="2.0"><Domain>'
+            '<Grid Name="particles" GridType="Collection" CollectionType="Temporal">\n'
+            + "\n".join(grids) + "\n</Grid></Domain></Xdmf>\n")

@@ -1,0 +1,1 @@
+"""Parallel layer: decomposition, migration, halo exchange, ordering, reductions (all collective)."""

@@ -1,0 +1,81 @@
+"""Collective helpers over an mpi4py communicator (every function here communicates)."""
+
+import numpy as np
+from mpi4py import MPI
+
+
+def exclusive_scan(comm, value: int) -> int:
+    """Sum of `value` over the ranks below this one (0 on rank 0). Collective."""
+    result = comm.exscan(int(value), op=MPI.SUM)
+    return 0 if result is None else int(result)
+
+
+def allreduce_sum(comm, value):
+    """Global sum of a number or numpy array. Collective."""
+    if isinstance(value, np.ndarray):
+        out = np.empty_like(value)
+        comm.Allreduce(np.ascontiguousarray(value), out, op=MPI.SUM)
+        return out
+    return comm.allreduce(value, op=MPI.SUM)
+
+
+def allreduce_max(comm, value):
+    """Global maximum of a number or numpy array. Collective."""
+    if isinstance(value, np.ndarray):
+        out = np.empty_like(value)
+        comm.Allreduce(np.ascontiguousarray(value), out, op=MPI.MAX)
+        return out
+    return comm.allreduce(value, op=MPI.MAX)
+
+
+def allreduce_min(comm, value):
+    """Global minimum of a number or numpy array. Collective."""
+    if isinstance(value, np.ndarray):
+        out = np.empty_like(value)
+        comm.Allreduce(np.ascontiguousarray(value), out, op=MPI.MIN)
+        return out
+    return comm.allreduce(value, op=MPI.MIN)
+
+
+def exchange_counts(comm, send_counts: np.ndarray) -> np.ndarray:
+    """Each rank learns how many items every other rank sends it. Collective."""
+    recv = np.empty(comm.size, dtype=np.int64)
+    comm.Alltoall(np.ascontiguousarray(send_counts, dtype=np.int64), recv)
+    return recv
+
+
+def alltoallv(comm, data: np.ndarray, send_counts: np.ndarray, recv_counts: np.ndarray) -> np.ndarray:
+    """Send consecutive blocks of `data` (rows grouped by destination rank) to every rank. Collective.
+
+    data: (n, ...) rows ordered by destination; send_counts/recv_counts: rows per rank.
+    Returns the received rows (sum(recv_counts), ...) ordered by source rank.
+    """
+    data = np.ascontiguousarray(data)
+    tail = data.shape[1:]
+    width = int(np.prod(tail)) if tail else 1
+    out = np.empty((int(recv_counts.sum()),) + tail, dtype=data.dtype)
+    sc = np.asarray(send_counts, dtype=np.int64) * width
+    rc = np.asarray(recv_counts, dtype=np.int64) * width
+    sd = np.concatenate(([0], np.cumsum(sc)[:-1]))
+    rd = np.concatenate(([0], np.cumsum(rc)[:-1]))
+    flat_send = data.reshape(-1)
+    flat_recv = out.reshape(-1)
+    comm.Alltoallv([flat_send, (sc, sd)], [flat_recv, (rc, rd)])
+    return out
+
+
+def raise_if_any(comm, error) -> None:
+    """If any rank holds an error, raise the lowest such rank's error on every rank. Collective.
+
+    Lets a check that fails on one rank stop all ranks together instead of leaving them in a collective.
+    """
+    from psph.errors import PsphError, rebuild_error
+
+    local = None if error is None else (type(error), str(error))
+    if local is not None and not isinstance(error, PsphError):
+        local = (PsphError, f"{type(error).__name__}: {error}")
+    for item in comm.allgather(local):
+        if item is not None:
+            err = error if (error is not None and item == local) else rebuild_error(*item)
+            err.collective = True  # every rank raises it: the CLI can exit cleanly
+            raise err

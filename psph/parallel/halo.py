@@ -1,0 +1,90 @@
+"""Particle migration and halo exchange, periodic images included (every function communicates).
+
+A halo pattern is built once per neighbour-list rebuild: for every rank r and every periodic image
+shift s (s_a in {-1, 0, 1} along periodic axes), the owned particles whose image x + s L lies within
+`radius` of rank r's box are sent to r (a rank sends periodic images to itself too). The pattern is
+then reused to refresh any chosen set of fields; positions travel with their image shift.
+"""
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+from psph.parallel.comm import alltoallv, exchange_counts
+
+
+@dataclass
+class HaloPattern:
+    """Which owned rows go to which rank (and with what periodic shift) to form the halos."""
+
+    send_index: np.ndarray  # (n_send,) owned rows, grouped by destination rank
+    send_shift: np.ndarray  # (n_send, dim) displacement added to positions
+    send_counts: np.ndarray  # (nranks,)
+    recv_counts: np.ndarray  # (nranks,)
+
+    @property
+    def n_halo(self) -> int:
+        return int(self.recv_counts.sum())
+
+
+def _image_shifts(domain):
+    axes = [(-1, 0, 1) if p else (0,) for p in domain.periodic]
+    return [np.array(s, dtype=np.float64) * domain.length for s in itertools.product(*axes)]
+
+
+def build_halo_pattern(comm, pos_owned: np.ndarray, decomposition, domain, radius: float) -> HaloPattern:
+    """Pattern sending every owned particle (or periodic image) within `radius` of another box. Collective."""
+    me = comm.rank
+    shifts = _image_shifts(domain)
+    index_parts, shift_parts = [], []
+    counts = np.zeros(comm.size, dtype=np.int64)
+    for r, (b_lo, b_hi) in enumerate(decomposition.boxes):
+        for s in shifts:
+            if r == me and not s.any():
+                continue
+            x = pos_owned + s
+            inside = np.all((x > b_lo - radius) & (x < b_hi + radius), axis=1)
+            rows = np.flatnonzero(inside)
+            index_parts.append(rows)
+            shift_parts.append(np.broadcast_to(s, (len(rows), domain.dim)))
+            counts[r] += len(rows)
+    send_index = np.concatenate(index_parts) if index_parts else np.zeros(0, dtype=np.int64)
+    send_shift = (np.concatenate(shift_parts) if shift_parts else np.zeros((0, domain.dim)))
+    return HaloPattern(send_index=send_index.astype(np.int64), send_shift=np.ascontiguousarray(send_shift),
+                       send_counts=counts, recv_counts=exchange_counts(comm, counts))
+
+
+def halo_exchange(comm, particles, pattern: HaloPattern, names) -> None:
+    """Refresh the halo rows of fields `names` from their owners using `pattern`. Collective.
+
+    The halo rows must already exist (attach_halo); positions receive their periodic image shift.
+    """
+    lo = particles.n_owned
+    for name in names:
+        arr = particles[name]
+        data = arr[pattern.send_index]
+        if name == "position":
+            data = data + pattern.send_shift
+        arr[lo:] = alltoallv(comm, data, pattern.send_counts, pattern.recv_counts)
+
+
+def attach_halo(comm, particles, pattern: HaloPattern, names) -> None:
+    """Create the halo rows for `pattern` and fill fields `names` (others are zero). Collective."""
+    received = {}
+    for name in names:
+        data = particles.owned(name)[pattern.send_index]
+        if name == "position":
+            data = data + pattern.send_shift
+        received[name] = alltoallv(comm, data, pattern.send_counts, pattern.recv_counts)
+    particles.set_halo(received, pattern.n_halo)
+
+
+def migrate(comm, particles, dest: np.ndarray) -> None:
+    """Move owned particles (all fields) to the ranks `dest` gives; drops the halo. Collective."""
+    order = np.argsort(dest, kind="stable")
+    counts = np.bincount(dest, minlength=comm.size).astype(np.int64)
+    recv_counts = exchange_counts(comm, counts)
+    arrays = {name: alltoallv(comm, particles.owned(name)[order], counts, recv_counts)
+              for name in particles.names}
+    particles.set_owned(arrays)

@@ -1,0 +1,1 @@
+"""Scenes: TOML files validated into frozen dataclasses."""

@@ -1,0 +1,75 @@
+"""Reading a scene: TOML file + --set overrides -> validated Scene."""
+
+import tomllib
+from pathlib import Path
+
+from psph.errors import SceneError, UsageError
+from psph.scene.schema import Scene
+from psph.scene.validate import build
+
+MAX_SCENE_BYTES = 1 << 20
+
+
+def parse_override(text: str):
+    """'key.path=value' -> (['key', 'path'], value); the value is a TOML literal, a bare word a string."""
+    if "=" not in text:
+        raise UsageError(f"--set {text!r}: expected key.path=value")
+    key, raw = text.split("=", 1)
+    key = key.strip()
+    parts = key.split(".")
+    if not key or any(not p or not p.replace("_", "").isalnum() for p in parts):
+        raise UsageError(f"--set {text!r}: invalid key path {key!r}")
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except (tomllib.TOMLDecodeError, RecursionError):
+        value = raw.strip()
+    return parts, value
+
+
+def apply_overrides(table: dict, overrides) -> dict:
+    """Set each key path in a copy of `table` (creating tables on the way)."""
+    import copy
+
+    table = copy.deepcopy(table)
+    for text in overrides:
+        parts, value = parse_override(text)
+        node = table
+        for k, part in enumerate(parts[:-1]):
+            nxt = node.setdefault(part, {})
+            if not isinstance(nxt, dict):
+                raise SceneError(".".join(parts[: k + 1]), "is a value, not a table: cannot --set below it")
+            node = nxt
+        node[parts[-1]] = value
+    return table
+
+
+def read_table(path) -> dict:
+    """Parse a TOML scene file (data only; nothing in it is executed)."""
+    path = Path(path)
+    if not path.is_file():
+        raise UsageError(f"scene file {str(path)!r} not found")
+    if path.stat().st_size > MAX_SCENE_BYTES:
+        raise SceneError("", f"scene file {str(path)!r} is larger than {MAX_SCENE_BYTES} bytes")
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SceneError("", f"scene file {str(path)!r} is not UTF-8 text ({exc.reason})") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError("", f"scene file {str(path)!r} is not valid TOML: {exc}") from None
+    except RecursionError:
+        raise SceneError("", f"scene file {str(path)!r} is nested too deeply") from None
+
+
+def load_scene(path, overrides=()) -> Scene:
+    """Read, override and validate a scene; raises SceneError naming the offending key."""
+    table = apply_overrides(read_table(path), overrides)
+    return scene_from_table(table)
+
+
+def scene_from_table(table: dict) -> Scene:
+    try:
+        return build(Scene, table)
+    except RecursionError:
+        raise SceneError("", "scene is nested too deeply") from None

@@ -1,0 +1,97 @@
+"""Assembling a simulation from a scene: domain, kernel, distributed particles, output writers."""
+
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from psph import __version__
+from psph.compute.smoothing import make_kernel
+from psph.domain import Domain
+from psph.initial import create_particles
+from psph.io.history import History, write_summary
+from psph.io.snapshots import SnapshotWriter
+from psph.scene.validate import to_table
+from psph.system import BASE_HALO_FIELDS, ParticleSystem
+
+
+def make_domain(scene) -> Domain:
+    d = scene.domain
+    return Domain(lower=tuple(d.lower), upper=tuple(d.upper), periodic=tuple(d.periodic))
+
+
+def build_system(scene, comm, specs=(), halo_fields=BASE_HALO_FIELDS) -> ParticleSystem:
+    """Initial particles of `scene`, decomposed over `comm`, with halo and neighbour lists. Collective."""
+    d = scene.domain
+    kernel = make_kernel(d.kernel, d.dimension, d.h)
+    particles = create_particles(scene, comm, specs)
+    return ParticleSystem(comm, make_domain(scene), kernel, particles, skin=scene.neighbours.skin,
+                          rebalance_threshold=scene.neighbours.rebalance_threshold, halo_fields=halo_fields)
+
+
+def unperturbed(scene):
+    """The same scene on the unperturbed lattice (the Cartesian reference of the thesis' figures)."""
+    return replace(scene, initial=replace(scene.initial, sigma_over_dx=0.0))
+
+
+class Simulation:
+    """A scene set up on a communicator with its output directory. Drivers advance it."""
+
+    def __init__(self, scene, comm, out_dir, *, specs=(), halo_fields=BASE_HALO_FIELDS, log=None):
+        self.started = time.perf_counter()
+        self.scene = scene
+        self.comm = comm.Dup()
+        self.out_dir = Path(out_dir)
+        self.log = log or (lambda msg: None)
+        self.system = build_system(scene, self.comm, specs, halo_fields)
+        self.snapshots = SnapshotWriter(self.comm, self.out_dir, self.system.domain)
+        self.history = History(self.comm, self.out_dir)
+        self.n_particles = self.system.n_global
+
+    def summary(self, steps: int, final: dict, **extra) -> dict:
+        """Write summary.json (collective call; rank 0 writes) and return it."""
+        data = {
+            "psph_version": __version__,
+            "scene": to_table(self.scene),
+            "ranks": self.comm.size,
+            "n_particles": self.n_particles,
+            "steps": steps,
+            "wall_time_s": time.perf_counter() - self.started,
+            "neighbour_rebuilds": self.system.rebuilds,
+            "final": final,
+        }
+        data.update(extra)
+        write_summary(self.comm, self.out_dir, data)
+        return data
+
+
+def estimate_resources(scene) -> tuple:
+    """(particles, bytes, bytes per particle) a run of `scene` needs, before allocating anything.
+
+    Per particle: ~64 doubles of fields, the neighbour list (one index per neighbour within support +
+    skin) and, for IIPS, d^2 matrix entries of 12 bytes per neighbour.
+    """
+    import math
+
+    d = scene.domain
+    radius = (1.0 + scene.neighbours.skin) * d.support / d.dx
+    ball = {1: 2.0 * radius, 2: math.pi * radius**2, 3: 4.0 / 3.0 * math.pi * radius**3}[d.dimension]
+    per_particle = 8 * 64 + ball * (8 + 12 * d.dimension**2)
+    n = d.estimated_particles()
+    return n, n * per_particle, per_particle
+
+
+def machine_memory() -> int:
+    import os
+
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def check_resources(scene, allow_large=False) -> None:
+    """Refuse (SceneError on domain.dx) a scene whose estimated memory exceeds 80% of this machine's."""
+    from psph.errors import SceneError
+
+    n, nbytes, _ = estimate_resources(scene)
+    limit = 0.8 * machine_memory()
+    if nbytes > limit and not allow_large:
+        raise SceneError("domain.dx", f"{n} particles need about {nbytes / 2**30:.3g} GiB, more than 80% of "
+                         f"this machine's {machine_memory() / 2**30:.3g} GiB (run with --allow-large to try anyway)")

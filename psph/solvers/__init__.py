@@ -1,0 +1,1 @@
+"""Solvers built on PETSc objects (every one with an options prefix)."""

@@ -1,0 +1,53 @@
+"""PETSc start-up: initialised once, with the command line's PETSc options, before any PETSc object."""
+
+import glob
+import importlib.util
+import os
+import sys
+
+_state = {"argv": None}
+
+
+def _find_debian_petsc4py() -> None:
+    """Debian installs petsc4py under $PETSC_DIR/lib/python3/dist-packages and adds it to sys.path
+    at start-up only when PETSC_DIR is set or /usr/lib/petsc exists; find it when neither holds."""
+    if importlib.util.find_spec("petsc4py") is not None:
+        return
+    for petsc_dir in sorted(glob.glob("/usr/lib/petscdir/petsc*/*-real")):
+        site = os.path.join(petsc_dir, "lib", "python3", "dist-packages")
+        if os.path.isdir(os.path.join(site, "petsc4py")):
+            os.environ.setdefault("PETSC_DIR", petsc_dir)
+            sys.path.append(site)
+            return
+
+
+def initialize(options=()) -> None:
+    """Initialise petsc4py with `options` (e.g. ['-iips_pc_type', 'hypre', '-log_view']).
+
+    Must run before `from petsc4py import PETSc` anywhere in the process; later calls with the same
+    options are no-ops, with different options an error.
+    """
+    _find_debian_petsc4py()
+    try:
+        import petsc4py
+    except ImportError:
+        from psph.errors import PsphError
+
+        raise PsphError("petsc4py is not installed: run run_scripts/setup.sh (Debian) or "
+                        "`pip install petsc4py` with PETSC_DIR set (see README)") from None
+
+    argv = [sys.argv[0] if sys.argv else "psph"] + list(options)
+    if _state["argv"] is None:
+        petsc4py.init(argv)
+        _state["argv"] = argv
+    elif _state["argv"] != argv:
+        raise RuntimeError("PETSc is already initialised with other options")
+
+
+def petsc():
+    """The PETSc module, initialising with no options if nobody did."""
+    if _state["argv"] is None:
+        initialize(())
+    from petsc4py import PETSc
+
+    return PETSc

@@ -1,0 +1,138 @@
+"""The distributed particle system: particles, decomposition, halo and neighbour lists on one rank.
+
+Collective methods (every rank must call them together) say so. Between rebuilds the halo pattern and
+the neighbour lists are reused; `update()` after a position change either refreshes the halo positions
+or, once some particle has moved more than half the skin, rebuilds everything (wrap, rebalance,
+migrate, sort, halo, lists).
+"""
+
+import numpy as np
+
+from psph.compute.neighbours import build_neighbour_lists, max_displacement, spatial_order
+from psph.errors import NumericalError
+from psph.parallel.comm import allreduce_max, allreduce_sum, exclusive_scan, raise_if_any
+from psph.parallel.decomposition import recursive_bisection
+from psph.parallel.halo import attach_halo, build_halo_pattern, halo_exchange, migrate
+
+BASE_HALO_FIELDS = ("position", "gid", "kind", "volume")
+
+
+class ParticleSystem:
+    """Owned + halo particles of one rank with the data every SPH sum needs.
+
+    comm: communicator (duplicated here; the library never picks the world communicator itself);
+    domain: Domain;
+    kernel: compute.smoothing.Kernel; particles: this rank's ParticleSet (any distribution);
+    skin: Verlet skin as a fraction of the kernel support.
+    """
+
+    def __init__(self, comm, domain, kernel, particles, *, skin=0.1, rebalance_threshold=1.1,
+                 halo_fields=BASE_HALO_FIELDS):
+        self.comm = comm.Dup()
+        self.domain = domain
+        self.kernel = kernel
+        self.particles = particles
+        self.skin = skin * kernel.support
+        self.list_radius = kernel.support + self.skin
+        self.rebalance_threshold = rebalance_threshold
+        self.halo_fields = list(dict.fromkeys(halo_fields))
+        self.decomposition = None
+        self.pattern = None
+        self.nbr_ptr = np.zeros(1, dtype=np.int64)
+        self.nbr_idx = np.zeros(0, dtype=np.int64)
+        self.rebuilds = 0
+        self._reference = None
+        self.rebuild()
+
+    # ----------------------------------------------------------------- layout
+    @property
+    def n_owned(self) -> int:
+        return self.particles.n_owned
+
+    @property
+    def n_global(self) -> int:
+        """Total particle count (collective)."""
+        return int(allreduce_sum(self.comm, self.n_owned))
+
+    def add_halo_field(self, name: str) -> None:
+        """Carry field `name` in the halo from now on (filled at the next exchange)."""
+        if name not in self.halo_fields:
+            self.particles[name]  # raises if unknown
+            self.halo_fields.append(name)
+
+    # ------------------------------------------------------------- rebuilding
+    def rebuild(self, rebalance=None) -> None:
+        """Wrap, (re)balance, migrate, sort, build halo and neighbour lists. Collective."""
+        p = self.particles
+        pos = p.owned("position")
+        self.check_escaped()
+        self.domain.wrap(pos)
+        if self.decomposition is None:
+            rebalance = True
+        dest = None
+        if not rebalance:
+            dest = self.decomposition.rank_of(pos)
+            if rebalance is None:  # rebalance when the current boxes would hold too uneven counts
+                counts = allreduce_sum(self.comm, np.bincount(dest, minlength=self.comm.size))
+                rebalance = counts.max() / max(counts.mean(), 1.0) > self.rebalance_threshold
+        if rebalance:
+            self.decomposition = recursive_bisection(self.comm, pos, self.domain)
+            dest = self.decomposition.rank_of(pos)
+        migrate(self.comm, p, dest)
+        p.permute_owned(spatial_order(p.owned("position"), self.list_radius))
+        self.pattern = build_halo_pattern(self.comm, p.owned("position"), self.decomposition, self.domain,
+                                          self.list_radius)
+        attach_halo(self.comm, p, self.pattern, self.halo_fields)
+        self.nbr_ptr, self.nbr_idx = build_neighbour_lists(p["position"], p.n_owned, self.list_radius)
+        self._reference = p.owned("position").copy()
+        self.rebuilds += 1
+
+    def update(self) -> bool:
+        """Call after owned positions changed: refresh halo positions or rebuild. Collective.
+
+        Returns True when the lists were rebuilt (particle order and halo changed).
+        """
+        p = self.particles
+        moved = max_displacement(p["position"], self._reference, p.n_owned)
+        if 2.0 * allreduce_max(self.comm, moved) > self.skin:
+            self.rebuild()
+            return True
+        halo_exchange(self.comm, p, self.pattern, ["position"])
+        return False
+
+    def refresh(self, names) -> None:
+        """Refresh halo copies of fields `names` from their owners. Collective."""
+        for name in names:
+            self.add_halo_field(name)
+        halo_exchange(self.comm, self.particles, self.pattern, list(names))
+
+    def check_escaped(self) -> None:
+        """Stop all ranks if an owned particle left the box along a non-periodic axis. Collective."""
+        pos = self.particles.owned("position")
+        out = np.flatnonzero(self.domain.outside(pos))
+        error = None
+        if len(out):
+            k = out[0]
+            error = NumericalError(f"{len(out)} particle(s) left the domain",
+                                   gid=int(self.particles.owned("gid")[k]), position=pos[k])
+        raise_if_any(self.comm, error)
+
+    # ------------------------------------------------------------- numbering
+    def global_rows(self, free_mask: np.ndarray) -> tuple:
+        """Global numbers of the owned particles in `free_mask` (others -1), from an exclusive scan.
+
+        Returns (rows for all local particles incl. halo, first row of this rank, owned free count).
+        Collective (exchanges the numbers to the halo through field 'row').
+        """
+        from psph.particles import FieldSpec
+
+        n_free = int(np.count_nonzero(free_mask))
+        first = exclusive_scan(self.comm, n_free)
+        p = self.particles
+        p.add_field(FieldSpec("row", (), np.int64), fill=-1)
+        row = p["row"]
+        row[:] = -1
+        owned_rows = row[: p.n_owned]
+        owned_rows[free_mask] = first + np.arange(n_free, dtype=np.int64)
+        self.refresh(["row"])
+        return p["row"], first, n_free

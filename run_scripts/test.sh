@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Set up if needed, then run the test suite: everything on 1 rank, then the MPI tests on 2 and 3 ranks.
+#   run_scripts/test.sh [extra pytest arguments for the serial run]
+set -euo pipefail
+"$(dirname "${BASH_SOURCE[0]}")/setup.sh"
+source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
+cd "$PSPH_ROOT"
+py="$PSPH_PYTHON"
+
+echo "== serial tests (MPI tests included, on 1 rank)"
+"$py" -m pytest --with-mpi "$@"
+
+for n in 2 3; do
+    echo "== MPI tests on $n ranks"
+    # rank 0 reports; the other ranks' failures still print (tests/conftest.py aborts all ranks on a failure)
+    timeout 1800 mpiexec -n "$n" --oversubscribe bash -c \
+        'if [ "${OMPI_COMM_WORLD_RANK:-0}" = 0 ]; then exec "$0" "$@"; else exec "$0" "$@" >/dev/null; fi' \
+        "$py" -m pytest --with-mpi -m mpi -q -p no:cacheprovider
+done
+echo "== all tests passed"

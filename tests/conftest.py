@@ -1,0 +1,52 @@
+"""Shared fixtures. Tests marked `mpi` run on 1, 2 and 3 ranks (run_scripts/test.sh)."""
+
+import os
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("H5PY_ALWAYS_USE_MPI", "1")
+
+
+@pytest.fixture
+def comm():
+    """The test's communicator (the tests are the application: they own COMM_WORLD)."""
+    from mpi4py import MPI
+
+    return MPI.COMM_WORLD
+
+
+def periodic_scene(dim=2, n=20, kernel="wendland_c6", h_over_dx=2.0, sigma=0.0, seed=3, name="test", **sections):
+    """A validated bi-periodic unit-box scene with n particles per axis."""
+    from psph.scene.load import scene_from_table
+
+    table = {"name": name,
+             "domain": {"dimension": dim, "lower": [0.0] * dim, "upper": [1.0] * dim, "periodic": [True] * dim,
+                        "dx": 1.0 / n, "h_over_dx": h_over_dx, "kernel": kernel},
+             "initial": {"sigma_over_dx": sigma, "seed": seed}}
+    for key, value in sections.items():
+        table.setdefault(key, {}).update(value)
+    return scene_from_table(table)
+
+
+def gather_by_gid(comm, gid, values):
+    """All ranks' owned `values`, ordered by gid (on every rank)."""
+    gids = np.concatenate(comm.allgather(np.asarray(gid)))
+    vals = np.concatenate(comm.allgather(np.asarray(values)))
+    order = np.argsort(gids)
+    return gids[order], vals[order]
+
+
+def pytest_runtest_logreport(report):
+    """Under mpiexec, a failure on one rank would leave the others waiting in a collective: print the
+    failure and abort every rank instead (the run fails loudly rather than hanging)."""
+    if report.failed:
+        from mpi4py import MPI
+
+        comm = MPI.COMM_WORLD
+        if comm.size > 1:
+            import sys
+
+            sys.stderr.write(f"\n[rank {comm.rank}] FAILED {report.nodeid}\n{report.longreprtext}\n")
+            sys.stderr.flush()
+            comm.Abort(1)

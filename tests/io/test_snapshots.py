@@ -1,0 +1,90 @@
+"""Snapshots: gid order on any rank count, complete files only, an XDMF series VTK/ParaView reads."""
+
+import h5py
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from psph.io.history import History, read_history
+from psph.io.snapshots import XDMF_NAME, SnapshotWriter
+from psph.simulation import build_system
+from tests.conftest import periodic_scene
+
+pytestmark = pytest.mark.mpi
+
+
+def write_series(comm, out, scene, times):
+    system = build_system(scene, comm)
+    writer = SnapshotWriter(comm, out, system.domain)
+    p = system.particles
+    for t in times:
+        p.owned("position")[:, 0] += 0.01  # moves; positions are written wrapped into the box
+        writer.write(p, step=int(100 * t), time=t, extra={"marker": p.owned("gid") * 2.0})
+    return system
+
+
+def test_snapshots_are_in_gid_order_and_rank_independent(comm, mpi_tmp_path):
+    scene = periodic_scene(dim=2, n=16, sigma=0.2)
+    write_series(comm, mpi_tmp_path, scene, [0.0, 0.5])
+    serial_dir = mpi_tmp_path / f"serial_{comm.rank}"
+    serial_dir.mkdir()
+    write_series(MPI.COMM_SELF, serial_dir, scene, [0.0, 0.5])
+    comm.Barrier()
+    for name in ("snapshot_000000.h5", "snapshot_000001.h5"):
+        with h5py.File(mpi_tmp_path / name, "r") as par, h5py.File(serial_dir / name, "r") as ser:
+            assert np.array_equal(par["particles/gid"][:], np.arange(256))
+            assert np.array_equal(par["particles/marker"][:], 2.0 * np.arange(256))
+            for field in ("position", "kind", "volume"):
+                assert np.array_equal(par[f"particles/{field}"][:], ser[f"particles/{field}"][:]), field
+            assert np.all((par["particles/position"][:] >= 0.0) & (par["particles/position"][:] < 1.0))
+            assert par.attrs["time"] == ser.attrs["time"]
+    assert not list(mpi_tmp_path.glob("*.tmp"))
+
+
+def test_xdmf_series_opens_in_vtk(comm, mpi_tmp_path):
+    """ParaView's Xdmf reader (VTK's vtkXdmfReader) sees every time step, the positions and fields."""
+    scene = periodic_scene(dim=2, n=10)
+    write_series(comm, mpi_tmp_path, scene, [0.0, 0.25, 0.5])
+    comm.Barrier()
+    if comm.rank != 0:
+        return
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkIOXdmf2 import vtkXdmfReader
+
+    reader = vtkXdmfReader()
+    reader.SetFileName(str(mpi_tmp_path / XDMF_NAME))
+    reader.UpdateInformation()
+    info = reader.GetOutputInformation(0)
+    from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as sddp
+
+    assert list(info.Get(sddp.TIME_STEPS())) == [0.0, 0.25, 0.5]
+    reader.UpdateTimeStep(0.5)
+    grid = reader.GetOutputDataObject(0)
+    assert grid.GetNumberOfPoints() == 100
+    with h5py.File(mpi_tmp_path / "snapshot_000002.h5", "r") as f:
+        assert np.allclose(vtk_to_numpy(grid.GetPoints().GetData())[:, :2], f["particles/position"][:])
+    names = {grid.GetPointData().GetArrayName(k) for k in range(grid.GetPointData().GetNumberOfArrays())}
+    assert {"gid", "kind", "volume", "marker"} <= names
+
+
+def test_one_dimensional_series_has_a_geometry(comm, mpi_tmp_path):
+    write_series(comm, mpi_tmp_path, periodic_scene(dim=1, n=40), [0.0])
+    comm.Barrier()
+    if comm.rank == 0:
+        from vtkmodules.vtkIOXdmf2 import vtkXdmfReader
+
+        reader = vtkXdmfReader()
+        reader.SetFileName(str(mpi_tmp_path / XDMF_NAME))
+        reader.Update()
+        assert reader.GetOutputDataObject(0).GetNumberOfPoints() == 40
+
+
+def test_history_rewrites_atomically(comm, mpi_tmp_path):
+    h = History(comm, mpi_tmp_path)
+    h.append({"time": 0.0, "a": 1.0})
+    h.append({"time": 0.1, "a": float("nan")})
+    with pytest.raises(KeyError):
+        h.append({"time": 0.2, "new_column": 1.0})
+    comm.Barrier()
+    rows = read_history(mpi_tmp_path / "history.csv")
+    assert [r["time"] for r in rows] == [0.0, 0.1] and rows[0]["a"] == 1.0 and np.isnan(rows[1]["a"])

@@ -1,0 +1,160 @@
+"""Decomposition, migration, halo and every SPH sum: identical on 1, 2 and 3 ranks (compared by gid).
+
+Run on several rank counts by run_scripts/test.sh (`mpiexec -n N python -m pytest --with-mpi -m mpi`).
+"""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from psph.compute import sums
+from psph.diagnostics import distribution_report
+from psph.domain import Domain
+from psph.parallel.decomposition import recursive_bisection
+from psph.simulation import build_system
+from tests.conftest import gather_by_gid, periodic_scene
+
+pytestmark = pytest.mark.mpi
+
+
+def all_sums(system):
+    """Every SPH sum of the foundation on the owned particles, keyed by name."""
+    p, k = system.particles, system.kernel
+    pos, vol, ptr, idx, kp = p["position"], p["volume"], system.nbr_ptr, system.nbr_idx, k.params
+    n, d = p.n_owned, p.dim
+    phi = np.sin(2 * np.pi * pos[:, 0]) + (np.cos(2 * np.pi * pos[:, 1]) if d > 1 else 0.0)
+    u = np.stack([np.sin(2 * np.pi * pos[:, (a + 1) % d]) for a in range(d)], axis=1)
+    out = {"C": np.zeros(n), "grad_C": np.zeros((n, d)), "grad": np.zeros((n, d)), "grad_diff": np.zeros((n, d)),
+           "div": np.zeros(n), "lap": np.zeros(n), "visc": np.zeros((n, d)), "M": np.zeros((n, d, d)),
+           "lambda_min": np.zeros(n)}
+    sums.concentration(pos, vol, ptr, idx, kp, out["C"])
+    sums.grad_concentration(pos, vol, ptr, idx, kp, out["grad_C"])
+    sums.gradient(pos, vol, ptr, idx, kp, phi, out["grad"])
+    sums.gradient_difference(pos, vol, ptr, idx, kp, phi, out["grad_diff"])
+    sums.divergence(pos, vol, ptr, idx, kp, u, out["div"])
+    sums.laplacian_morris(pos, vol, ptr, idx, kp, phi, out["lap"])
+    sums.viscous_pi(pos, vol, ptr, idx, kp, u, out["visc"])
+    sums.renormalisation_matrix(pos, vol, ptr, idx, kp, out["M"])
+    sums.smallest_eigenvalue(out["M"], out["lambda_min"])
+    lmat = np.zeros((n, d, d))
+    sums.invert_renormalisation(out["M"], out["lambda_min"], 1e-6, lmat)
+    out["grad_renorm"] = out["grad_diff"].copy()
+    sums.apply_renormalisation(lmat, out["grad_renorm"])
+    return out
+
+
+@pytest.mark.parametrize("dim,n", [(1, 64), (2, 24), (3, 10)])
+def test_every_sum_matches_serial_by_gid(comm, dim, n):
+    scene = periodic_scene(dim=dim, n=n, sigma=0.2, kernel="wendland_c6")
+    parallel = build_system(scene, comm)
+    serial = build_system(scene, MPI.COMM_SELF)
+    assert parallel.n_global == serial.n_owned == n**dim
+    got = all_sums(parallel)
+    ref = all_sums(serial)
+    order = np.argsort(serial.particles.owned("gid"))
+    for name in got:
+        gids, values = gather_by_gid(comm, parallel.particles.owned("gid"), got[name])
+        assert np.array_equal(gids, np.arange(n**dim))
+        expect = ref[name][order]
+        scale = max(np.abs(expect).max(), 1.0)
+        assert np.abs(values - expect).max() < 1e-12 * scale, name
+
+
+def test_halo_gives_exactly_the_periodic_neighbours(comm):
+    scene = periodic_scene(dim=2, n=20, sigma=0.3)
+    s = build_system(scene, comm)
+    p = s.particles
+    all_gid, all_pos = gather_by_gid(comm, p.owned("gid"), p.owned("position"))
+    box = Domain((0.0, 0.0), (1.0, 1.0), (True, True))
+    support = s.kernel.support
+    for i in range(p.n_owned):
+        nbrs = p["gid"][s.nbr_idx[s.nbr_ptr[i]:s.nbr_ptr[i + 1]]]
+        dist = np.linalg.norm(p["position"][s.nbr_idx[s.nbr_ptr[i]:s.nbr_ptr[i + 1]]] - p["position"][i], axis=1)
+        mine = set(nbrs[dist < support])
+        d_all = np.linalg.norm(box.minimum_image(all_pos - p["position"][i]), axis=1)
+        expect = set(all_gid[(d_all < support) & (all_gid != p["gid"][i])])
+        assert mine == expect
+
+
+def test_migration_carries_fields_and_balances(comm):
+    scene = periodic_scene(dim=2, n=30, sigma=0.25)
+    s = build_system(scene, comm)
+    p = s.particles
+    gids = np.concatenate(comm.allgather(p.owned("gid")))
+    assert np.array_equal(np.sort(gids), np.arange(900))  # nobody lost, nobody duplicated
+    counts = comm.allgather(p.n_owned)
+    assert max(counts) - min(counts) <= 31  # at most one lattice column off the median
+    assert np.allclose(p.owned("volume"), (1 / 30) ** 2)
+    b_lo, b_hi = s.decomposition.boxes[comm.rank]
+    assert np.all((p.owned("position") >= b_lo) & (p.owned("position") <= b_hi))
+
+
+def test_update_refreshes_halo_then_rebuilds(comm):
+    """Small moves reuse the lists; larger ones trigger a rebuild; sums stay rank-independent."""
+    scene = periodic_scene(dim=2, n=24, sigma=0.1)
+    s = build_system(scene, comm)
+    serial = build_system(scene, MPI.COMM_SELF)
+
+    def move(system, amount):
+        pos = system.particles.owned("position")
+        gid = system.particles.owned("gid")
+        pos[:, 0] += amount * np.sin(gid.astype(float))
+        pos[:, 1] += amount * np.cos(gid * 0.7)
+        return system.update()
+
+    small = 0.2 * s.skin
+    assert move(s, small) is False and move(serial, small) is False
+    got, ref = all_sums(s), all_sums(serial)
+    order = np.argsort(serial.particles.owned("gid"))
+    for name in ("grad_C", "lap"):
+        assert np.allclose(gather_by_gid(comm, s.particles.owned("gid"), got[name])[1], ref[name][order],
+                           rtol=0, atol=1e-12 * np.abs(ref[name]).max())
+    assert move(s, 2.0 * s.skin) is True and move(serial, 2.0 * s.skin) is True
+    got, ref = all_sums(s), all_sums(serial)
+    order = np.argsort(serial.particles.owned("gid"))
+    assert np.allclose(gather_by_gid(comm, s.particles.owned("gid"), got["grad_C"])[1], ref["grad_C"][order],
+                       rtol=0, atol=1e-12 * np.abs(ref["grad_C"]).max())
+
+
+def test_rebalance_on_demand(comm):
+    """Crowd the particles into one corner: the next rebuild rebalances the counts."""
+    s = build_system(periodic_scene(dim=2, n=30), comm)
+    pos = s.particles.owned("position")
+    pos *= 0.3
+    s.rebuild()
+    counts = comm.allgather(s.n_owned)
+    assert max(counts) - min(counts) <= 31
+    s.rebuild(rebalance=False)
+    assert comm.allgather(s.n_owned) == counts
+
+
+def test_tiny_system_leaves_ranks_empty(comm):
+    """Two particles on up to three ranks: ranks without particles take part and stay consistent."""
+    from psph.compute.smoothing import make_kernel
+    from psph.particles import ParticleSet
+    from psph.system import ParticleSystem
+
+    p = ParticleSet(2)
+    mine = np.array([0, 1]) if comm.rank == 0 else np.zeros(0, dtype=np.int64)
+    p.set_owned({"gid": mine, "position": np.array([[0.5, 0.5], [0.52, 0.5]])[: len(mine)],
+                 "kind": np.zeros(len(mine), np.int8), "volume": np.full(len(mine), 1e-3)})
+    s = ParticleSystem(comm, Domain((0.0, 0.0), (1.0, 1.0), (False, False)), make_kernel("wendland_c2", 2, 0.02), p)
+    assert s.n_global == 2
+    report = distribution_report(s, 0.5)
+    assert np.isfinite(report["L2_grad_c"]) and report["L2_grad_c"] > 0.0
+
+
+def test_rcb_splits_weights_evenly(comm):
+    rng = np.random.default_rng(comm.rank)
+    pos = rng.uniform(0.0, 1.0, (1000 + 100 * comm.rank, 2))
+    box = Domain((0.0, 0.0), (1.0, 1.0), (True, False))
+    dec = recursive_bisection(comm, pos, box)
+    owner = dec.rank_of(pos)
+    counts = np.bincount(owner, minlength=comm.size)
+    total = comm.allreduce(counts)
+    assert total.max() - total.min() <= 1
+    for r, (lo, hi) in enumerate(dec.boxes):
+        assert np.all((pos[owner == r] >= lo) & (pos[owner == r] < hi))
+        assert lo[1] == -np.inf or lo[1] > 0.0  # outer faces of the non-periodic axis are open
+        assert hi[1] == np.inf or hi[1] < 1.0
+        assert 0.0 <= lo[0] < hi[0] <= 1.0  # the periodic axis stays inside the box

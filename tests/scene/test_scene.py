@@ -1,0 +1,121 @@
+"""Scene validation: every bad input is a SceneError naming its key path; overrides; frozen results."""
+
+import dataclasses
+import math
+
+import pytest
+
+from psph.errors import SceneError, UsageError
+from psph.scene.load import apply_overrides, load_scene, parse_override, read_table, scene_from_table
+from psph.scene.schema import Scene
+from psph.scene.validate import describe_keys
+
+
+def base():
+    return {"name": "t", "domain": {"dimension": 2, "lower": [0.0, 0.0], "upper": [1.0, 1.0],
+                                    "periodic": [True, True], "dx": 0.05}}
+
+
+def with_value(path, value):
+    table = base()
+    node = table
+    parts = path.split(".")
+    for p in parts[:-1]:
+        node = node.setdefault(p, {})
+    node[parts[-1]] = value
+    return table
+
+
+def test_minimal_scene_gets_defaults():
+    s = scene_from_table(base())
+    assert s.domain.h_over_dx == 2.0 and s.domain.kernel == "wendland_c6"
+    assert s.physics.scheme == "none" and s.shifting.method == "none"
+    assert math.isclose(s.domain.h, 0.1) and s.domain.lattice_shape() == (20, 20)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        s.domain.dx = 1.0
+
+
+@pytest.mark.parametrize("path,value,key,words", [
+    ("domain.dx", -0.1, "domain.dx", "must be > 0"),
+    ("domain.dx", "fine", "domain.dx", "expected number"),
+    ("domain.dx", float("nan"), "domain.dx", "finite"),
+    ("domain.dx", float("inf"), "domain.dx", "finite"),
+    ("domain.dx", 0.03, "domain.dx", "must divide"),
+    ("domain.dx", 0.25, "domain.dx", "longer than the kernel support"),
+    ("domain.dimension", 4, "domain.dimension", "not one of"),
+    ("domain.dimension", True, "domain.dimension", "expected integer"),
+    ("domain.periodic", [True, 1], "domain.periodic[1]", "expected boolean"),
+    ("domain.upper", [1.0], "domain.upper", "expected 2 entries (dimension = 2)"),
+    ("domain.upper", [1.0, -1.0], "domain.upper[1]", "must exceed"),
+    ("domain.upper", 1.0, "domain.upper", "expected array of number"),
+    ("domain.kernel", "gauss", "domain.kernel", "not one of"),
+    ("domain.h_over_dx", 9.0, "domain.h_over_dx", "<= 4.0"),
+    ("domain.colour", "red", "domain.colour", "unknown key"),
+    ("initial.sigma_over_dx", -0.1, "initial.sigma_over_dx", ">= 0.0"),
+    ("initial.seed", -3, "initial.seed", ">= 0"),
+    ("initial.seed", 2**64, "initial.seed", "< 9223372036854775808"),
+    ("shifting.method", "magic", "shifting.method", "not one of"),
+    ("shifting", 3, "shifting", "expected a table"),
+    ("physics.scheme", {"deep": {"deeper": 1}}, "physics.scheme", "expected string"),
+    ("diagnostics.test_wavelength", 0.3, "diagnostics.test_wavelength", "must divide"),
+    ("extra", {}, "extra", "unknown key"),
+])
+def test_bad_values_name_their_key(path, value, key, words):
+    with pytest.raises(SceneError) as info:
+        scene_from_table(with_value(path, value))
+    assert info.value.key == key
+    assert words in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_missing_required_keys():
+    table = base()
+    del table["domain"]["dx"]
+    with pytest.raises(SceneError, match="domain.dx: required key missing"):
+        scene_from_table(table)
+    with pytest.raises(SceneError, match="name: required key missing"):
+        scene_from_table({"domain": base()["domain"]})
+
+
+def test_overrides_parse_toml_literals_and_bare_words():
+    assert parse_override("domain.dx=0.0125") == (["domain", "dx"], 0.0125)
+    assert parse_override("shifting.method=iips") == (["shifting", "method"], "iips")
+    assert parse_override('name="a b"') == (["name"], "a b")
+    assert parse_override("domain.periodic=[true, false]") == (["domain", "periodic"], [True, False])
+    for bad in ("novalue", "=3", "a..b=1", "a.b c=1"):
+        with pytest.raises(UsageError):
+            parse_override(bad)
+    table = apply_overrides(base(), ["initial.seed=5", "domain.dx=0.025"])
+    assert table["initial"]["seed"] == 5 and table["domain"]["dx"] == 0.025
+    assert base()["domain"]["dx"] == 0.05  # the original is untouched
+    with pytest.raises(SceneError, match="is a value"):
+        apply_overrides(base(), ["name.sub=1"])
+
+
+def test_reading_files(tmp_path):
+    good = tmp_path / "s.toml"
+    good.write_text('name = "x"\n[domain]\ndimension = 1\nlower = [0.0]\nupper = [1.0]\n'
+                    'periodic = [true]\ndx = 0.01\n')
+    assert load_scene(good, ["domain.dx=0.02"]).domain.dx == 0.02
+    with pytest.raises(UsageError, match="not found"):
+        read_table(tmp_path / "missing.toml")
+    broken = tmp_path / "b.toml"
+    broken.write_text("name = \n")
+    with pytest.raises(SceneError, match="not valid TOML"):
+        read_table(broken)
+    binary = tmp_path / "bin.toml"
+    binary.write_bytes(b"\xff\xfe\x00")
+    with pytest.raises(SceneError, match="not UTF-8"):
+        read_table(binary)
+    deep = tmp_path / "deep.toml"
+    deep.write_text("x = " + "[" * 100000 + "]" * 100000 + "\n")
+    with pytest.raises(SceneError):
+        load_scene(deep)
+
+
+def test_every_key_is_documented():
+    rows = describe_keys(Scene)
+    assert all(doc for _, _, _, doc in rows)
+    keys = {k for k, _, _, _ in rows}
+    assert {"domain.dx", "time.t_end", "output.every", "shifting.method", "initial.sigma_over_dx",
+            "initial.seed"} <= keys

@@ -1,0 +1,68 @@
+"""The command line: bad input gives one line and exit 2 with nothing written; runs honour the contract."""
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from tests.helpers import CASES, run_psph
+
+SCENE = CASES / "static_perturbed.toml"
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--set", "domain.dx=-1"], "domain.dx: must be > 0"),
+    (["--set", "domain.bogus=1"], "domain.bogus: unknown key"),
+    (["--set", "initial.sigma_over_dx=nan"], "initial.sigma_over_dx: must be a finite number"),
+    (["--set", "shifting.method=teleport"], "shifting.method: 'teleport' is not one of"),
+    (["--set", "domain.dx=1e-6"], "domain.dx: 1000000000000 particles need about"),
+    (["--set", "nodot"], "expected key.path=value"),
+    (["--frobnicate"], "unrecognized arguments: --frobnicate"),
+])
+def test_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, words):
+    out = tmp_path / "out"
+    res = run_psph("run", SCENE, "--out", out, *args)
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("psph: error: ") and words in lines[0], res.stderr
+    assert "Traceback" not in res.stderr + res.stdout
+    assert not out.exists()
+
+
+def test_missing_scene_file(tmp_path):
+    res = run_psph("run", tmp_path / "nope.toml")
+    assert res.returncode == 2 and "not found" in res.stderr and "Traceback" not in res.stderr
+
+
+def test_run_writes_the_output_contract(tmp_path):
+    out = tmp_path / "out"
+    res = run_psph("run", SCENE, "--out", out, "--set", "domain.dx=0.05", "-iips_ksp_type", "gmres")
+    assert res.returncode == 0, res.stderr
+    assert str(out) in res.stdout
+    summary = json.loads((out / "summary.json").read_text())
+    for key in ("wall_time_s", "ranks", "n_particles", "steps", "final"):
+        assert key in summary
+    assert summary["n_particles"] == 400 and summary["ranks"] == 1
+    assert {"L2_grad_c", "Linf_grad_c"} <= set(summary["final"])
+    header = (out / "history.csv").read_text().splitlines()[0].split(",")
+    assert header[0] == "time" and "L2_grad_c" in header
+    with h5py.File(out / "snapshot_000000.h5", "r") as f:
+        gid = f["particles/gid"][:]
+        assert np.array_equal(gid, np.arange(400))
+        assert f["particles/position"].shape == (400, 2)
+        assert f["particles/kind"].shape == (400,) and f["particles/grad_c"].shape == (400, 2)
+        assert f.attrs["time"] == 0.0 and f.attrs["step"] == 0
+    assert not list(out.glob("*.tmp"))
+    # a second run does not overwrite results unless asked to
+    again = run_psph("run", SCENE, "--out", out, "--set", "domain.dx=0.05")
+    assert again.returncode == 2 and "already holds results" in again.stderr
+    assert json.loads((out / "summary.json").read_text()) == summary
+
+
+def test_info_lists_the_model_terms():
+    res = run_psph("info", SCENE, "--set", "domain.dx=0.0125")
+    assert res.returncode == 0, res.stderr
+    assert "dx = 0.0125" in res.stdout
+    assert "# model terms (only these run)" in res.stdout and "physics none" in res.stdout
+    assert "estimated particles: 6400" in res.stdout
