@@ -2,8 +2,9 @@
 
 import numpy as np
 
+from psph.analytic import taylor_green
 from psph.compute.random import gaussian_by_gid
-from psph.particles import Kind, ParticleSet
+from psph.particles import FieldSpec, Kind, ParticleSet
 
 
 def lattice_block(domain_spec, rank: int, size: int):
@@ -29,6 +30,19 @@ def perturb(gid: np.ndarray, pos: np.ndarray, sigma: float, seed: int) -> None:
         pos += sigma * gaussian_by_gid(seed, gid, pos.shape[1])
 
 
+def initial_fields(scene, pos) -> dict:
+    """Analytic fields the scene's initial condition sets (none for initial.velocity = zero)."""
+    if scene.initial.velocity == "taylor_green":
+        d = scene.domain
+        vel, p = taylor_green(pos, 0.0, U=scene.physics.reference_velocity, L=d.upper[0] - d.lower[0],
+                              rho=scene.physics.density, lower=d.lower)
+        return {"velocity": vel, "pressure": p}
+    return {}
+
+
+INITIAL_FIELD_SPECS = {"velocity": FieldSpec("velocity", ("d",)), "pressure": FieldSpec("pressure")}
+
+
 def create_particles(scene, comm, specs=()) -> ParticleSet:
     """This rank's share of the initial particles (not yet spatially distributed). Collective-free."""
     dspec = scene.domain
@@ -43,5 +57,8 @@ def create_particles(scene, comm, specs=()) -> ParticleSet:
     arrays["position"] = pos
     arrays["kind"] = np.full(len(gid), Kind.FLUID, dtype=np.int8)
     arrays["volume"] = np.full(len(gid), dspec.dx ** dspec.dimension)
+    for name, values in initial_fields(scene, pos).items():
+        particles.add_field(INITIAL_FIELD_SPECS[name])
+        arrays[name] = values
     particles.set_owned(arrays)
     return particles

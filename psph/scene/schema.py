@@ -55,12 +55,16 @@ class InitialSpec:
                                   ge=0.0, le=1.0)
     seed: int = option(0, doc="seed of the perturbation (results do not depend on the rank count)",
                        ge=0, lt=2**63)
+    velocity: str = option("zero", doc="initial velocity and pressure: zero (no fields) or the analytic "
+                           "taylor_green vortex (2-D bi-periodic square)", choices=("zero", "taylor_green"))
 
 
 @dataclass(frozen=True)
 class PhysicsSpec:
     scheme: str = option("none", doc="what moves the particles: none (a static distribution)",
                          choices=("none",))
+    reference_velocity: float = option(1.0, doc="reference velocity U (the analytic fields' amplitude)", gt=0.0)
+    density: float = option(1.0, doc="reference density rho0", gt=0.0)
 
 
 @dataclass(frozen=True)
@@ -106,6 +110,12 @@ class Scene:
     neighbours: NeighboursSpec = option(NeighboursSpec(), doc="neighbour lists and load balance")
 
     def check(self, path):
+        if self.initial.velocity == "taylor_green":
+            d = self.domain
+            square = d.dimension == 2 and all(d.periodic) and math.isclose(
+                d.upper[0] - d.lower[0], d.upper[1] - d.lower[1])
+            if not square:
+                raise SceneError("initial.velocity", "taylor_green needs a 2-D bi-periodic square domain")
         reach = (1.0 + self.neighbours.skin) * self.domain.support
         for a in range(self.domain.dimension):
             length = self.domain.upper[a] - self.domain.lower[a]
