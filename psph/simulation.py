@@ -1,6 +1,7 @@
 """Assembling a simulation from a scene: domain, kernel, distributed particles, output writers."""
 
 import time
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -46,6 +47,23 @@ class Simulation:
         self.snapshots = SnapshotWriter(self.comm, self.out_dir, self.system.domain)
         self.history = History(self.comm, self.out_dir)
         self.n_particles = self.system.n_global
+
+    @contextmanager
+    def diagnose_failures(self, where):
+        """On a NumericalError inside the block, write a diagnostic snapshot (the state at failure, with
+        grad C) before letting the error end the run. `where()` gives (step, time). Collective."""
+        from psph.diagnostics import grad_c
+        from psph.errors import NumericalError
+
+        try:
+            yield
+        except NumericalError:
+            step, t = where()
+            self.history.flush()
+            path = self.snapshots.write(self.system.particles, step=step, time=t,
+                                        extra={"grad_c": grad_c(self.system)})
+            self.log(f"psph: state at the failure written to {path}")
+            raise
 
     def summary(self, steps: int, final: dict, **extra) -> dict:
         """Write summary.json (collective call; rank 0 writes) and return it."""

@@ -8,7 +8,8 @@ migrate, sort, halo, lists).
 
 import numpy as np
 
-from psph.compute.neighbours import build_neighbour_lists, max_displacement, spatial_order
+from psph.compute.neighbours import build_neighbour_lists, coincident_rows, max_displacement, spatial_order
+from psph.compute.random import gaussian_by_gid
 from psph.errors import NumericalError
 from psph.parallel.comm import allreduce_max, allreduce_sum, exclusive_scan, raise_if_any
 from psph.parallel.decomposition import recursive_bisection
@@ -116,6 +117,20 @@ class ParticleSystem:
             error = NumericalError(f"{len(out)} particle(s) left the domain",
                                    gid=int(self.particles.owned("gid")[k]), position=pos[k])
         raise_if_any(self.comm, error)
+
+    def separate_coincident(self, tolerance: float, offset: float) -> int:
+        """Nudge one particle of every pair closer than `tolerance` by `offset` (a direction drawn from its
+        gid, so rank-independent). Kernel gradients vanish at r = 0, so no shifting law can split an
+        exactly coincident pair by itself. Returns the global number of particles moved. Collective."""
+        p = self.particles
+        rows = coincident_rows(p["position"], p["gid"], self.nbr_ptr, self.nbr_idx, tolerance)
+        moved = int(allreduce_sum(self.comm, len(rows)))
+        if moved:
+            direction = gaussian_by_gid(0x5EED, p.owned("gid")[rows], p.dim)
+            direction /= np.linalg.norm(direction, axis=1)[:, None]
+            p.owned("position")[rows] += offset * direction
+            self.update()
+        return moved
 
     # ------------------------------------------------------------- numbering
     def global_rows(self, free_mask: np.ndarray) -> tuple:

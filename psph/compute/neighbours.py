@@ -162,3 +162,23 @@ def max_displacement(pos, ref, n):
         if r2 > m:
             m = r2
     return np.sqrt(m)
+
+
+@njit(cache=True)
+def coincident_rows(pos, gid, ptr, idx, tol):
+    """Owned rows i with a neighbour j closer than `tol` and gid_j < gid_i (one of each close pair)."""
+    d = pos.shape[1]
+    out = np.zeros(ptr.size - 1, dtype=np.bool_)
+    for i in range(ptr.size - 1):
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            if gid[j] >= gid[i]:
+                continue
+            r2 = 0.0
+            for a in range(d):
+                t = pos[i, a] - pos[j, a]
+                r2 += t * t
+            if r2 < tol * tol:
+                out[i] = True
+                break
+    return np.flatnonzero(out)

@@ -1,8 +1,9 @@
 """Drivers advance a Simulation: one per `physics.scheme` (what moves the particles)."""
 
+from psph.drivers.kinematic import KinematicDriver
 from psph.drivers.static import StaticDriver
 
-DRIVERS = {"none": StaticDriver}
+DRIVERS = {"none": StaticDriver, "kinematic": KinematicDriver}
 
 
 def driver_for(scene):
@@ -20,4 +21,25 @@ def describe_model(scene) -> list:
         particles += f"; initial velocity and pressure: analytic {init.velocity}"
     lines = [f"kernel {d.kernel}, h = {d.h_over_dx:g} dx = {d.h:g}, support 2h, {d.dimension}-D", particles]
     lines += DRIVERS[scene.physics.scheme].describe(scene)
+    lines += shifting_description(scene)
     return lines
+
+
+def shifting_description(scene) -> list:
+    """The shifting terms, described without building solvers."""
+    s = scene.shifting
+    if s.method == "iips":
+        i = scene.iips
+        if i.beta > 0:
+            trigger = f"threshold beta = {i.beta:g} x Linf(grad C) after {i.pre_newton} pre-procedure iterations"
+        elif i.threshold > 0:
+            trigger = f"threshold Linf(grad C) <= {i.threshold:g}"
+        else:
+            trigger = "no threshold"
+        return [f"shifting: IIPS (thesis ch. 8), Procedure {i.procedure}, {trigger}, at most {i.max_newton} Newton "
+                f"iterations per call, on failure: {i.on_failure}",
+                "IIPS linear solver: PETSc KSP prefix -iips_ (default bcgs + jacobi, rtol 1e-2)"]
+    if s.method == "explicit_iterative":
+        return [f"shifting: explicit Fickian dx = -D grad C, D = {s.diffusion:g} h^2 (thesis eq. 6.13), "
+                f"{s.max_iterations} iterations (static) / {s.iterations_per_step} per step"]
+    return ["shifting: none"]

@@ -61,25 +61,60 @@ class InitialSpec:
 
 @dataclass(frozen=True)
 class PhysicsSpec:
-    scheme: str = option("none", doc="what moves the particles: none (a static distribution)",
-                         choices=("none",))
+    scheme: str = option("none", doc="what moves the particles: none (a static distribution) or kinematic "
+                         "(advected by a frozen analytic velocity field, thesis 8.3.2)",
+                         choices=("none", "kinematic"))
+    velocity_field: str = option("taylor_green", doc="kinematic: the frozen field (thesis eq. 8.33)",
+                                 choices=("taylor_green",))
     reference_velocity: float = option(1.0, doc="reference velocity U (the analytic fields' amplitude)", gt=0.0)
+    sound_speed: float = option(10.0, doc="speed of sound c0 (sets the time step dt = cfl dx / c0)", gt=0.0)
     density: float = option(1.0, doc="reference density rho0", gt=0.0)
 
 
 @dataclass(frozen=True)
 class ShiftingSpec:
-    method: str = option("none", doc="particle shifting method", choices=("none",))
+    method: str = option("none", doc="particle shifting method", choices=("none", "iips", "explicit_iterative"))
+    diffusion: float = option(0.4, doc="explicit_iterative: D / h^2 in dx = -D grad C (thesis eq. 6.13). Lind "
+                              "et al.'s 0.5 diverges with Wendland C6 at h/dx = 2 (stable up to ~0.46, measured)",
+                              gt=0.0, le=10.0)
+    max_iterations: int = option(1000, doc="explicit_iterative: iterations of a static run", ge=1)
+    iterations_per_step: int = option(1, doc="explicit_iterative: iterations per time step", ge=1)
+
+
+@dataclass(frozen=True)
+class IIPSSpec:
+    procedure: str = option("B", doc="A: at least one Newton iteration per call; B: only above the threshold "
+                            "(thesis Algorithms 2-3)", choices=("A", "B"))
+    threshold: float = option(0.0, doc="absolute threshold on Linf(grad C) = h max|grad C| (0: none)", ge=0.0)
+    beta: float = option(0.0, doc="threshold = beta x Linf(grad C) after the pre-procedure (thesis eq. 8.34; "
+                         "0: unused)", ge=0.0)
+    max_newton: int = option(20, doc="Newton iterations per call at most (a static run: exactly, without "
+                             "threshold)", ge=1, le=100000)
+    pre_newton: int = option(0, doc="Newton iterations of the static pre-procedure before a time-dependent "
+                             "run (thesis: 100)", ge=0)
+    divergence_factor: float = option(100.0, doc="a call whose Linf(grad C) grows by this factor has diverged",
+                                      gt=1.0)
+    on_failure: str = option("stop", doc="KSP divergence, Newton stall or divergence: stop the run; reject the "
+                             "call (undo its displacements, report, continue); or warn (keep them, report, "
+                             "continue)", choices=("stop", "reject", "warn"))
+
+    def check(self, path):
+        if self.threshold > 0 and self.beta > 0:
+            raise SceneError(f"{path}.beta", "give either iips.threshold or iips.beta, not both")
+        if self.beta > 0 and self.pre_newton == 0:
+            raise SceneError(f"{path}.pre_newton", "iips.beta needs a pre-procedure (pre_newton > 0)")
 
 
 @dataclass(frozen=True)
 class TimeSpec:
     t_end: float = option(0.0, doc="end time of the simulation", ge=0.0)
+    cfl: float = option(0.2, doc="time step dt = cfl dx / c0 (thesis section 8.3.2)", gt=0.0, le=2.0)
 
 
 @dataclass(frozen=True)
 class OutputSpec:
     every: float = option(0.0, doc="simulated time between snapshots (0: initial and final only)", ge=0.0)
+    history_every: int = option(1, doc="time steps between history.csv rows", ge=1)
 
 
 @dataclass(frozen=True)
@@ -87,6 +122,9 @@ class DiagnosticsSpec:
     test_wavelength: float = option(
         0.5, doc="wavelength l of the test function f = sin(2 pi x/l) + cos(2 pi y/l) (thesis eq. 3.6), "
         "in domain length units; l/dx particles per wavelength", gt=0.0)
+    stop_at_cartesian: float = option(
+        0.0, doc="static runs: stop shifting once L2(d f/dx) <= this x its Cartesian-lattice value (0: never)",
+        ge=0.0)
 
 
 @dataclass(frozen=True)
@@ -104,12 +142,20 @@ class Scene:
     initial: InitialSpec = option(InitialSpec(), doc="initial condition")
     physics: PhysicsSpec = option(PhysicsSpec(), doc="physical model")
     shifting: ShiftingSpec = option(ShiftingSpec(), doc="particle shifting")
+    iips: IIPSSpec = option(IIPSSpec(), doc="implicit iterative particle shifting")
     time: TimeSpec = option(TimeSpec(), doc="time integration")
     output: OutputSpec = option(OutputSpec(), doc="what is written and when")
     diagnostics: DiagnosticsSpec = option(DiagnosticsSpec(), doc="diagnostics")
     neighbours: NeighboursSpec = option(NeighboursSpec(), doc="neighbour lists and load balance")
 
     def check(self, path):
+        if self.physics.scheme == "kinematic":
+            if self.time.t_end <= 0.0:
+                raise SceneError("time.t_end", "a kinematic run needs t_end > 0")
+            d = self.domain
+            if not (d.dimension == 2 and all(d.periodic)
+                    and math.isclose(d.upper[0] - d.lower[0], d.upper[1] - d.lower[1])):
+                raise SceneError("physics.velocity_field", "taylor_green needs a 2-D bi-periodic square domain")
         if self.initial.velocity == "taylor_green":
             d = self.domain
             square = d.dimension == 2 and all(d.periodic) and math.isclose(

@@ -51,3 +51,7 @@ def petsc():
     from petsc4py import PETSc
 
     return PETSc
+
+
+def is_initialized() -> bool:
+    return _state["argv"] is not None

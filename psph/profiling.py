@@ -1,0 +1,46 @@
+"""Named phases: wall time accumulated per phase and, once PETSc is up, a PETSc log event per phase
+(so `-log_view` shows psph's halo exchange, neighbour search, IIPS assembly and solve)."""
+
+import time
+from collections import defaultdict
+from contextlib import contextmanager
+
+_totals = defaultdict(float)
+_counts = defaultdict(int)
+_events = {}
+
+
+def _event(name):
+    from psph.solvers import petsc
+
+    if not petsc.is_initialized():
+        return None
+    if name not in _events:
+        _events[name] = petsc.petsc().Log.Event(f"psph:{name}")
+    return _events[name]
+
+
+@contextmanager
+def phase(name: str):
+    """Time the enclosed block as phase `name` (also a PETSc log event when PETSc is initialised)."""
+    event = _event(name)
+    if event is not None:
+        event.begin()
+    start = time.perf_counter()
+    try:
+        yield
+    finally:
+        _totals[name] += time.perf_counter() - start
+        _counts[name] += 1
+        if event is not None:
+            event.end()
+
+
+def totals() -> dict:
+    """{phase: (seconds, calls)} accumulated in this process so far."""
+    return {k: (_totals[k], _counts[k]) for k in _totals}
+
+
+def reset() -> None:
+    _totals.clear()
+    _counts.clear()

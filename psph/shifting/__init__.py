@@ -1,0 +1,21 @@
+"""Particle shifting. Each method is an object built from the scene; `shifting.method = "none"` builds
+NoShifting, whose correction leaves the particles where they are (and costs nothing)."""
+
+from psph.shifting.base import NoShifting, ShiftReport
+
+
+def make_shifting(scene, comm):
+    """The shifting object the scene asks for."""
+    method = scene.shifting.method
+    if method == "iips":
+        from psph.shifting.iips import ImplicitShifting
+
+        return ImplicitShifting(scene.iips, comm)
+    if method == "explicit_iterative":
+        from psph.shifting.explicit import ExplicitIterativeShifting
+
+        return ExplicitIterativeShifting(scene.shifting)
+    return NoShifting()
+
+
+__all__ = ["NoShifting", "ShiftReport", "make_shifting"]

@@ -1,0 +1,42 @@
+"""What every shifting method offers to the drivers."""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from psph.diagnostics import fluid_mask, grad_c, norms
+
+
+@dataclass
+class ShiftReport:
+    """Outcome of one correction call (one time step, or one static run)."""
+
+    iterations: int = 0
+    linear_iterations: int = 0
+    L2_grad_c: float = np.nan
+    Linf_grad_c: float = np.nan
+    rejected: bool = False
+    failed: bool = False
+    message: str = ""
+    history: list = field(default_factory=list)
+
+
+def measure(system):
+    """(grad C of the owned particles, L2(grad C), Linf(grad C)) over the free (fluid) particles."""
+    grad = grad_c(system)
+    l2, linf = norms(system.comm, grad, fluid_mask(system), system.kernel.h)
+    return grad, l2, linf
+
+
+class NoShifting:
+    """shifting.method = "none": particles are never moved by a shifting law."""
+
+    name = "none"
+
+
+    def prepare(self, system, on_iteration=None):
+        return None
+
+    def correct(self, system, on_iteration=None, iterations=None, **where) -> ShiftReport:
+        _, l2, linf = measure(system)
+        return ShiftReport(L2_grad_c=l2, Linf_grad_c=linf)

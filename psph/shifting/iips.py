@@ -1,0 +1,195 @@
+"""Implicit iterative particle shifting (IIPS) on PETSc (thesis 000, chapter 8; distributed as its
+section 11.2 proposes).
+
+Each Newton iteration assembles the printed operator of thesis eq. 8.11 / 8.32 (compute.iips) in a
+distributed PETSc AIJ matrix with block size d, preallocated once per neighbour-list rebuild, solves
+A dx = grad C with the KSP of prefix `iips_` (default BCGS + Jacobi, rtol 1e-2, thesis section 8.3.1;
+any `-iips_ksp_*` / `-iips_pc_*` option overrides them) and moves the free particles by dx.
+
+Triggering and stopping (thesis Algorithms 1-3, eq. 8.34-8.35):
+- threshold on Linf(grad C) = h max_i |grad C_i| (thesis eq. 3.5): absolute (`iips.threshold`) or
+  beta times the value after a static pre-procedure of `iips.pre_newton` iterations (`iips.beta`);
+- Procedure A: at least one Newton iteration per call, then more while above the threshold;
+  Procedure B: iterate only while above the threshold;
+- at most `iips.max_newton` iterations per call. With a threshold, not reaching it is a stall; growth of
+  Linf(grad C) by `iips.divergence_factor` within a call is a divergence. Both, and a diverged linear
+  solve, stop the run (`iips.on_failure = "stop"`) or undo the call's displacements and carry on
+  (`"reject"`), reported either way.
+"""
+
+import time
+
+import numpy as np
+
+from psph.compute.iips import iips_structure, iips_values
+from psph.errors import NumericalError, SolverError
+from psph.parallel.comm import allreduce_max, allreduce_sum
+from psph.particles import FieldSpec, Kind
+from psph.profiling import phase
+from psph.shifting.base import ShiftReport, measure
+from psph.solvers.linear import LinearSolver
+from psph.solvers.petsc import petsc
+
+SHIFT_FIELD = FieldSpec("iips_shift", ("d",))
+# particles closer than COINCIDENT h count as coincident and are first nudged NUDGE h apart
+COINCIDENT = 1e-6
+NUDGE = 1e-3
+# Linf(grad C) below this is round-off (a perfect lattice gives ~1e-14): growth from there is not divergence
+DIVERGENCE_FLOOR = 1e-6
+
+
+class ImplicitShifting:
+    name = "iips"
+
+    def __init__(self, spec, comm):
+        self.spec = spec
+        self.solver = LinearSolver(comm, "iips_", ksp_type="bcgs", pc_type="jacobi", rtol=1e-2)
+        self.threshold = spec.threshold if spec.threshold > 0.0 else None
+        self.initial_linf = None  # Linf(grad C) after the pre-procedure (thesis: Linf(grad C)_Init)
+        self._structure_of = None
+        self.calls = 0
+        self.newton_iterations = 0
+        self.rejections = 0
+        self.failures = 0
+
+
+    # ------------------------------------------------------------- assembly
+    def _structure(self, system):
+        """(Re)build the matrix layout after a neighbour-list rebuild. Collective."""
+        PETSc = petsc()
+        p = system.particles
+        d = p.dim
+        free = p.owned("kind") == Kind.FLUID
+        rows, _, n_free = system.global_rows(free)
+        with phase("iips_structure"):
+            indptr, indices, self_slot, pair_slot, block_start = iips_structure(
+                rows, system.nbr_ptr, system.nbr_idx, d)
+        n_total = int(allreduce_sum(system.comm, n_free))
+        mat = PETSc.Mat().createAIJ(size=((n_free * d, n_total * d), (n_free * d, n_total * d)), bsize=d,
+                                    comm=system.comm)
+        self.indptr = indptr.astype(PETSc.IntType)
+        self.indices = indices.astype(PETSc.IntType)
+        mat.setPreallocationCSR((self.indptr, self.indices))
+        mat.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        self.mat = mat
+        self.rhs, self.dx = mat.createVecs()
+        self.values = np.zeros(len(indices))
+        self.slots = (self_slot, pair_slot, block_start)
+        self.free = free
+        self.solver.set_operator(mat)
+        self._structure_of = system.rebuilds
+
+    def assemble(self, system):
+        """Fill the IIPS matrix at the current positions. Collective."""
+        if self._structure_of != system.rebuilds:
+            self._structure(system)
+        p = system.particles
+        with phase("iips_assemble"):
+            iips_values(p["position"], p["volume"], p["row"], system.nbr_ptr, system.nbr_idx,
+                        system.kernel.params, *self.slots, self.values)
+            self.mat.setValuesCSR(self.indptr, self.indices, self.values)
+            self.mat.assemble()
+        return self.mat
+
+    # -------------------------------------------------------------- iterate
+    def newton_iteration(self, system, grad) -> int:
+        """One Newton iteration from the current grad C: assemble, solve, move. Returns KSP iterations."""
+        self.assemble(system)
+        d = system.particles.dim
+        self.rhs.setArray(grad[self.free].ravel())
+        self.dx.set(0.0)
+        its = self.solver.solve(self.rhs, self.dx)
+        step = self.dx.getArray(readonly=True).reshape(-1, d)
+        p = system.particles
+        p.owned("position")[self.free] += step
+        p.owned(SHIFT_FIELD.name)[self.free] += step
+        self.newton_iterations += 1
+        system.update()
+        return its
+
+    def prepare(self, system, on_iteration=None):
+        """Static pre-procedure (`iips.pre_newton` iterations) and the beta threshold (eq. 8.34)."""
+        system.particles.add_field(SHIFT_FIELD)
+        if self.spec.pre_newton > 0:
+            report = self._iterate(system, self.spec.pre_newton, None, False, on_iteration, {})
+            self.initial_linf = report.Linf_grad_c
+            if self.spec.beta > 0:
+                self.threshold = self.spec.beta * self.initial_linf
+        return self.initial_linf
+
+    def correct(self, system, on_iteration=None, iterations=None, **where) -> ShiftReport:
+        """One IIPS call (per time step, or a whole static run): Procedure A or B.
+
+        on_iteration(info) is called after every Newton iteration; returning True ends the call early.
+        `iterations` is accepted for symmetry with the explicit method; IIPS uses iips.max_newton.
+        """
+        system.particles.add_field(SHIFT_FIELD)
+        self.calls += 1
+        return self._iterate(system, self.spec.max_newton, self.threshold, self.spec.procedure == "A",
+                             on_iteration, where)
+
+    def _iterate(self, system, max_newton, threshold, at_least_one, on_iteration, where) -> ShiftReport:
+        p = system.particles
+        p.owned(SHIFT_FIELD.name)[:] = 0.0
+        h = system.kernel.h
+        separated = system.separate_coincident(COINCIDENT * h, NUDGE * h)
+        grad, l2, linf = measure(system)
+        start_linf = linf
+        report = ShiftReport(L2_grad_c=l2, Linf_grad_c=linf)
+        if separated:
+            report.message = f"{separated} coincident particle(s) nudged apart by {NUDGE:g} h"
+        failure = None
+        while report.iterations < max_newton:
+            above = threshold is None or linf > threshold
+            if not (above or (at_least_one and report.iterations == 0)):
+                break
+            t0 = time.perf_counter()
+            try:
+                its = self.newton_iteration(system, grad)
+            except SolverError as err:
+                failure = err
+                break
+            grad, l2, linf = measure(system)
+            report.iterations += 1
+            report.linear_iterations += its
+            report.L2_grad_c, report.Linf_grad_c = l2, linf
+            if not np.isfinite(linf) or linf > self.spec.divergence_factor * max(start_linf, DIVERGENCE_FLOOR):
+                failure = NumericalError(f"IIPS Newton iteration diverged: Linf(grad C) grew from "
+                                         f"{start_linf:.3e} to {linf:.3e}", **where)
+                break
+            if on_iteration is not None and on_iteration(
+                    {"newton": report.iterations, "ksp_iterations": its, "L2_grad_c": l2, "Linf_grad_c": linf,
+                     "newton_time_s": time.perf_counter() - t0}):
+                break
+        if failure is None and threshold is not None and linf > threshold and report.iterations >= max_newton:
+            failure = NumericalError(f"IIPS Newton stalled: Linf(grad C) = {linf:.3e} above the threshold "
+                                     f"{threshold:.3e} after {report.iterations} iterations", **where)
+        if failure is not None:
+            self._fail(system, report, failure, where)
+        return report
+
+    def _fail(self, system, report, failure, where):
+        """Stop (raise on all ranks), or reject (undo this call's displacements) or warn (keep them), and
+        report it in the call's report (logged and counted by the drivers)."""
+        mode = self.spec.on_failure
+        if mode == "stop" or (mode == "warn" and isinstance(failure, SolverError)):
+            if isinstance(failure, SolverError) and where:
+                failure = NumericalError(f"{failure}", **where)
+            failure.collective = True
+            raise failure
+        if mode == "reject":
+            p = system.particles
+            p.owned("position")[:] -= p.owned(SHIFT_FIELD.name)
+            p.owned(SHIFT_FIELD.name)[:] = 0.0
+            system.update()
+            _, report.L2_grad_c, report.Linf_grad_c = measure(system)
+            report.rejected = True
+            self.rejections += 1
+        report.failed = True
+        report.message = f"IIPS call {'rejected' if mode == 'reject' else 'kept despite'}: {failure}"
+        self.failures += 1
+
+    def max_shift(self, system) -> float:
+        """Largest displacement of the last call (collective)."""
+        s = system.particles.owned(SHIFT_FIELD.name)
+        return allreduce_max(system.comm, float(np.sqrt((s * s).sum(axis=1)).max()) if len(s) else 0.0)

@@ -1,0 +1,69 @@
+"""Krylov solves through PETSc KSP objects with an options prefix.
+
+Code defaults (type, preconditioner, tolerances) are set first and `setFromOptions` is called last, so
+every `-<prefix>ksp_*` / `-<prefix>pc_*` option given on the command line wins without code changes.
+After each solve the converged reason is checked; a divergence raises SolverError with the reason name
+and the iteration count.
+"""
+
+import numpy as np
+
+from psph.errors import SolverError
+from psph.profiling import phase
+from psph.solvers.petsc import petsc
+
+
+def reason_name(reason: int) -> str:
+    table = petsc().KSP.ConvergedReason
+    for name in dir(table):
+        if not name.startswith("_") and getattr(table, name) == reason and name != "ITERATING":
+            return name
+    return str(reason)
+
+
+class LinearSolver:
+    """A KSP with prefix `prefix` (e.g. 'iips_') and code defaults the command line can override."""
+
+    def __init__(self, comm, prefix: str, *, ksp_type="bcgs", pc_type="jacobi", rtol=1e-2, atol=1e-50,
+                 max_it=10000):
+        PETSc = petsc()
+        self.prefix = prefix
+        self.ksp = PETSc.KSP().create(comm=comm)
+        self.ksp.setOptionsPrefix(prefix)
+        self.ksp.setType(ksp_type)
+        self.ksp.getPC().setType(pc_type)
+        self.ksp.setTolerances(rtol=rtol, atol=atol, max_it=max_it)
+        self.ksp.setFromOptions()
+        self.operator = None
+        self.iterations = 0
+
+    def set_operator(self, mat) -> None:
+        """Use `mat` from now on (a new matrix, possibly of another size, after a rebuild)."""
+        if self.operator is not None:
+            self.ksp.reset()
+        self.ksp.setOperators(mat)
+        self.ksp.setFromOptions()
+        self.operator = mat
+
+    def solve(self, b, x) -> int:
+        """Solve operator x = b (x holds the initial guess); returns iterations or raises SolverError."""
+        with phase("ksp_solve"):
+            self.ksp.solve(b, x)
+        reason = self.ksp.getConvergedReason()
+        its = self.ksp.getIterationNumber()
+        self.iterations += its
+        name = self.prefix.rstrip("_") or "linear"
+        error = None
+        if reason < 0:
+            error = SolverError(name, reason_name(reason), its)
+        elif not np.isfinite(x.norm()):  # collective: every rank sees the same norm
+            error = SolverError(name, "DIVERGED_NANORINF", its)
+        if error is not None:
+            error.collective = True  # reason and norm are global: every rank raises it
+            raise error
+        return its
+
+    def describe(self) -> str:
+        pc = self.ksp.getPC()
+        rtol, atol, _, max_it = self.ksp.getTolerances()
+        return f"KSP {self.ksp.getType()} + PC {pc.getType()}, rtol {rtol:g}, max_it {max_it} (prefix -{self.prefix})"

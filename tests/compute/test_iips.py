@@ -1,0 +1,85 @@
+"""The IIPS matrix equals the printed operator of thesis eq. 8.11 / 8.32 built densely from its formula."""
+
+import itertools
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from psph.compute.iips import iips_structure, iips_values
+from psph.particles import Kind
+from tests.conftest import periodic_scene
+
+
+def dense_from_csr(indptr, indices, values, n):
+    a = np.zeros((n, n))
+    for r in range(len(indptr) - 1):
+        for k in range(indptr[r], indptr[r + 1]):
+            a[r, indices[k]] += values[k]
+    return a
+
+
+def printed_operator(pos, vol, free, kernel, box):
+    """A_ii = V_i HessW(0), A_ij = sum over periodic images of V_j HessW(x_i - x_j), free particles only."""
+    d = pos.shape[1]
+    idx = np.flatnonzero(free)
+    n = len(idx)
+    images = np.array(list(itertools.product((-1, 0, 1), repeat=d))) * box.length
+    a = np.zeros((n * d, n * d))
+    for p, i in enumerate(idx):
+        a[p * d:(p + 1) * d, p * d:(p + 1) * d] += vol[i] * kernel.hessian(np.zeros((1, d)))[0]
+        for q, j in enumerate(idx):
+            x = pos[i] - pos[j] + images
+            if j == i:
+                x = x[np.any(images != 0, axis=1)]
+            a[p * d:(p + 1) * d, q * d:(q + 1) * d] += vol[j] * kernel.hessian(x).sum(axis=0)
+    return a
+
+
+@pytest.mark.parametrize("dim,n", [(1, 30), (2, 10), (3, 6)])
+def test_matrix_is_the_printed_operator(dim, n):
+    from psph.simulation import build_system
+
+    s = build_system(periodic_scene(dim=dim, n=n, sigma=0.2, h_over_dx=1.6), MPI.COMM_SELF)
+    p = s.particles
+    kinds = p.owned("kind")
+    kinds[::7] = Kind.WALL  # fixed particles: neighbours, not unknowns
+    s.refresh(["kind"])
+    free = kinds == Kind.FLUID
+    rows, _, n_free = s.global_rows(free)
+    assert n_free == free.sum()
+    indptr, indices, self_slot, pair_slot, block_start = iips_structure(rows, s.nbr_ptr, s.nbr_idx, dim)
+    values = np.zeros(len(indices))
+    iips_values(p["position"], p["volume"], rows, s.nbr_ptr, s.nbr_idx, s.kernel.params, self_slot, pair_slot,
+                block_start, values)
+    assert np.all(np.diff(indptr) > 0) and len(indptr) == n_free * dim + 1
+    for r in range(n_free * dim):  # sorted, unique columns per row (PETSc's CSR preallocation needs it)
+        cols = indices[indptr[r]:indptr[r + 1]]
+        assert np.all(np.diff(cols) > 0)
+    got = dense_from_csr(indptr, indices, values, n_free * dim)
+    expect = printed_operator(p.owned("position"), p.owned("volume"), free, s.kernel, s.domain)
+    assert np.allclose(got, expect, rtol=0, atol=1e-12 * np.abs(expect).max())
+
+
+def test_printed_operator_differs_from_exact_jacobian():
+    """Seeds/README.md: the exact Jacobian of grad C is singular under translation; the printed one is not."""
+    from psph.simulation import build_system
+
+    s = build_system(periodic_scene(dim=2, n=8, sigma=0.1), MPI.COMM_SELF)
+    pos, vol = s.particles.owned("position"), s.particles.owned("volume")
+    free = np.ones(len(pos), bool)
+    printed = printed_operator(pos, vol, free, s.kernel, s.domain)
+    d, n = 2, len(pos)
+    exact = np.zeros_like(printed)  # d grad C_i / d x_j
+    for i in range(n):
+        for j in range(n):
+            if i != j:
+                hij = vol[j] * s.kernel.hessian(s.domain.minimum_image(pos[i] - pos[j])[None])[0]
+                exact[i * d:(i + 1) * d, j * d:(j + 1) * d] -= hij
+                exact[i * d:(i + 1) * d, i * d:(i + 1) * d] += hij
+    translation = np.tile([1.0, 0.0], n)
+    assert np.abs(exact @ translation).max() < 1e-10 * np.abs(exact).max()
+    assert np.abs(printed @ translation).max() > 1e-6 * np.abs(printed).max()
+    # off-diagonal blocks: printed = -exact (the printed system is A dx = +grad C)
+    off = ~np.kron(np.eye(n, dtype=bool), np.ones((d, d), dtype=bool))
+    assert np.allclose(printed[off], -exact[off])

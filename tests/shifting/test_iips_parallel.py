@@ -1,0 +1,68 @@
+"""IIPS on several ranks: the final positions of the static case match the serial run (by gid)."""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from psph.shifting.explicit import ExplicitIterativeShifting
+from psph.shifting.iips import ImplicitShifting
+from psph.simulation import build_system
+from tests.conftest import gather_by_gid, periodic_scene
+from tests.shifting.test_iips import petsc_options
+
+pytestmark = pytest.mark.mpi
+
+
+@pytest.mark.parametrize("dim,n", [(2, 24), (3, 8)])
+def test_static_iips_positions_independent_of_rank_count(comm, dim, n):
+    scene = periodic_scene(dim=dim, n=n, sigma=0.15, iips={"max_newton": 6})
+    with petsc_options(iips_ksp_rtol=1e-13, iips_ksp_atol=1e-30):
+        par_shift = ImplicitShifting(scene.iips, comm)
+        ser_shift = ImplicitShifting(scene.iips, MPI.COMM_SELF)
+    parallel = build_system(scene, comm)
+    serial = build_system(scene, MPI.COMM_SELF)
+    a = par_shift.correct(parallel)
+    b = ser_shift.correct(serial)
+    assert a.iterations == b.iterations == 6
+    gids, pos = gather_by_gid(comm, parallel.particles.owned("gid"), parallel.particles.owned("position"))
+    order = np.argsort(serial.particles.owned("gid"))
+    expect = serial.particles.owned("position")[order]
+    assert np.array_equal(gids, np.arange(n**dim))
+    assert np.abs(parallel.domain.minimum_image(pos - expect)).max() < 1e-8
+    assert a.L2_grad_c == pytest.approx(b.L2_grad_c, rel=1e-6)
+
+
+def test_explicit_shifting_independent_of_rank_count(comm):
+    scene = periodic_scene(n=20, sigma=0.1, shifting={"method": "explicit_iterative"})
+    parallel, serial = build_system(scene, comm), build_system(scene, MPI.COMM_SELF)
+    ExplicitIterativeShifting(scene.shifting).correct(parallel, iterations=30)
+    ExplicitIterativeShifting(scene.shifting).correct(serial, iterations=30)
+    _, pos = gather_by_gid(comm, parallel.particles.owned("gid"), parallel.particles.owned("position"))
+    expect = serial.particles.owned("position")[np.argsort(serial.particles.owned("gid"))]
+    assert np.abs(parallel.domain.minimum_image(pos - expect)).max() < 1e-12
+
+
+def test_iips_with_an_empty_rank(comm):
+    """All particles start on rank 0 of a non-periodic box with a tiny fluid patch: ranks without free
+    particles (or without any) take part in assembly and solve."""
+    from psph.compute.smoothing import make_kernel
+    from psph.domain import Domain
+    from psph.particles import Kind, ParticleSet
+    from psph.system import ParticleSystem
+
+    n = 6
+    g = (np.arange(n) + 0.5) / n * 0.3
+    lattice = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2) + 0.35
+    lattice += np.random.default_rng(1).normal(0, 0.005, lattice.shape)
+    kind = np.where(np.any((lattice < 0.42) | (lattice > 0.58), axis=1), Kind.WALL, Kind.FLUID).astype(np.int8)
+    mine = comm.rank == 0
+    p = ParticleSet(2)
+    p.set_owned({"gid": np.arange(len(lattice)) if mine else np.zeros(0, np.int64),
+                 "position": lattice if mine else np.zeros((0, 2)),
+                 "kind": kind if mine else np.zeros(0, np.int8),
+                 "volume": np.full(len(lattice) if mine else 0, (0.3 / n) ** 2)})
+    system = ParticleSystem(comm, Domain((0.0, 0.0), (1.0, 1.0), (False, False)),
+                            make_kernel("wendland_c6", 2, 2 * 0.3 / n), p)
+    report = ImplicitShifting(periodic_scene(n=20, iips={"max_newton": 3}).iips, comm).correct(system)
+    assert report.iterations == 3 and np.isfinite(report.L2_grad_c)
+    assert np.all(np.isfinite(system.particles["position"]))
