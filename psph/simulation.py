@@ -66,7 +66,8 @@ class Simulation:
             raise
 
     def summary(self, steps: int, final: dict, **extra) -> dict:
-        """Write summary.json (collective call; rank 0 writes) and return it."""
+        """Flush the history, write summary.json (collective call; rank 0 writes) and return it."""
+        self.history.flush()
         data = {
             "psph_version": __version__,
             "scene": to_table(self.scene),

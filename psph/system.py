@@ -14,6 +14,7 @@ from psph.errors import NumericalError
 from psph.parallel.comm import allreduce_max, allreduce_sum, exclusive_scan, raise_if_any
 from psph.parallel.decomposition import recursive_bisection
 from psph.parallel.halo import attach_halo, build_halo_pattern, halo_exchange, migrate
+from psph.profiling import phase
 
 BASE_HALO_FIELDS = ("position", "gid", "kind", "volume")
 
@@ -64,6 +65,10 @@ class ParticleSystem:
     # ------------------------------------------------------------- rebuilding
     def rebuild(self, rebalance=None) -> None:
         """Wrap, (re)balance, migrate, sort, build halo and neighbour lists. Collective."""
+        with phase("rebuild"):
+            self._rebuild(rebalance)
+
+    def _rebuild(self, rebalance):
         p = self.particles
         pos = p.owned("position")
         self.check_escaped()
@@ -81,10 +86,12 @@ class ParticleSystem:
             dest = self.decomposition.rank_of(pos)
         migrate(self.comm, p, dest)
         p.permute_owned(spatial_order(p.owned("position"), self.list_radius))
-        self.pattern = build_halo_pattern(self.comm, p.owned("position"), self.decomposition, self.domain,
-                                          self.list_radius)
-        attach_halo(self.comm, p, self.pattern, self.halo_fields)
-        self.nbr_ptr, self.nbr_idx = build_neighbour_lists(p["position"], p.n_owned, self.list_radius)
+        with phase("halo_exchange"):
+            self.pattern = build_halo_pattern(self.comm, p.owned("position"), self.decomposition, self.domain,
+                                              self.list_radius)
+            attach_halo(self.comm, p, self.pattern, self.halo_fields)
+        with phase("neighbour_search"):
+            self.nbr_ptr, self.nbr_idx = build_neighbour_lists(p["position"], p.n_owned, self.list_radius)
         self._reference = p.owned("position").copy()
         self.rebuilds += 1
 
@@ -98,14 +105,16 @@ class ParticleSystem:
         if 2.0 * allreduce_max(self.comm, moved) > self.skin:
             self.rebuild()
             return True
-        halo_exchange(self.comm, p, self.pattern, ["position"])
+        with phase("halo_exchange"):
+            halo_exchange(self.comm, p, self.pattern, ["position"])
         return False
 
     def refresh(self, names) -> None:
         """Refresh halo copies of fields `names` from their owners. Collective."""
         for name in names:
             self.add_halo_field(name)
-        halo_exchange(self.comm, self.particles, self.pattern, list(names))
+        with phase("halo_exchange"):
+            halo_exchange(self.comm, self.particles, self.pattern, list(names))
 
     def check_escaped(self) -> None:
         """Stop all ranks if an owned particle left the box along a non-periodic axis. Collective."""

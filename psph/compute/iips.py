@@ -16,109 +16,86 @@ run_scripts/iips_static.py measure it). Fixed particles (walls, free surface, in
 are not unknowns but still contribute to grad C (thesis section 10.2.1).
 
 Rows are numbered per particle (`row`, global, from an exclusive scan; -1 for fixed particles) and the
-scalar unknown of component a of particle p is p * d + a. Several halo images of one particle may sit in
-a row (small periodic boxes): their blocks add up in one column slot.
+scalar unknown of component a of particle p is p * d + a. The matrix is given to PETSc as COO triplets;
+several halo images of one particle in a row (small periodic boxes) give repeated entries, which add up.
 """
 
 import numpy as np
 from numba import njit
 
 from psph.compute.smoothing import hessian_coefficients, kernel_f
+from psph.compute.sums import pair
 
 
 @njit(cache=True)
-def iips_structure(row, ptr, idx, d):
-    """Sparsity of the owned free rows, built once per neighbour-list rebuild.
+def iips_pattern(row, ptr, idx, d):
+    """COO (rows, cols) of the owned free particles' block rows, built once per neighbour-list rebuild.
 
     row: global particle number of every local particle (-1 if fixed); ptr, idx: CSR neighbour lists of
-    the owned particles. Owned free particles must carry consecutive numbers in local order.
-    Returns (indptr, indices) of the scalar CSR matrix (global columns, sorted within rows), and for the
-    value kernel: self_slot (slot of the diagonal block in each particle row), pair_slot (slot of every
-    neighbour-list entry, -1 if the neighbour is fixed or the row is) and block_start (first value of each
-    particle row's block).
+    the owned particles. Order: for each owned free particle, its d diagonal self entries, then d x d
+    entries per free neighbour-list entry (repeated (row, col) pairs are summed by PETSc).
     """
     n_rows = ptr.size - 1
-    n_free = 0
-    for i in range(n_rows):
-        if row[i] >= 0:
-            n_free += 1
-    counts = np.zeros(n_free, dtype=np.int64)
-    pair_slot = np.full(idx.size, -1, dtype=np.int64)
-    self_slot = np.zeros(n_free, dtype=np.int64)
-    # first pass: unique sorted neighbour columns per particle row
-    cols_per_row = []
-    p = 0
+    nnz = 0
     for i in range(n_rows):
         if row[i] < 0:
             continue
-        m = 1
+        nnz += d
         for k in range(ptr[i], ptr[i + 1]):
             if row[idx[k]] >= 0:
-                m += 1
-        cand = np.empty(m, dtype=np.int64)
-        cand[0] = row[i]
-        c = 1
-        for k in range(ptr[i], ptr[i + 1]):
-            if row[idx[k]] >= 0:
-                cand[c] = row[idx[k]]
-                c += 1
-        uniq = np.unique(cand)
-        counts[p] = uniq.size
-        self_slot[p] = np.searchsorted(uniq, row[i])
-        for k in range(ptr[i], ptr[i + 1]):
-            if row[idx[k]] >= 0:
-                pair_slot[k] = np.searchsorted(uniq, row[idx[k]])
-        cols_per_row.append(uniq)
-        p += 1
-    block_start = np.zeros(n_free + 1, dtype=np.int64)
-    for p in range(n_free):
-        block_start[p + 1] = block_start[p] + counts[p] * d * d
-    indptr = np.zeros(n_free * d + 1, dtype=np.int64)
-    indices = np.empty(block_start[n_free], dtype=np.int64)
-    for p in range(n_free):
-        uniq = cols_per_row[p]
-        m = uniq.size
+                nnz += d * d
+    rows = np.empty(nnz, dtype=np.int64)
+    cols = np.empty(nnz, dtype=np.int64)
+    e = 0
+    for i in range(n_rows):
+        ri = row[i]
+        if ri < 0:
+            continue
         for a in range(d):
-            r = p * d + a
-            start = block_start[p] + a * m * d
-            indptr[r + 1] = start + m * d
-            for s in range(m):
+            rows[e] = ri * d + a
+            cols[e] = ri * d + a
+            e += 1
+        for k in range(ptr[i], ptr[i + 1]):
+            rj = row[idx[k]]
+            if rj < 0:
+                continue
+            for a in range(d):
                 for b in range(d):
-                    indices[start + s * d + b] = uniq[s] * d + b
-    return indptr, indices, self_slot, pair_slot, block_start
+                    rows[e] = ri * d + a
+                    cols[e] = rj * d + b
+                    e += 1
+    return rows, cols
 
 
 @njit(cache=True)
-def iips_values(pos, vol, row, ptr, idx, kp, self_slot, pair_slot, block_start, values):
-    """Fill the CSR values of the printed IIPS operator (layout of iips_structure)."""
+def iips_values(pos, vol, row, ptr, idx, kp, values):
+    """COO values of the printed IIPS operator, in the order of iips_pattern."""
     d = pos.shape[1]
-    values[:] = 0.0
     h0 = kernel_f(0.0, kp)  # HessW(0) = W''(0) I = f(0) I
-    p = 0
+    e = 0
     for i in range(ptr.size - 1):
         if row[i] < 0:
             continue
-        base = block_start[p]
-        m = (block_start[p + 1] - base) // (d * d)
-        s = self_slot[p]
-        for a in range(d):
-            values[base + a * m * d + s * d + a] += vol[i] * h0
+        values[e:e + d] = vol[i] * h0
+        e += d
         for k in range(ptr[i], ptr[i + 1]):
-            s = pair_slot[k]
-            if s < 0:
-                continue
             j = idx[k]
-            r2 = 0.0
-            for a in range(d):
-                t = pos[i, a] - pos[j, a]
-                r2 += t * t
-            ha, hb = hessian_coefficients(np.sqrt(r2), kp)
-            for a in range(d):
-                xa = pos[i, a] - pos[j, a]
-                for b in range(d):
-                    xb = pos[i, b] - pos[j, b]
-                    v = hb * xa * xb
-                    if a == b:
-                        v += ha
-                    values[base + a * m * d + s * d + b] += vol[j] * v
-        p += 1
+            if row[j] < 0:
+                continue
+            x0, x1, x2, r = pair(pos, i, j, d)
+            ha, hb = hessian_coefficients(r, kp)
+            ha *= vol[j]
+            hb *= vol[j]
+            if d == 2:
+                values[e] = ha + hb * x0 * x0
+                values[e + 1] = hb * x0 * x1
+                values[e + 2] = values[e + 1]
+                values[e + 3] = ha + hb * x1 * x1
+            elif d == 3:
+                xs = (x0, x1, x2)
+                for a in range(3):
+                    for b in range(3):
+                        values[e + 3 * a + b] = hb * xs[a] * xs[b] + (ha if a == b else 0.0)
+            else:
+                values[e] = ha + hb * x0 * x0
+            e += d * d

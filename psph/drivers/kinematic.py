@@ -87,7 +87,7 @@ class KinematicDriver:
                 totals["linear_iterations"] += shift.linear_iterations
                 if record:
                     sim.history.append({"time": t, "step": step, **report, "newton": shift.iterations,
-                                        "ksp_iterations": shift.linear_iterations, **totals}, flush=False)
+                                        "ksp_iterations": shift.linear_iterations, **totals})
                 if t >= next_output - 1e-12 * self.dt:
                     sim.history.flush()
                     sim.snapshots.write(system.particles, step=step, time=t)

@@ -3,6 +3,7 @@
 import csv
 import io
 import math
+import time
 from pathlib import Path
 
 from psph.io.files import write_json_atomic, write_text_atomic
@@ -14,16 +15,21 @@ SUMMARY_NAME = "summary.json"
 class History:
     """Diagnostics rows with a `time` column; the file is rewritten whole (temporary file + rename).
 
-    Columns are fixed by the first row; later rows may not add columns (a programming error).
+    Columns are fixed by the first row; later rows may not add columns (a programming error). By default
+    the file is rewritten at most every `interval` seconds of wall time (and on `flush()`), so a run of
+    many short iterations does not spend its time rewriting the file.
     """
 
-    def __init__(self, comm, out_dir):
+    def __init__(self, comm, out_dir, interval=2.0):
         self.comm = comm
         self.path = Path(out_dir) / HISTORY_NAME
         self.columns = None
         self.rows = []
+        self.interval = interval
+        self._last_flush = -math.inf
 
-    def append(self, row: dict, flush=True) -> None:
+    def append(self, row: dict, flush=None) -> None:
+        """Add a row; flush=True writes now, False never, None when `interval` has passed."""
         if "time" not in row:
             raise KeyError("history rows need a 'time' column")
         if self.columns is None:
@@ -31,10 +37,12 @@ class History:
         elif set(row) - set(self.columns):
             raise KeyError(f"history columns {sorted(set(row) - set(self.columns))} not in the first row")
         self.rows.append(dict(row))
-        if flush:
+        if flush or (flush is None and time.monotonic() - self._last_flush >= self.interval):
             self.flush()
 
     def flush(self) -> None:
+        """Rewrite history.csv with every row so far (rank 0; others return)."""
+        self._last_flush = time.monotonic()
         if self.comm.rank != 0 or self.columns is None:
             return
         buf = io.StringIO()

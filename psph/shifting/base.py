@@ -5,6 +5,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from psph.diagnostics import fluid_mask, grad_c, norms
+from psph.profiling import phase
 
 
 @dataclass
@@ -23,8 +24,9 @@ class ShiftReport:
 
 def measure(system):
     """(grad C of the owned particles, L2(grad C), Linf(grad C)) over the free (fluid) particles."""
-    grad = grad_c(system)
-    l2, linf = norms(system.comm, grad, fluid_mask(system), system.kernel.h)
+    with phase("grad_c"):
+        grad = grad_c(system)
+        l2, linf = norms(system.comm, grad, fluid_mask(system), system.kernel.h)
     return grad, l2, linf
 
 

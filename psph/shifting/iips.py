@@ -21,12 +21,13 @@ import time
 
 import numpy as np
 
-from psph.compute.iips import iips_structure, iips_values
+from psph.compute.iips import iips_pattern, iips_values
 from psph.errors import NumericalError, SolverError
 from psph.parallel.comm import allreduce_max, allreduce_sum
 from psph.particles import FieldSpec, Kind
 from psph.profiling import phase
 from psph.shifting.base import ShiftReport, measure
+from psph.solvers.coo import COOAssembly
 from psph.solvers.linear import LinearSolver
 from psph.solvers.petsc import petsc
 
@@ -55,26 +56,24 @@ class ImplicitShifting:
 
     # ------------------------------------------------------------- assembly
     def _structure(self, system):
-        """(Re)build the matrix layout after a neighbour-list rebuild. Collective."""
+        """(Re)build the matrix after a neighbour-list rebuild: numbering, pattern, preallocation. Collective."""
         PETSc = petsc()
         p = system.particles
         d = p.dim
         free = p.owned("kind") == Kind.FLUID
         rows, _, n_free = system.global_rows(free)
         with phase("iips_structure"):
-            indptr, indices, self_slot, pair_slot, block_start = iips_structure(
-                rows, system.nbr_ptr, system.nbr_idx, d)
-        n_total = int(allreduce_sum(system.comm, n_free))
-        mat = PETSc.Mat().createAIJ(size=((n_free * d, n_total * d), (n_free * d, n_total * d)), bsize=d,
-                                    comm=system.comm)
-        self.indptr = indptr.astype(PETSc.IntType)
-        self.indices = indices.astype(PETSc.IntType)
-        mat.setPreallocationCSR((self.indptr, self.indices))
-        mat.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+            coo_rows, coo_cols = iips_pattern(rows, system.nbr_ptr, system.nbr_idx, d)
+            n_total = int(allreduce_sum(system.comm, n_free))
+            mat = PETSc.Mat().create(comm=system.comm)
+            mat.setSizes(((n_free * d, n_total * d), (n_free * d, n_total * d)), bsize=d)
+            mat.setType(PETSc.Mat.Type.AIJ)  # the default; -iips_mat_type baij (or other) overrides it
+            mat.setOptionsPrefix(self.solver.prefix)
+            mat.setFromOptions()
+            self.assembly = COOAssembly(mat, coo_rows, coo_cols)
         self.mat = mat
         self.rhs, self.dx = mat.createVecs()
-        self.values = np.zeros(len(indices))
-        self.slots = (self_slot, pair_slot, block_start)
+        self.values = np.zeros(len(coo_rows))
         self.free = free
         self.solver.set_operator(mat)
         self._structure_of = system.rebuilds
@@ -86,9 +85,8 @@ class ImplicitShifting:
         p = system.particles
         with phase("iips_assemble"):
             iips_values(p["position"], p["volume"], p["row"], system.nbr_ptr, system.nbr_idx,
-                        system.kernel.params, *self.slots, self.values)
-            self.mat.setValuesCSR(self.indptr, self.indices, self.values)
-            self.mat.assemble()
+                        system.kernel.params, self.values)
+            self.assembly.set_values(self.values)
         return self.mat
 
     # -------------------------------------------------------------- iterate

@@ -6,16 +6,14 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from psph.compute.iips import iips_structure, iips_values
+from psph.compute.iips import iips_pattern, iips_values
 from psph.particles import Kind
 from tests.conftest import periodic_scene
 
 
-def dense_from_csr(indptr, indices, values, n):
+def dense_from_coo(rows, cols, values, n):
     a = np.zeros((n, n))
-    for r in range(len(indptr) - 1):
-        for k in range(indptr[r], indptr[r + 1]):
-            a[r, indices[k]] += values[k]
+    np.add.at(a, (rows, cols), values)
     return a
 
 
@@ -48,15 +46,11 @@ def test_matrix_is_the_printed_operator(dim, n):
     free = kinds == Kind.FLUID
     rows, _, n_free = s.global_rows(free)
     assert n_free == free.sum()
-    indptr, indices, self_slot, pair_slot, block_start = iips_structure(rows, s.nbr_ptr, s.nbr_idx, dim)
-    values = np.zeros(len(indices))
-    iips_values(p["position"], p["volume"], rows, s.nbr_ptr, s.nbr_idx, s.kernel.params, self_slot, pair_slot,
-                block_start, values)
-    assert np.all(np.diff(indptr) > 0) and len(indptr) == n_free * dim + 1
-    for r in range(n_free * dim):  # sorted, unique columns per row (PETSc's CSR preallocation needs it)
-        cols = indices[indptr[r]:indptr[r + 1]]
-        assert np.all(np.diff(cols) > 0)
-    got = dense_from_csr(indptr, indices, values, n_free * dim)
+    coo_rows, coo_cols = iips_pattern(rows, s.nbr_ptr, s.nbr_idx, dim)
+    values = np.zeros(len(coo_rows))
+    iips_values(p["position"], p["volume"], rows, s.nbr_ptr, s.nbr_idx, s.kernel.params, values)
+    assert coo_rows.max() < n_free * dim and coo_cols.max() < n_free * dim
+    got = dense_from_coo(coo_rows, coo_cols, values, n_free * dim)
     expect = printed_operator(p.owned("position"), p.owned("volume"), free, s.kernel, s.domain)
     assert np.allclose(got, expect, rtol=0, atol=1e-12 * np.abs(expect).max())
 

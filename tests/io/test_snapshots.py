@@ -80,11 +80,16 @@ def test_one_dimensional_series_has_a_geometry(comm, mpi_tmp_path):
 
 
 def test_history_rewrites_atomically(comm, mpi_tmp_path):
-    h = History(comm, mpi_tmp_path)
-    h.append({"time": 0.0, "a": 1.0})
-    h.append({"time": 0.1, "a": float("nan")})
+    h = History(comm, mpi_tmp_path, interval=3600.0)
+    h.append({"time": 0.0, "a": 1.0})  # the first row is written at once
+    h.append({"time": 0.1, "a": float("nan")})  # later ones wait for the interval or a flush
     with pytest.raises(KeyError):
         h.append({"time": 0.2, "new_column": 1.0})
     comm.Barrier()
+    assert len(read_history(mpi_tmp_path / "history.csv")) == 1
+    comm.Barrier()
+    h.flush()
+    comm.Barrier()
     rows = read_history(mpi_tmp_path / "history.csv")
     assert [r["time"] for r in rows] == [0.0, 0.1] and rows[0]["a"] == 1.0 and np.isnan(rows[1]["a"])
+    assert not list(mpi_tmp_path.glob("*.tmp"))

@@ -1,0 +1,85 @@
+"""Helpers for the studies in run_scripts/: run scenes through the command line, read what they wrote,
+and write tables (Markdown and CSV) and convergence rates. Every figure a study reports comes from runs
+it makes itself."""
+
+import csv
+import json
+import math
+import os
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from psph.io.history import read_history
+
+ROOT = Path(__file__).resolve().parents[1]
+CASES = ROOT / "cases"
+
+
+@dataclass
+class Run:
+    out: Path
+    summary: dict
+    history: list
+
+
+def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True) -> Run:
+    """`psph run scene --out out --set ... [PETSc options]` on `ranks` MPI ranks; raises on failure."""
+    cmd = [sys.executable, "-m", "psph", "run", str(scene), "--out", str(out), "--overwrite"]
+    for s in sets:
+        cmd += ["--set", s]
+    if quiet:
+        cmd.append("--quiet")
+    cmd += list(petsc)
+    if ranks > 1:
+        cmd = ["mpiexec", "-n", str(ranks), "--oversubscribe"] + cmd
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_COMM", "PMIX"))}
+    res = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    if res.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{res.stderr[-2000:]}")
+    out = Path(out)
+    return Run(out, json.loads((out / "summary.json").read_text()), read_history(out / "history.csv"))
+
+
+def rate(e_coarse, e_fine, ratio=2.0) -> float:
+    """Observed convergence order between two resolutions `ratio` apart."""
+    if e_coarse and e_fine and e_coarse > 0 and e_fine > 0:
+        return math.log(e_coarse / e_fine) / math.log(ratio)
+    return float("nan")
+
+
+def fmt(value, spec=".3g") -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    if isinstance(value, str):
+        return value
+    if isinstance(value, int) and not isinstance(value, bool):
+        return str(value)
+    return format(value, spec)
+
+
+def write_table(path, header, rows, title="", note="") -> str:
+    """Write a Markdown table (path.md) and the same data as CSV (path.csv); returns the Markdown."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    lines = [f"### {title}", ""] if title else []
+    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in rows]
+    if note:
+        lines += ["", note]
+    text = "\n".join(lines) + "\n"
+    path.with_suffix(".md").write_text(text)
+    with open(path.with_suffix(".csv"), "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(header)
+        writer.writerows(rows)
+    return text
+
+
+def first_iteration(history, predicate):
+    """(row) of the first history row satisfying predicate, or None."""
+    for row in history:
+        if predicate(row):
+            return row
+    return None

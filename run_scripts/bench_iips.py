@@ -1,0 +1,101 @@
+"""Cost of one IIPS Newton iteration on 2-D perturbed lattices (40k and 160k particles, C6, h = 2 dx,
+sigma/dx = 0.1), split into its parts, and the time per KSP iteration against the memory-bandwidth bound
+of the matrix.
+
+    .venv/bin/python run_scripts/bench_iips.py                  # one rank
+    mpiexec -n 2 .venv/bin/python run_scripts/bench_iips.py     # two ranks (figures per rank)
+    ... [PETSc options, e.g. -iips_pc_type hypre]
+
+Bandwidth: a single-core STREAM triad (a = b + s c, numba, 3 x 8 bytes per element, best of 5) measured
+in the same process. Bound of one BCGS + Jacobi iteration: two matrix-vector products at 12 bytes per
+nonzero (8 value + 4 column index) plus 16 bytes per row (row pointer, result), and about 20 vector
+sweeps of 8 bytes per row (the BCGS axpys and dot products, the Jacobi scaling).
+"""
+
+import argparse
+import time
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def triad(a, b, c, s):
+    for i in range(a.size):
+        a[i] = b[i] + s * c[i]
+
+
+def stream_bandwidth(n=20_000_000):
+    a, b, c = np.zeros(n), np.ones(n), np.ones(n)
+    triad(a, b, c, 3.0)
+    best = np.inf
+    for _ in range(5):
+        t0 = time.perf_counter()
+        triad(a, b, c, 3.0)
+        best = min(best, time.perf_counter() - t0)
+    return 24.0 * n / best
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[200, 400], help="particles per side")
+    parser.add_argument("--iterations", type=int, default=3, help="timed Newton iterations (after one warm-up)")
+    args, petsc_args = parser.parse_known_args()
+
+    from psph.solvers.petsc import initialize
+
+    initialize(petsc_args)
+    from mpi4py import MPI
+
+    from psph import profiling
+    from psph.parallel.comm import allreduce_max
+    from psph.scene.load import scene_from_table
+    from psph.shifting.iips import ImplicitShifting
+    from psph.simulation import build_system
+
+    comm = MPI.COMM_WORLD
+    bandwidth = stream_bandwidth()
+    bandwidth = comm.allreduce(bandwidth, op=MPI.MIN)
+    if comm.rank == 0:
+        print(f"IIPS Newton iteration cost, {comm.size} rank(s); STREAM triad bandwidth {bandwidth / 1e9:.2f} GB/s "
+              f"per core (min over ranks)")
+    parts = ["grad_c", "iips_structure", "iips_assemble", "ksp_solve", "halo_exchange", "rebuild"]
+    for n in args.sizes:
+        scene = scene_from_table({"name": "bench", "domain": {
+            "dimension": 2, "lower": [0.0, 0.0], "upper": [1.0, 1.0], "periodic": [True, True], "dx": 1.0 / n},
+            "initial": {"sigma_over_dx": 0.1, "seed": 1}, "shifting": {"method": "iips"},
+            "iips": {"max_newton": 1}})
+        system = build_system(scene, comm)
+        shifting = ImplicitShifting(scene.iips, comm)
+        shifting.correct(system)  # warm-up: compiles, builds the matrix structure
+        profiling.reset()
+        its = 0
+        comm.Barrier()
+        t0 = time.perf_counter()
+        for _ in range(args.iterations):
+            its += shifting.correct(system).linear_iterations
+        total = (time.perf_counter() - t0) / args.iterations
+        t = profiling.totals()
+        split = {k: t.get(k, (0.0, 0))[0] / args.iterations for k in parts}
+        split["ksp_solve"] = t.get("ksp_solve", (0.0, 0))[0] / args.iterations
+        nnz = shifting.mat.getInfo()["nz_used"]  # local
+        rows = shifting.mat.getLocalSize()[0]
+        ksp_its = its / args.iterations
+        per_its = split["ksp_solve"] / max(ksp_its, 1)
+        bound = (2 * (12 * nnz + 16 * rows) + 20 * 8 * rows) / bandwidth
+        worst = {k: allreduce_max(comm, v) for k, v in split.items()}
+        per_its_max = allreduce_max(comm, per_its)
+        bound_max = allreduce_max(comm, bound)
+        total = allreduce_max(comm, total)
+        if comm.rank == 0:
+            print(f"\n{n * n} particles ({rows} local rows, {nnz:.0f} local nonzeros on rank 0)")
+            print(f"  time per Newton iteration {1e3 * total:.1f} ms (max over ranks); parts:")
+            for k in parts:
+                print(f"    {k:15s} {1e3 * worst[k]:8.1f} ms  ({100 * worst[k] / total:4.1f} %)")
+            print(f"  KSP iterations per Newton iteration {ksp_its:.1f} ({shifting.solver.describe()})")
+            print(f"  time per KSP iteration {1e3 * per_its_max:.2f} ms, bandwidth bound {1e3 * bound_max:.2f} ms "
+                  f"-> {per_its_max / bound_max:.2f} x the bound")
+
+
+if __name__ == "__main__":
+    main()
