@@ -7,6 +7,7 @@ from pathlib import Path
 
 from psph import __version__
 from psph.compute.smoothing import make_kernel
+from psph.compute.warmup import warm_up
 from psph.domain import Domain
 from psph.initial import create_particles
 from psph.io.history import History, write_summary
@@ -43,6 +44,7 @@ class Simulation:
         self.comm = comm.Dup()
         self.out_dir = Path(out_dir)
         self.log = log or (lambda msg: None)
+        warm_up(scene.domain.dimension, scene.domain.kernel)
         self.system = build_system(scene, self.comm, specs, halo_fields)
         self.snapshots = SnapshotWriter(self.comm, self.out_dir, self.system.domain)
         self.history = History(self.comm, self.out_dir)

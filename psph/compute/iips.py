@@ -16,8 +16,8 @@ run_scripts/iips_static.py measure it). Fixed particles (walls, free surface, in
 are not unknowns but still contribute to grad C (thesis section 10.2.1).
 
 Rows are numbered per particle (`row`, global, from an exclusive scan; -1 for fixed particles) and the
-scalar unknown of component a of particle p is p * d + a. The matrix is given to PETSc as COO triplets;
-several halo images of one particle in a row (small periodic boxes) give repeated entries, which add up.
+scalar unknown of component a of particle p is p * d + a. Several halo images of one particle in a row
+(small periodic boxes) add up in one matrix entry.
 """
 
 import numpy as np
@@ -28,48 +28,104 @@ from psph.compute.sums import pair
 
 
 @njit(cache=True)
-def iips_pattern(row, ptr, idx, d):
-    """COO (rows, cols) of the owned free particles' block rows, built once per neighbour-list rebuild.
+def iips_structure(row, ptr, idx, d):
+    """CSR sparsity of the owned free particles' rows, built once per neighbour-list rebuild.
 
     row: global particle number of every local particle (-1 if fixed); ptr, idx: CSR neighbour lists of
-    the owned particles. Order: for each owned free particle, its d diagonal self entries, then d x d
-    entries per free neighbour-list entry (repeated (row, col) pairs are summed by PETSc).
+    the owned particles; owned free particles carry consecutive numbers in local order.
+    Returns (indptr, indices): scalar CSR with global, sorted, unique columns per row; and slot: for
+    each value iips_values produces (its "natural" order: the d diagonal self entries of a particle,
+    then d x d entries per free neighbour-list entry), the CSR position it adds into (several halo images
+    of one particle in a row share a position).
     """
     n_rows = ptr.size - 1
-    nnz = 0
+    n_free = 0
+    n_values = 0
+    for i in range(n_rows):
+        if row[i] >= 0:
+            n_free += 1
+            n_values += d
+            for k in range(ptr[i], ptr[i + 1]):
+                if row[idx[k]] >= 0:
+                    n_values += d * d
+    slot = np.empty(n_values, dtype=np.int64)
+    indptr = np.zeros(n_free * d + 1, dtype=np.int64)
+    columns = np.empty(n_values // d, dtype=np.int64)  # unique particle columns, row after row
+    width = np.zeros(n_free, dtype=np.int64)
+    scratch = np.empty(64, dtype=np.int64)
+    # unique sorted particle columns of every particle row (insertion sort: rows arrive nearly sorted)
+    p = 0
+    c = 0
     for i in range(n_rows):
         if row[i] < 0:
             continue
-        nnz += d
+        m = 1 + ptr[i + 1] - ptr[i]
+        if m > scratch.size:
+            scratch = np.empty(2 * m, dtype=np.int64)
+        scratch[0] = row[i]
+        q = 1
         for k in range(ptr[i], ptr[i + 1]):
-            if row[idx[k]] >= 0:
-                nnz += d * d
-    rows = np.empty(nnz, dtype=np.int64)
-    cols = np.empty(nnz, dtype=np.int64)
-    e = 0
-    for i in range(n_rows):
-        ri = row[i]
-        if ri < 0:
-            continue
+            v = row[idx[k]]
+            if v < 0:
+                continue
+            t = q
+            while t > 0 and scratch[t - 1] > v:
+                scratch[t] = scratch[t - 1]
+                t -= 1
+            scratch[t] = v
+            q += 1
+        u = 0
+        for t in range(q):
+            if t == 0 or scratch[t] != scratch[t - 1]:
+                columns[c + u] = scratch[t]
+                u += 1
+        width[p] = u
+        c += u
+        p += 1
+    # scalar CSR: particle row p, component a holds columns (col * d + b) for its particle columns
+    base = np.zeros(n_free + 1, dtype=np.int64)
+    for p in range(n_free):
+        base[p + 1] = base[p] + width[p] * d * d
+    indices = np.empty(base[n_free], dtype=np.int64)
+    start = 0
+    for p in range(n_free):
+        m = width[p]
         for a in range(d):
-            rows[e] = ri * d + a
-            cols[e] = ri * d + a
+            indptr[p * d + a + 1] = base[p] + (a + 1) * m * d
+            for s in range(m):
+                for b in range(d):
+                    indices[base[p] + a * m * d + s * d + b] = columns[start + s] * d + b
+        start += m
+    # natural order -> CSR position
+    e = 0
+    p = 0
+    start = 0
+    for i in range(n_rows):
+        if row[i] < 0:
+            continue
+        m = width[p]
+        uniq = columns[start:start + m]
+        s = np.searchsorted(uniq, row[i])
+        for a in range(d):
+            slot[e] = base[p] + a * m * d + s * d + a
             e += 1
         for k in range(ptr[i], ptr[i + 1]):
             rj = row[idx[k]]
             if rj < 0:
                 continue
+            s = np.searchsorted(uniq, rj)
             for a in range(d):
                 for b in range(d):
-                    rows[e] = ri * d + a
-                    cols[e] = rj * d + b
+                    slot[e] = base[p] + a * m * d + s * d + b
                     e += 1
-    return rows, cols
+        start += m
+        p += 1
+    return indptr, indices, slot
 
 
 @njit(cache=True)
 def iips_values(pos, vol, row, ptr, idx, kp, values):
-    """COO values of the printed IIPS operator, in the order of iips_pattern."""
+    """Values of the printed IIPS operator in natural order (see iips_structure)."""
     d = pos.shape[1]
     h0 = kernel_f(0.0, kp)  # HessW(0) = W''(0) I = f(0) I
     e = 0

@@ -21,15 +21,14 @@ import time
 
 import numpy as np
 
-from psph.compute.iips import iips_pattern, iips_values
+from psph.compute.iips import iips_structure, iips_values
 from psph.errors import NumericalError, SolverError
 from psph.parallel.comm import allreduce_max, allreduce_sum
 from psph.particles import FieldSpec, Kind
 from psph.profiling import phase
 from psph.shifting.base import ShiftReport, measure
-from psph.solvers.coo import COOAssembly
-from psph.solvers.linear import LinearSolver
-from psph.solvers.petsc import petsc
+from psph.solvers.aij import FixedPatternMatrix
+from psph.solvers.linear import LinearSolver, petsc_errors
 
 SHIFT_FIELD = FieldSpec("iips_shift", ("d",))
 # particles closer than COINCIDENT h count as coincident and are first nudged NUDGE h apart
@@ -57,25 +56,21 @@ class ImplicitShifting:
     # ------------------------------------------------------------- assembly
     def _structure(self, system):
         """(Re)build the matrix after a neighbour-list rebuild: numbering, pattern, preallocation. Collective."""
-        PETSc = petsc()
         p = system.particles
         d = p.dim
         free = p.owned("kind") == Kind.FLUID
         rows, _, n_free = system.global_rows(free)
         with phase("iips_structure"):
-            coo_rows, coo_cols = iips_pattern(rows, system.nbr_ptr, system.nbr_idx, d)
+            indptr, indices, slot = iips_structure(rows, system.nbr_ptr, system.nbr_idx, d)
             n_total = int(allreduce_sum(system.comm, n_free))
-            mat = PETSc.Mat().create(comm=system.comm)
-            mat.setSizes(((n_free * d, n_total * d), (n_free * d, n_total * d)), bsize=d)
-            mat.setType(PETSc.Mat.Type.AIJ)  # the default; -iips_mat_type baij (or other) overrides it
-            mat.setOptionsPrefix(self.solver.prefix)
-            mat.setFromOptions()
-            self.assembly = COOAssembly(mat, coo_rows, coo_cols)
-        self.mat = mat
-        self.rhs, self.dx = mat.createVecs()
-        self.values = np.zeros(len(coo_rows))
+            with petsc_errors("creating the IIPS matrix"):
+                self.matrix = FixedPatternMatrix(system.comm, indptr, indices, slot, n_total * d, d,
+                                                 self.solver.prefix)
+        self.mat = self.matrix.mat
+        self.rhs, self.dx = self.mat.createVecs()
+        self.values = np.zeros(len(slot))
         self.free = free
-        self.solver.set_operator(mat)
+        self.solver.set_operator(self.mat)
         self._structure_of = system.rebuilds
 
     def assemble(self, system):
@@ -86,7 +81,7 @@ class ImplicitShifting:
         with phase("iips_assemble"):
             iips_values(p["position"], p["volume"], p["row"], system.nbr_ptr, system.nbr_idx,
                         system.kernel.params, self.values)
-            self.assembly.set_values(self.values)
+            self.matrix.set_values(self.values)
         return self.mat
 
     # -------------------------------------------------------------- iterate

@@ -6,11 +6,31 @@ After each solve the converged reason is checked; a divergence raises SolverErro
 and the iteration count.
 """
 
+from contextlib import contextmanager
+
 import numpy as np
 
-from psph.errors import SolverError
+from psph.errors import PsphError, SolverError
 from psph.profiling import phase
 from psph.solvers.petsc import petsc
+
+
+@contextmanager
+def petsc_errors(what: str):
+    """Turn a PETSc error (bad option combination, unsupported operation) into a one-line PsphError.
+
+    PETSc raises these on every rank of the communicator (collective setup calls), so the error is
+    marked collective."""
+    PETSc = petsc()
+    try:
+        yield
+    except PETSc.Error as exc:
+        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+        detail = next((ln.split("]", 1)[-1].strip() for ln in lines if "No " in ln or "Unknown" in ln
+                       or "not" in ln.lower()), lines[-1] if lines else "")
+        err = PsphError(f"PETSc failed in {what} (error {exc.ierr}): {detail}; check the command-line PETSc options")
+        err.collective = True
+        raise err from None
 
 
 def reason_name(reason: int) -> str:
@@ -30,24 +50,26 @@ class LinearSolver:
         self.prefix = prefix
         self.ksp = PETSc.KSP().create(comm=comm)
         self.ksp.setOptionsPrefix(prefix)
-        self.ksp.setType(ksp_type)
-        self.ksp.getPC().setType(pc_type)
-        self.ksp.setTolerances(rtol=rtol, atol=atol, max_it=max_it)
-        self.ksp.setFromOptions()
+        with petsc_errors(f"setting up the -{prefix} solver"):
+            self.ksp.setType(ksp_type)
+            self.ksp.getPC().setType(pc_type)
+            self.ksp.setTolerances(rtol=rtol, atol=atol, max_it=max_it)
+            self.ksp.setFromOptions()
         self.operator = None
         self.iterations = 0
 
     def set_operator(self, mat) -> None:
         """Use `mat` from now on (a new matrix, possibly of another size, after a rebuild)."""
-        if self.operator is not None:
-            self.ksp.reset()
-        self.ksp.setOperators(mat)
-        self.ksp.setFromOptions()
+        with petsc_errors(f"setting up the -{self.prefix} solver"):
+            if self.operator is not None:
+                self.ksp.reset()
+            self.ksp.setOperators(mat)
+            self.ksp.setFromOptions()
         self.operator = mat
 
     def solve(self, b, x) -> int:
         """Solve operator x = b (x holds the initial guess); returns iterations or raises SolverError."""
-        with phase("ksp_solve"):
+        with phase("ksp_solve"), petsc_errors(f"the -{self.prefix} solve"):
             self.ksp.solve(b, x)
         reason = self.ksp.getConvergedReason()
         its = self.ksp.getIterationNumber()

@@ -6,14 +6,18 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from psph.compute.iips import iips_pattern, iips_values
+from psph.compute.iips import iips_structure, iips_values
 from psph.particles import Kind
 from tests.conftest import periodic_scene
 
 
-def dense_from_coo(rows, cols, values, n):
+def dense_from_csr(indptr, indices, slot, values, n):
+    """Dense matrix from the CSR pattern and the natural-order values added into their slots."""
+    csr = np.zeros(len(indices))
+    np.add.at(csr, slot, values)
     a = np.zeros((n, n))
-    np.add.at(a, (rows, cols), values)
+    for r in range(n):
+        a[r, indices[indptr[r]:indptr[r + 1]]] = csr[indptr[r]:indptr[r + 1]]
     return a
 
 
@@ -46,11 +50,13 @@ def test_matrix_is_the_printed_operator(dim, n):
     free = kinds == Kind.FLUID
     rows, _, n_free = s.global_rows(free)
     assert n_free == free.sum()
-    coo_rows, coo_cols = iips_pattern(rows, s.nbr_ptr, s.nbr_idx, dim)
-    values = np.zeros(len(coo_rows))
+    indptr, indices, slot = iips_structure(rows, s.nbr_ptr, s.nbr_idx, dim)
+    values = np.zeros(len(slot))
     iips_values(p["position"], p["volume"], rows, s.nbr_ptr, s.nbr_idx, s.kernel.params, values)
-    assert coo_rows.max() < n_free * dim and coo_cols.max() < n_free * dim
-    got = dense_from_coo(coo_rows, coo_cols, values, n_free * dim)
+    assert len(indptr) == n_free * dim + 1
+    for r in range(n_free * dim):  # sorted, unique columns per row (PETSc's CSR preallocation needs it)
+        assert np.all(np.diff(indices[indptr[r]:indptr[r + 1]]) > 0)
+    got = dense_from_csr(indptr, indices, slot, values, n_free * dim)
     expect = printed_operator(p.owned("position"), p.owned("volume"), free, s.kernel, s.domain)
     assert np.allclose(got, expect, rtol=0, atol=1e-12 * np.abs(expect).max())
 

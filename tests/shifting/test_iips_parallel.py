@@ -66,3 +66,34 @@ def test_iips_with_an_empty_rank(comm):
     report = ImplicitShifting(periodic_scene(n=20, iips={"max_newton": 3}).iips, comm).correct(system)
     assert report.iterations == 3 and np.isfinite(report.L2_grad_c)
     assert np.all(np.isfinite(system.particles["position"]))
+
+
+@pytest.mark.parametrize("mat_type", ["aij", "baij"])
+def test_assembled_petsc_matrix_is_the_printed_operator(comm, mat_type):
+    """The distributed matrix (values written into PETSc's AIJ arrays, or set through setValuesCSR for
+    other types) equals the dense printed operator, row by row, compared through gids."""
+    from tests.compute.test_iips import printed_operator
+
+    scene = periodic_scene(n=10, sigma=0.2, h_over_dx=1.6, iips={"max_newton": 1})
+    with petsc_options(iips_mat_type=mat_type):
+        shifting = ImplicitShifting(scene.iips, comm)
+        system = build_system(scene, comm)
+        shifting.assemble(system)
+    assert shifting.mat.getType().endswith(mat_type)
+    if mat_type == "aij":
+        assert shifting.matrix.blocks  # the direct path was taken
+    p = system.particles
+    free = p.owned("kind") == 0
+    rows = np.concatenate(comm.allgather(p.owned("row")[free]))
+    gids = np.concatenate(comm.allgather(p.owned("gid")[free]))
+    gid_of_row = np.empty(len(rows), np.int64)
+    gid_of_row[rows] = gids
+    _, pos = gather_by_gid(comm, p.owned("gid"), p.owned("position"))
+    expect = printed_operator(pos, np.full(len(pos), 0.01), np.ones(len(pos), bool), system.kernel, system.domain)
+    r0, r1 = shifting.mat.getOwnershipRange()
+    for r in range(r0, r1):
+        cols, vals = shifting.mat.getRow(r)
+        g_row, comp = gid_of_row[r // 2], r % 2
+        dense_row = np.zeros(expect.shape[1])
+        dense_row[2 * gid_of_row[cols // 2] + cols % 2] = vals
+        assert np.allclose(dense_row, expect[2 * g_row + comp], rtol=0, atol=1e-12 * np.abs(expect).max())

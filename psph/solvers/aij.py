@@ -1,0 +1,136 @@
+"""Distributed AIJ matrices with a fixed pattern: preallocated once from CSR, values rewritten in place.
+
+`setPreallocationCSR` inserts the pattern once per neighbour-list rebuild (~27 ns per nonzero; PETSc's
+COO preallocation costs ~65). Values then go straight into PETSc's own value arrays: the local diagonal
+and off-diagonal SeqAIJ blocks of an MPIAIJ matrix (or the SeqAIJ matrix on one rank), reached through
+PETSc's public C API (MatMPIAIJGetSeqAIJ, MatGetRowIJ, MatSeqAIJGetArray/RestoreArray) with ctypes,
+because petsc4py 3.18 binds none of them. A matrix type without such arrays (e.g. -iips_mat_type baij)
+takes the generic `setValuesCSR` path. Either way the matrix is re-assembled, which advances its state
+so that preconditioners are set up again.
+"""
+
+import ctypes
+
+import numpy as np
+
+from psph.compute.csr import block_major_positions, scatter, split_positions, write_split
+from psph.errors import PsphError
+from psph.solvers.petsc import petsc
+
+_lib = {}
+_ptr = ctypes.c_void_p
+
+
+def _petsc_library():
+    """The libpetsc shared object petsc4py loaded (found in this process's memory map)."""
+    if "lib" not in _lib:
+        petsc()
+        paths = sorted({line.split()[-1] for line in open("/proc/self/maps") if "libpetsc" in line})
+        if not paths:
+            raise PsphError("cannot locate the PETSc library loaded by petsc4py")
+        lib = ctypes.CDLL(paths[0])
+        for name, args in (("MatSeqAIJGetArray", [_ptr, ctypes.POINTER(_ptr)]),
+                           ("MatSeqAIJRestoreArray", [_ptr, ctypes.POINTER(_ptr)]),
+                           ("MatMPIAIJGetSeqAIJ", [_ptr, ctypes.POINTER(_ptr), ctypes.POINTER(_ptr),
+                                                   ctypes.POINTER(_ptr)]),
+                           ("MatGetRowIJ", [_ptr, ctypes.c_int, ctypes.c_int, ctypes.c_int,
+                                            ctypes.POINTER(ctypes.c_int), ctypes.POINTER(_ptr),
+                                            ctypes.POINTER(_ptr), ctypes.POINTER(ctypes.c_int)]),
+                           ("MatRestoreRowIJ", [_ptr, ctypes.c_int, ctypes.c_int, ctypes.c_int,
+                                                ctypes.POINTER(ctypes.c_int), ctypes.POINTER(_ptr),
+                                                ctypes.POINTER(_ptr), ctypes.POINTER(ctypes.c_int)])):
+            fn = getattr(lib, name)
+            fn.argtypes = args
+            fn.restype = ctypes.c_int
+        _lib["lib"] = lib
+    return _lib["lib"]
+
+
+def _check(code, what):
+    if code != 0:
+        raise PsphError(f"PETSc error {code} in {what}")
+
+
+def _row_pointers(lib, handle):
+    """Row pointers (ia) of a SeqAIJ matrix, as int64."""
+    n = ctypes.c_int()
+    ia, ja = _ptr(), _ptr()
+    done = ctypes.c_int()
+    _check(lib.MatGetRowIJ(handle, 0, 0, 0, ctypes.byref(n), ctypes.byref(ia), ctypes.byref(ja),
+                           ctypes.byref(done)), "MatGetRowIJ")
+    if not done.value:
+        raise PsphError("MatGetRowIJ is not supported for this matrix")
+    int_type = ctypes.c_int32 if np.dtype(petsc().IntType).itemsize == 4 else ctypes.c_int64
+    rows = np.ctypeslib.as_array(ctypes.cast(ia, ctypes.POINTER(int_type)), shape=(n.value + 1,)).astype(np.int64)
+    _check(lib.MatRestoreRowIJ(handle, 0, 0, 0, ctypes.byref(n), ctypes.byref(ia), ctypes.byref(ja),
+                               ctypes.byref(done)), "MatRestoreRowIJ")
+    return rows
+
+
+class FixedPatternMatrix:
+    """A square distributed matrix with block size `bsize`, pattern (indptr, indices) and `slot`, the
+    CSR position of every value a value kernel produces (repeats add up). Collective constructor."""
+
+    def __init__(self, comm, indptr, indices, slot, n_global, bsize, prefix):
+        PETSc = petsc()
+        n_local = len(indptr) - 1
+        mat = PETSc.Mat().create(comm=comm)
+        mat.setSizes(((n_local, n_global), (n_local, n_global)), bsize=bsize)
+        mat.setType(PETSc.Mat.Type.AIJ)  # the default; -<prefix>mat_type overrides it
+        mat.setOptionsPrefix(prefix)
+        mat.setFromOptions()
+        self.kind = mat.getType()
+        self.blocked = bsize > 1 and "baij" in self.kind
+        if self.blocked:  # block CSR: the scalar layout per particle row is already row-oriented blocks
+            d2 = bsize * bsize
+            self.indptr = np.asarray(np.asarray(indptr)[::bsize] // d2, dtype=PETSc.IntType)
+            first = np.concatenate([np.arange(indptr[r], indptr[r + 1], bsize) for r in range(0, n_local, bsize)])
+            self.indices = np.asarray(np.asarray(indices)[first.astype(np.int64)] // bsize, dtype=PETSc.IntType)
+            slot = block_major_positions(np.asarray(indptr, np.int64), bsize)[slot]
+        else:
+            self.indptr = np.asarray(indptr, dtype=PETSc.IntType)
+            self.indices = np.asarray(indices, dtype=PETSc.IntType)
+        mat.setPreallocationCSR((self.indptr, self.indices))
+        mat.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        self.mat = mat
+        self.slot = slot
+        self.target = np.zeros(len(slot), dtype=np.int8)
+        self.offset = np.asarray(slot, dtype=np.int64).copy()
+        self.blocks = []  # (SeqAIJ handle, number of values) of the blocks written in place
+        if self.kind == "seqaij":
+            self.blocks = [(mat.handle, len(indices))]
+        elif self.kind == "mpiaij":
+            lib = _petsc_library()
+            ad, ao, colmap = _ptr(), _ptr(), _ptr()
+            _check(lib.MatMPIAIJGetSeqAIJ(mat.handle, ctypes.byref(ad), ctypes.byref(ao), ctypes.byref(colmap)),
+                   "MatMPIAIJGetSeqAIJ")
+            start, end = mat.getOwnershipRangeColumn()
+            ia_d, ia_o = _row_pointers(lib, ad), _row_pointers(lib, ao)
+            if split_positions(np.asarray(indptr, np.int64), np.asarray(indices, np.int64), start, end, ia_d, ia_o,
+                                np.asarray(slot, np.int64), self.target, self.offset):
+                self.blocks = [(ad.value, int(ia_d[-1])), (ao.value, int(ia_o[-1]))]
+        self.values = None if self.blocks else np.zeros(len(indices))
+
+    def set_values(self, natural):
+        """Replace the matrix values by `natural` (one per slot, repeats summed) and assemble. Collective."""
+        if not self.blocks:  # generic path (other matrix types)
+            scatter(natural, self.slot, self.values)
+            if self.blocked:
+                self.mat.setValuesBlockedCSR(self.indptr, self.indices, self.values)
+            else:
+                self.mat.setValuesCSR(self.indptr, self.indices, self.values)
+        else:
+            lib = _petsc_library()
+            pointers, views = [], []
+            for handle, size in self.blocks:
+                data = _ptr()
+                _check(lib.MatSeqAIJGetArray(handle, ctypes.byref(data)), "MatSeqAIJGetArray")
+                pointers.append((handle, data))
+                views.append(np.ctypeslib.as_array(ctypes.cast(data, ctypes.POINTER(ctypes.c_double)), shape=(size,))
+                             if size else np.zeros(0))
+            if len(views) == 1:
+                views.append(np.zeros(0))
+            write_split(natural, self.target, self.offset, views[0], views[1])
+            for handle, data in pointers:
+                _check(lib.MatSeqAIJRestoreArray(handle, ctypes.byref(data)), "MatSeqAIJRestoreArray")
+        self.mat.assemble()
