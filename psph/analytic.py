@@ -5,7 +5,8 @@ corrected, consistent with eq. 8.33; seeds/README.md):
     u = -U e^{-8 pi^2 t / Re} cos(2 pi x / L) sin(2 pi y / L)
     v = +U e^{-8 pi^2 t / Re} sin(2 pi x / L) cos(2 pi y / L)
     p = -rho U^2 / 4 e^{-16 pi^2 t / Re} [cos(4 pi x / L) + cos(4 pi y / L)]
-with Re = U L / nu and t in units of L / U. The pressure sign is the opposite of the thesis' (eq. 3.1):
+with Re = U L / nu and t in units of L / U (the functions take dimensional t and scale it by U / L).
+The pressure sign is the opposite of the thesis' (eq. 3.1):
 with the corrected velocity, only this sign balances the momentum equation. tests/test_analytic.py checks
 symbolically that (u, v, p) solve the incompressible Navier-Stokes equations for any U, L, rho, Re.
 """
@@ -17,7 +18,7 @@ def taylor_green(pos, t=0.0, *, U=1.0, L=1.0, rho=1.0, reynolds=np.inf, lower=(0
     """(velocity (n, 2), pressure (n,)) of the Taylor-Green vortex at `pos` and time t."""
     x = 2.0 * np.pi * (pos[:, 0] - lower[0]) / L
     y = 2.0 * np.pi * (pos[:, 1] - lower[1]) / L
-    decay = np.exp(-8.0 * np.pi**2 * t / reynolds) if np.isfinite(reynolds) else 1.0
+    decay = np.exp(-8.0 * np.pi**2 * t * U / (L * reynolds)) if np.isfinite(reynolds) else 1.0
     u = -U * decay * np.cos(x) * np.sin(y)
     v = U * decay * np.sin(x) * np.cos(y)
     p = -0.25 * rho * U**2 * decay**2 * (np.cos(2.0 * x) + np.cos(2.0 * y))
@@ -25,6 +26,6 @@ def taylor_green(pos, t=0.0, *, U=1.0, L=1.0, rho=1.0, reynolds=np.inf, lower=(0
 
 
 def taylor_green_kinetic_energy(t, *, U=1.0, L=1.0, rho=1.0, reynolds=np.inf):
-    """E_k(t) = rho U^2 L^2 / 4 e^{-16 pi^2 t / Re} of the whole square (thesis eq. 3.2)."""
-    decay = np.exp(-16.0 * np.pi**2 * t / reynolds) if np.isfinite(reynolds) else 1.0
+    """E_k(t) = rho U^2 L^2 / 4 e^{-16 pi^2 t U / (L Re)} of the whole square (thesis eq. 3.2)."""
+    decay = np.exp(-16.0 * np.pi**2 * t * U / (L * reynolds)) if np.isfinite(reynolds) else 1.0
     return 0.25 * rho * U**2 * L**2 * decay

@@ -109,6 +109,16 @@ class ParticleSystem:
             halo_exchange(self.comm, p, self.pattern, ["position"])
         return False
 
+    def prepare_step(self, reach: float) -> bool:
+        """Rebuild now if a step moving particles by up to `reach` could take one past half the skin, so
+        that the step's stages need only refresh halo positions. Collective; True if rebuilt."""
+        p = self.particles
+        moved = max_displacement(p["position"], self._reference, p.n_owned)
+        if 2.0 * (allreduce_max(self.comm, moved) + reach) > self.skin:
+            self.rebuild()
+            return True
+        return False
+
     def refresh(self, names) -> None:
         """Refresh halo copies of fields `names` from their owners. Collective."""
         for name in names:

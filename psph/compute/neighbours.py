@@ -182,3 +182,54 @@ def coincident_rows(pos, gid, ptr, idx, tol):
                 out[i] = True
                 break
     return np.flatnonzero(out)
+
+
+@njit(cache=True)
+def build_cross_lists(query, data, radius):
+    """CSR lists of the `data` points within `radius` of each `query` point (two different point sets)."""
+    nq = query.shape[0]
+    both = np.concatenate((data, query))
+    lo, ncell, size = _cell_grid(both, radius)
+    d = data.shape[1]
+    total = 1
+    for a in range(d):
+        total *= ncell[a]
+    cell = _cell_index(data, lo, ncell, size)
+    start, members = _bin(cell, total)
+    qcell = _cell_index(query, lo, ncell, size)
+    r2max = radius * radius
+    nx = ncell[0]
+    ny = ncell[1] if d > 1 else 1
+    nz = ncell[2] if d > 2 else 1
+    ptr = np.zeros(nq + 1, dtype=np.int64)
+    for fill in range(2):
+        out = np.empty(ptr[nq] if fill else 0, dtype=np.int64)
+        for i in range(nq):
+            c = qcell[i]
+            if d == 1:
+                cx, cy, cz = c, 0, 0
+            elif d == 2:
+                cx, cy, cz = c // ny, c % ny, 0
+            else:
+                cx, cy, cz = c // (ny * nz), (c // nz) % ny, c % nz
+            count = 0
+            for ax in range(max(cx - 1, 0), min(cx + 2, nx)):
+                for ay in range(max(cy - 1, 0), min(cy + 2, ny)):
+                    for az in range(max(cz - 1, 0), min(cz + 2, nz)):
+                        cc = (ax * ny + ay) * nz + az
+                        for m in range(start[cc], start[cc + 1]):
+                            j = members[m]
+                            r2 = 0.0
+                            for a in range(d):
+                                t = query[i, a] - data[j, a]
+                                r2 += t * t
+                            if r2 < r2max:
+                                if fill:
+                                    out[ptr[i] + count] = j
+                                count += 1
+            if not fill:
+                ptr[i + 1] = count
+        if not fill:
+            for i in range(nq):
+                ptr[i + 1] += ptr[i]
+    return ptr, out

@@ -14,7 +14,7 @@ thesis is misprinted: C6 (39/(14 pi), 15/16 in 1-D: seeds/README.md) and the 1-D
 which the thesis takes from the genuinely 1-D Wendland functions (5/8, 3/4) instead of the polynomials it
 prints; with the printed polynomials they are 3/4 and 9/32.
 
-Compute kernels call three scalar functions of the distance r with kp = (kernel id, h, alpha_d / h^d):
+Compute kernels call three scalar functions of the distance r with the parameters kp of Kernel.params:
 
     kernel_w(r, kp)    W(r)
     kernel_f(r, kp)    W'(r) / r      so that  grad_i W_ij = f(r_ij) (x_i - x_j)  (finite at r = 0)
@@ -41,139 +41,120 @@ _NORMALISATION = {
 KERNEL_NAMES = tuple(_NORMALISATION)
 
 
+# Leaf functions of q: f(q), f'(q)/q and f''(q) of each kernel's polynomial (zero beyond the support).
 # ---------------------------------------------------------------- Wendland C2
-@njit(cache=True)
-def _c2_w(r, h, a):
-    q = r / (2.0 * h)
+@njit(cache=True, inline="always")
+def _c2_w(q):
     if q >= 1.0:
         return 0.0
     t = 1.0 - q
     t2 = t * t
-    return a * t2 * t2 * (4.0 * q + 1.0)
+    return t2 * t2 * (4.0 * q + 1.0)
 
 
-@njit(cache=True)
-def _c2_f(r, h, a):
-    q = r / (2.0 * h)
+@njit(cache=True, inline="always")
+def _c2_fq(q):  # f'(q)/q = -20 (1-q)^3
     if q >= 1.0:
         return 0.0
     t = 1.0 - q
-    # f'(q)/q = -20 (1-q)^3
-    return a * (-20.0 * t * t * t) / (4.0 * h * h)
+    return -20.0 * t * t * t
 
 
-@njit(cache=True)
-def _c2_d2(r, h, a):
-    q = r / (2.0 * h)
+@njit(cache=True, inline="always")
+def _c2_d2(q):  # f''(q) = 20 (1-q)^2 (4q - 1)
     if q >= 1.0:
         return 0.0
     t = 1.0 - q
-    # f''(q) = 20 (1-q)^2 (4q - 1)
-    return a * 20.0 * t * t * (4.0 * q - 1.0) / (4.0 * h * h)
+    return 20.0 * t * t * (4.0 * q - 1.0)
 
 
 # ---------------------------------------------------------------- Wendland C4
-@njit(cache=True)
-def _c4_w(r, h, a):
-    q = r / (2.0 * h)
+@njit(cache=True, inline="always")
+def _c4_w(q):
     if q >= 1.0:
         return 0.0
     t = 1.0 - q
     t2 = t * t
-    return a * t2 * t2 * t2 * (35.0 * q * q + 18.0 * q + 3.0)
+    return t2 * t2 * t2 * (35.0 * q * q + 18.0 * q + 3.0)
 
 
-@njit(cache=True)
-def _c4_f(r, h, a):
-    q = r / (2.0 * h)
+@njit(cache=True, inline="always")
+def _c4_fq(q):  # f'(q)/q = -56 (1-q)^5 (5q + 1)
     if q >= 1.0:
         return 0.0
     t = 1.0 - q
     t2 = t * t
-    # f'(q)/q = -56 (1-q)^5 (5q + 1)
-    return a * (-56.0 * t2 * t2 * t * (5.0 * q + 1.0)) / (4.0 * h * h)
+    return -56.0 * t2 * t2 * t * (5.0 * q + 1.0)
 
 
-@njit(cache=True)
-def _c4_d2(r, h, a):
-    q = r / (2.0 * h)
+@njit(cache=True, inline="always")
+def _c4_d2(q):  # f''(q) = 56 (1-q)^4 (35q^2 - 4q - 1)
     if q >= 1.0:
         return 0.0
     t = 1.0 - q
     t2 = t * t
-    # f''(q) = 56 (1-q)^4 (35q^2 - 4q - 1)
-    return a * 56.0 * t2 * t2 * (35.0 * q * q - 4.0 * q - 1.0) / (4.0 * h * h)
+    return 56.0 * t2 * t2 * (35.0 * q * q - 4.0 * q - 1.0)
 
 
 # ---------------------------------------------------------------- Wendland C6
-@njit(cache=True)
-def _c6_w(r, h, a):
-    q = r / (2.0 * h)
+@njit(cache=True, inline="always")
+def _c6_w(q):
     if q >= 1.0:
         return 0.0
     t = 1.0 - q
     t2 = t * t
     t4 = t2 * t2
-    return a * t4 * t4 * (((32.0 * q + 25.0) * q + 8.0) * q + 1.0)
+    return t4 * t4 * (((32.0 * q + 25.0) * q + 8.0) * q + 1.0)
 
 
-@njit(cache=True)
-def _c6_f(r, h, a):
-    q = r / (2.0 * h)
+@njit(cache=True, inline="always")
+def _c6_fq(q):  # f'(q)/q = -22 (1-q)^7 (16q^2 + 7q + 1)
     if q >= 1.0:
         return 0.0
     t = 1.0 - q
     t2 = t * t
     t4 = t2 * t2
-    # f'(q)/q = -22 (1-q)^7 (16q^2 + 7q + 1)
-    return a * (-22.0 * t4 * t2 * t * ((16.0 * q + 7.0) * q + 1.0)) / (4.0 * h * h)
+    return -22.0 * t4 * t2 * t * ((16.0 * q + 7.0) * q + 1.0)
 
 
-@njit(cache=True)
-def _c6_d2(r, h, a):
-    q = r / (2.0 * h)
+@njit(cache=True, inline="always")
+def _c6_d2(q):  # f''(q) = 22 (1-q)^6 (160q^3 + 15q^2 - 6q - 1)
     if q >= 1.0:
         return 0.0
     t = 1.0 - q
     t2 = t * t
     t4 = t2 * t2
-    # f''(q) = 22 (1-q)^6 (160q^3 + 15q^2 - 6q - 1)
-    return a * 22.0 * t4 * t2 * (((160.0 * q + 15.0) * q - 6.0) * q - 1.0) / (4.0 * h * h)
+    return 22.0 * t4 * t2 * (((160.0 * q + 15.0) * q - 6.0) * q - 1.0)
 
 
-# ---------------------------------------------------------------- cubic spline
-@njit(cache=True)
-def _cubic_w(r, h, a):
-    q = r / h
+# ---------------------------------------------------------------- cubic spline (q = r / h)
+@njit(cache=True, inline="always")
+def _cubic_w(q):
     if q >= 2.0:
         return 0.0
     if q < 1.0:
-        return a * (1.0 - 1.5 * q * q + 0.75 * q * q * q)
+        return 1.0 - 1.5 * q * q + 0.75 * q * q * q
     t = 2.0 - q
-    return a * 0.25 * t * t * t
+    return 0.25 * t * t * t
 
 
-@njit(cache=True)
-def _cubic_f(r, h, a):
-    q = r / h
+@njit(cache=True, inline="always")
+def _cubic_fq(q):  # 3/4 (3q - 4) for q < 1; -3/4 (2 - q)^2 / q for 1 <= q < 2
     if q >= 2.0:
         return 0.0
     if q < 1.0:
-        # f'(q)/q = 3/4 (3q - 4)
-        return a * 0.75 * (3.0 * q - 4.0) / (h * h)
+        return 0.75 * (3.0 * q - 4.0)
     t = 2.0 - q
-    # f'(q)/q = -3/4 (2-q)^2 / q   (q >= 1, no singularity)
-    return a * (-0.75 * t * t / q) / (h * h)
+    return -0.75 * t * t / q
 
 
-@njit(cache=True)
-def _cubic_d2(r, h, a):
-    q = r / h
+@njit(cache=True, inline="always")
+def _cubic_d2(q):
     if q >= 2.0:
         return 0.0
     if q < 1.0:
-        return a * (4.5 * q - 3.0) / (h * h)
-    return a * 1.5 * (2.0 - q) / (h * h)
+        return 4.5 * q - 3.0
+    return 1.5 * (2.0 - q)
 
 
 KERNEL_IDS = {"wendland_c2": 0, "wendland_c4": 1, "wendland_c6": 2, "cubic_spline": 3}
@@ -181,44 +162,47 @@ KERNEL_IDS = {"wendland_c2": 0, "wendland_c4": 1, "wendland_c6": 2, "cubic_splin
 
 @njit(cache=True, inline="always")
 def kernel_w(r, kp):
-    """W(r) for kernel parameters kp = (kernel id, h, alpha_d / h^d)."""
+    """W(r) for kernel parameters kp = (kernel id, h, alpha_d / h^d, q per unit r, W'/r scale)."""
+    q = r * kp[3]
     kid = kp[0]
     if kid == 2:
-        return _c6_w(r, kp[1], kp[2])
+        return kp[2] * _c6_w(q)
     if kid == 0:
-        return _c2_w(r, kp[1], kp[2])
+        return kp[2] * _c2_w(q)
     if kid == 1:
-        return _c4_w(r, kp[1], kp[2])
-    return _cubic_w(r, kp[1], kp[2])
+        return kp[2] * _c4_w(q)
+    return kp[2] * _cubic_w(q)
 
 
 @njit(cache=True, inline="always")
 def kernel_f(r, kp):
     """W'(r) / r: grad_i W_ij = kernel_f(r_ij, kp) (x_i - x_j); finite at r = 0."""
+    q = r * kp[3]
     kid = kp[0]
     if kid == 2:
-        return _c6_f(r, kp[1], kp[2])
+        return kp[4] * _c6_fq(q)
     if kid == 0:
-        return _c2_f(r, kp[1], kp[2])
+        return kp[4] * _c2_fq(q)
     if kid == 1:
-        return _c4_f(r, kp[1], kp[2])
-    return _cubic_f(r, kp[1], kp[2])
+        return kp[4] * _c4_fq(q)
+    return kp[4] * _cubic_fq(q)
 
 
 @njit(cache=True, inline="always")
 def kernel_d2(r, kp):
     """W''(r)."""
+    q = r * kp[3]
     kid = kp[0]
     if kid == 2:
-        return _c6_d2(r, kp[1], kp[2])
+        return kp[4] * _c6_d2(q)
     if kid == 0:
-        return _c2_d2(r, kp[1], kp[2])
+        return kp[4] * _c2_d2(q)
     if kid == 1:
-        return _c4_d2(r, kp[1], kp[2])
-    return _cubic_d2(r, kp[1], kp[2])
+        return kp[4] * _c4_d2(q)
+    return kp[4] * _cubic_d2(q)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def hessian_coefficients(r, kp):
     """(a, b) with HessW(x) = a I + b x x^T at |x| = r (b = 0 at r = 0, where HessW = a I)."""
     a = kernel_f(r, kp)
@@ -245,7 +229,9 @@ def _evaluate(which, r, kp):
 class Kernel:
     """A smoothing kernel bound to a dimension and a smoothing length.
 
-    `params` = (kernel id, h, alpha_d / h^d) is what compute kernels take (kernel_w/f/d2(r, params)).
+    `params` = (kernel id, h, alpha_d / h^d, 1 / (2h) (1 / h for the cubic spline), alpha_d / h^d / (2h)^2)
+    is what compute kernels take (kernel_w/f/d2(r, params)); the precomputed scales spare the hot loops
+    every division.
     The methods below evaluate on numpy arrays, for tests and set-up, not hot loops.
     """
 
@@ -297,4 +283,6 @@ def make_kernel(name: str, dim: int, h: float) -> Kernel:
     if not h > 0.0:
         raise ValueError(f"smoothing length must be > 0, got {h}")
     a = normalisation(name, dim) / h**dim
-    return Kernel(name=name, dim=dim, h=float(h), params=(KERNEL_IDS[name], float(h), float(a)))
+    per_r = 1.0 / h if name == "cubic_spline" else 1.0 / (2.0 * h)  # q = r * per_r
+    params = (KERNEL_IDS[name], float(h), float(a), float(per_r), float(a * per_r * per_r))
+    return Kernel(name=name, dim=dim, h=float(h), params=params)

@@ -1,9 +1,11 @@
 """Drivers advance a Simulation: one per `physics.scheme` (what moves the particles)."""
 
+from psph.drivers.fluid import FluidDriver
 from psph.drivers.kinematic import KinematicDriver
 from psph.drivers.static import StaticDriver
+from psph.schemes import FLUID_SCHEMES
 
-DRIVERS = {"none": StaticDriver, "kinematic": KinematicDriver}
+DRIVERS = {"none": StaticDriver, "kinematic": KinematicDriver, **{name: FluidDriver for name in FLUID_SCHEMES}}
 
 
 def driver_for(scene):
@@ -21,7 +23,8 @@ def describe_model(scene) -> list:
         particles += f"; initial velocity and pressure: analytic {init.velocity}"
     lines = [f"kernel {d.kernel}, h = {d.h_over_dx:g} dx = {d.h:g}, support 2h, {d.dimension}-D", particles]
     lines += DRIVERS[scene.physics.scheme].describe(scene)
-    lines += shifting_description(scene)
+    if scene.physics.scheme not in FLUID_SCHEMES or scene.shifting.method == "iips":
+        lines += shifting_description(scene)
     return lines
 
 

@@ -88,3 +88,15 @@ def migrate(comm, particles, dest: np.ndarray) -> None:
     arrays = {name: alltoallv(comm, particles.owned(name)[order], counts, recv_counts)
               for name in particles.names}
     particles.set_owned(arrays)
+
+
+def halo_copies(comm, pattern: HaloPattern, arrays: dict, shifted=()) -> dict:
+    """Send the rows of owned `arrays` through `pattern` without touching any ParticleSet; arrays named in
+    `shifted` are positions and receive the periodic image shift. Returns the received rows. Collective."""
+    out = {}
+    for name, arr in arrays.items():
+        data = arr[pattern.send_index]
+        if name in shifted:
+            data = data + pattern.send_shift
+        out[name] = alltoallv(comm, data, pattern.send_counts, pattern.recv_counts)
+    return out

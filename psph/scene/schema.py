@@ -59,26 +59,59 @@ class InitialSpec:
                            "taylor_green vortex (2-D bi-periodic square)", choices=("zero", "taylor_green"))
 
 
+FLUID_SCHEMES = ("delta_ale", "delta_ale_const_mass", "delta_ale_const_volume")
+
+
 @dataclass(frozen=True)
 class PhysicsSpec:
-    scheme: str = option("none", doc="what moves the particles: none (a static distribution) or kinematic "
-                         "(advected by a frozen analytic velocity field, thesis 8.3.2)",
-                         choices=("none", "kinematic"))
+    scheme: str = option("none", doc="what moves the particles: none (a static distribution), kinematic "
+                         "(advected by a frozen analytic velocity field, thesis 8.3.2), or a fluid scheme: "
+                         "delta_ale, delta_ale_const_mass, delta_ale_const_volume (seed 001 eq. 13, 23, 25)",
+                         choices=("none", "kinematic") + FLUID_SCHEMES)
     velocity_field: str = option("taylor_green", doc="kinematic: the frozen field (thesis eq. 8.33)",
                                  choices=("taylor_green",))
-    reference_velocity: float = option(1.0, doc="reference velocity U (the analytic fields' amplitude)", gt=0.0)
-    sound_speed: float = option(10.0, doc="speed of sound c0 (sets the time step dt = cfl dx / c0)", gt=0.0)
+    reference_velocity: float = option(1.0, doc="reference velocity U (the analytic fields' amplitude; U_max "
+                                       "of the shifting laws)", gt=0.0)
+    reference_length: float = option(1.0, doc="reference length L (Re = U L / nu)", gt=0.0)
+    reynolds: float = option(100.0, doc="Reynolds number U L / nu", gt=0.0)
+    sound_speed: float = option(10.0, doc="speed of sound c0 (kinematic: dt = cfl dx / c0)", gt=0.0)
     density: float = option(1.0, doc="reference density rho0", gt=0.0)
+    eos: str = option("linear", doc="equation of state: linear p = c0^2 (rho - rho0), or tait (thesis eq. 5.4, "
+                      "gamma = 7)", choices=("linear", "tait"))
+    gravity: tuple[float, ...] = option((), doc="gravity vector (empty: none)")
+    delta: float = option(0.1, doc="coefficient of the density diffusion D^rho (seed 001 eq. 14)", ge=0.0, le=1.0)
+    delta_m: float = option(0.1, doc="coefficient of the mass diffusion D^m (delta_ale; 0 switches it off)",
+                            ge=0.0, le=1.0)
+    tensile_switch: bool = option(True, doc="use p_j - p_i where p_i < 0 (tensile-instability control)")
+    max_density_variation: float = option(0.1, doc="stop when |rho / rho0 - 1| exceeds this (weak "
+                                          "compressibility violated)", gt=0.0)
+
+    def check(self, path):
+        if self.gravity and len(self.gravity) not in (1, 2, 3):
+            raise SceneError(f"{path}.gravity", "expected 1 to 3 entries")
+
+
+SHIFTING_METHODS = ("none", "iips", "explicit_iterative", "lind", "skillen", "oger", "delta_plus", "neuhauser")
+EXPLICIT_LAWS = ("lind", "skillen", "oger", "delta_plus", "neuhauser")
 
 
 @dataclass(frozen=True)
 class ShiftingSpec:
-    method: str = option("none", doc="particle shifting method", choices=("none", "iips", "explicit_iterative"))
+    method: str = option("none", doc="particle shifting: none, iips, explicit_iterative (static and kinematic "
+                         "runs), or an explicit law inside a fluid scheme: lind, skillen, oger, delta_plus, "
+                         "neuhauser", choices=SHIFTING_METHODS)
     diffusion: float = option(0.4, doc="explicit_iterative: D / h^2 in dx = -D grad C (thesis eq. 6.13). Lind "
                               "et al.'s 0.5 diverges with Wendland C6 at h/dx = 2 (stable up to ~0.46, measured)",
                               gt=0.0, le=10.0)
     max_iterations: int = option(1000, doc="explicit_iterative: iterations of a static run", ge=1)
     iterations_per_step: int = option(1, doc="explicit_iterative: iterations per time step", ge=1)
+    delta_plus_r: float = option(0.2, doc="delta_plus: R in [1 + R (W_ij / W(dx))^n] (seed 001 eq. 17)", ge=0.0)
+    delta_plus_n: float = option(4.0, doc="delta_plus: n (seed 001 eq. 17)", gt=0.0)
+    skillen_a: float = option(2.0, doc="skillen: the constant A of thesis eq. 6.18", gt=0.0)
+    neuhauser_ps: float = option(10.0, doc="neuhauser: particle-shifting coefficient P_S (thesis eq. 7.1; "
+                                 "1 = the original formulation)", gt=0.0)
+    fictitious_pressure: bool = option(False, doc="neuhauser: use the fictitious pressure P^F (thesis eq. 7.4) "
+                                       "instead of P_S")
 
 
 @dataclass(frozen=True)
@@ -94,6 +127,9 @@ class IIPSSpec:
                              "run (thesis: 100)", ge=0)
     divergence_factor: float = option(100.0, doc="a call whose Linf(grad C) grows by this factor has diverged",
                                       gt=1.0)
+    update: str = option("none", doc="fluid runs: field update after IIPS moved the particles: none, nfts "
+                         "(fictitious time step, thesis eq. 9.7), mls1, mls2 (MLS re-interpolation, eq. 9.8-9.9)",
+                         choices=("none", "nfts", "mls1", "mls2"))
     on_failure: str = option("stop", doc="KSP divergence, Newton stall or divergence: stop the run; reject the "
                              "call (undo its displacements, report, continue); or warn (keep them, report, "
                              "continue)", choices=("stop", "reject", "warn"))
@@ -108,7 +144,11 @@ class IIPSSpec:
 @dataclass(frozen=True)
 class TimeSpec:
     t_end: float = option(0.0, doc="end time of the simulation", ge=0.0)
-    cfl: float = option(0.2, doc="time step dt = cfl dx / c0 (thesis section 8.3.2)", gt=0.0, le=2.0)
+    cfl: float = option(0.2, doc="CFL number: kinematic dt = cfl dx / c0 (thesis 8.3.2); fluid "
+                        "dt = cfl min h / (c0 + |u + du|) (thesis eq. 5.52), also kept under 0.125 h^2 / nu",
+                        gt=0.0, le=2.0)
+    integrator: str = option("rk3", doc="fluid time integrator: rk3 (Kutta, thesis eq. 5.51) or rk4",
+                             choices=("rk3", "rk4"))
 
 
 @dataclass(frozen=True)
@@ -149,6 +189,24 @@ class Scene:
     neighbours: NeighboursSpec = option(NeighboursSpec(), doc="neighbour lists and load balance")
 
     def check(self, path):
+        fluid = self.physics.scheme in FLUID_SCHEMES
+        method = self.shifting.method
+        if fluid and method == "explicit_iterative":
+            raise SceneError("shifting.method", "explicit_iterative is for static and kinematic runs; fluid "
+                             "schemes take iips or an explicit law (lind, skillen, oger, delta_plus, neuhauser)")
+        if not fluid and method in EXPLICIT_LAWS:
+            raise SceneError("shifting.method", f"{method} shifts inside a fluid scheme; physics.scheme is "
+                             f"{self.physics.scheme!r}")
+        if fluid and self.time.t_end <= 0.0:
+            raise SceneError("time.t_end", "a fluid run needs t_end > 0")
+        if self.iips.update != "none" and not (fluid and method == "iips"):
+            raise SceneError("iips.update", "field updates apply to fluid runs with shifting.method = iips")
+        if fluid and method == "iips" and self.iips.pre_newton > 0:
+            raise SceneError("iips.pre_newton", "the static pre-procedure belongs to kinematic runs")
+        if self.iips.update == "nfts" and self.physics.scheme != "delta_ale":
+            raise SceneError("iips.update", "nfts updates masses and volumes: it needs physics.scheme = delta_ale")
+        if self.physics.gravity and len(self.physics.gravity) != self.domain.dimension:
+            raise SceneError("physics.gravity", f"expected {self.domain.dimension} entries (domain.dimension)")
         if self.physics.scheme == "kinematic":
             if self.time.t_end <= 0.0:
                 raise SceneError("time.t_end", "a kinematic run needs t_end > 0")

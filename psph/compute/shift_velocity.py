@@ -1,0 +1,91 @@
+"""Kernels of the explicit particle-shifting laws (numba). The laws themselves (coefficients, limiters)
+are in psph/shifting/velocity.py.
+
+Sign convention: grad_i W_ij = f(r) x_ij points from j to i for a decreasing kernel, so grad C_i points up
+the concentration; shifting moves particles down it (dx = -D grad C). The thesis prints some of these
+laws with grad W_ij = d W / d x_j (eq. 8.6), i.e. the opposite sign; psph uses the physical direction.
+"""
+
+import numpy as np
+from numba import njit
+
+from psph.compute.smoothing import kernel_f, kernel_w
+from psph.compute.sums import pair, store
+
+
+@njit(cache=True, inline="always")
+def _power(x, n):
+    """x^n, by multiplication when n is a small whole number (pow() is slow in the pair loop)."""
+    if n == 4.0:
+        x2 = x * x
+        return x2 * x2
+    if n == 2.0:
+        return x * x
+    return x ** n
+
+
+@njit(cache=True)
+def corrected_grad_c(pos, vol, ptr, idx, kp, coeff, power, w_ref, out):
+    """grad C^_i = sum_j [1 + coeff (W_ij / W(dx))^power] grad_i W_ij V_j (thesis eq. 6.15; seed 001
+    eq. 17 with R = coeff, n = power). coeff = 0 gives the plain grad C."""
+    d = pos.shape[1]
+    support = 2.0 * kp[1]
+    for i in range(ptr.size - 1):
+        g0 = g1 = g2 = 0.0
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            x0, x1, x2, r = pair(pos, i, j, d)
+            if r >= support:
+                continue
+            s = kernel_f(r, kp) * vol[j]
+            if coeff != 0.0:
+                s *= 1.0 + coeff * _power(kernel_w(r, kp) / w_ref, power)
+            g0 += s * x0
+            g1 += s * x1
+            g2 += s * x2
+        store(out, i, d, g0, g1, g2)
+
+
+@njit(cache=True)
+def limit_magnitude(vec, limit, out):
+    """out_i = vec_i scaled down to |out_i| <= limit_i (limit: per-particle array)."""
+    for i in range(vec.shape[0]):
+        norm = np.sqrt(np.sum(vec[i] * vec[i]))
+        scale = 1.0
+        if norm > limit[i] and norm > 0.0:
+            scale = limit[i] / norm
+        for a in range(vec.shape[1]):
+            out[i, a] = vec[i, a] * scale
+
+
+@njit(cache=True)
+def neuhauser_acceleration(pos, vol, v0, pref, ptr, idx, kp, c0, alpha, out):
+    """Smoothed transport-velocity correction of Neuhauser (thesis eq. 6.33-6.34, with P_S eq. 7.1 or the
+    fictitious pressure eq. 7.4 through pref):
+
+        a_i = -sum_j [(pref_i + pref_j) / 2 + c0/2 (v0_i - v0_j) . e_ij] grad_i W_ij V_j
+              - alpha c0 / h sum_j (v0_i - v0_j) W_ij V_j,           e_ij = (x_j - x_i) / |x_j - x_i|
+
+    pref is the reference pressure over rho0 per particle (P_S p_ref / rho0, or P^F / rho0). The first
+    sum pushes particles down the concentration gradient and, through the upwind term, resists their
+    approach; the second smooths the transport velocity. (Solid-boundary terms: walls issue.)"""
+    d = pos.shape[1]
+    h = kp[1]
+    support = 2.0 * h
+    for i in range(ptr.size - 1):
+        a0 = a1 = a2 = 0.0
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            x0, x1, x2, r = pair(pos, i, j, d)
+            if r >= support or r == 0.0:
+                continue
+            dv0 = v0[i, 0] - v0[j, 0]
+            dv1 = (v0[i, 1] - v0[j, 1]) if d > 1 else 0.0
+            dv2 = (v0[i, 2] - v0[j, 2]) if d > 2 else 0.0
+            approach = -(dv0 * x0 + dv1 * x1 + dv2 * x2) / r  # (v0_i - v0_j) . e_ij, e_ij = -x_ij / r
+            s = (0.5 * (pref[i] + pref[j]) + 0.5 * c0 * approach) * kernel_f(r, kp) * vol[j]
+            smooth = alpha * c0 / h * kernel_w(r, kp) * vol[j]
+            a0 -= s * x0 + smooth * dv0
+            a1 -= s * x1 + smooth * dv1
+            a2 -= s * x2 + smooth * dv2
+        store(out, i, d, a0, a1, a2)

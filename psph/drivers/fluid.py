@@ -1,0 +1,187 @@
+"""physics.scheme = delta_ale (or a variant): a flow integrated in time, with explicit shifting inside the
+scheme or IIPS after each step (thesis 000 ch. 9: Procedure B, then the scene's field update).
+
+Each step: dt from the CFL condition (thesis eq. 5.52) and the viscous limit 0.125 h^2 / nu; a neighbour
+rebuild if the step could outrun the skin; the integrator's stages; the shifting law's end-of-step update;
+IIPS and its field update when the scene asks; checks (NaN, density outside the weakly compressible range,
+escaped particles, collapsing time step) that stop the run with the step, time, particle and a diagnostic
+snapshot. history.csv every `output.history_every` steps: time, dt, kinetic energy, total mass and
+momentum, total-volume error eps_V (seed 001 eq. 27), max |rho/rho0 - 1|, L2/Linf(grad C), IIPS work, and
+against an analytic solution (Taylor-Green) L2|v_x - v_xA| (thesis eq. 3.8) and the kinetic-energy error.
+"""
+
+import math
+import time
+
+import numpy as np
+
+from psph.analytic import taylor_green, taylor_green_kinetic_energy
+from psph.diagnostics import fluid_mask, grad_c, norms
+from psph.errors import NumericalError
+from psph.parallel.comm import allreduce_max, allreduce_min, allreduce_sum, raise_if_any
+from psph.profiling import phase
+from psph.schemes import make_scheme
+from psph.schemes.integrators import INTEGRATORS, STAGE_REACH
+from psph.shifting.field_update import make_field_update
+from psph.simulation import Simulation
+
+DT_COLLAPSE = 1e-6  # a time step below this fraction of the first one is a breakdown
+
+
+class TaylorGreenReference:
+    """Errors against the analytic Taylor-Green vortex (analytic.taylor_green)."""
+
+    def __init__(self, scene):
+        d, ph = scene.domain, scene.physics
+        self.kw = dict(U=ph.reference_velocity, L=d.upper[0] - d.lower[0], rho=ph.density, reynolds=ph.reynolds)
+        self.lower = d.lower
+
+    def errors(self, system, t, kinetic):
+        p = system.particles
+        mask = fluid_mask(system)
+        vel, _ = taylor_green(p.owned("position"), t, lower=self.lower, **self.kw)
+        err = (p.owned("velocity")[:, 0] - vel[:, 0])[mask]
+        l2, _ = norms(system.comm, err, np.ones(len(err), bool))
+        exact = taylor_green_kinetic_energy(t, **self.kw)
+        return {"L2_vx_error": l2, "kinetic_energy_exact": exact, "kinetic_energy_error": kinetic / exact - 1.0}
+
+
+class FluidDriver:
+    @staticmethod
+    def describe(scene) -> list:
+        scheme = make_scheme(scene)
+        t = scene.time
+        lines = scheme.describe()
+        lines.append(f"time integration: {t.integrator}, cfl {t.cfl:g} (thesis eq. 5.52), t_end = {t.t_end:g}")
+        if scene.shifting.method == "iips":
+            lines.append(f"IIPS after each step, field update: {scene.iips.update} (thesis ch. 9)")
+        if scene.initial.velocity == "taylor_green":
+            lines.append("diagnostics against the analytic Taylor-Green vortex: L2|v_x - v_xA| (eq. 3.8), E_k")
+        return lines
+
+    def __init__(self, scene, comm, out_dir, log=None):
+        self.scene = scene
+        self.scheme = make_scheme(scene)
+        self.sim = Simulation(scene, comm, out_dir, specs=self.scheme.field_specs(),
+                              halo_fields=self.scheme.halo_fields(), log=log)
+        self.system = self.sim.system
+        self.scheme.initialize(self.system)
+        self.integrate = INTEGRATORS[scene.time.integrator]
+        self.reach = STAGE_REACH[scene.time.integrator]
+        self.iips = None
+        if scene.shifting.method == "iips":
+            from psph.shifting.iips import ImplicitShifting
+
+            self.iips = ImplicitShifting(scene.iips, self.sim.comm)
+        self.update = make_field_update(scene)
+        self.reference = TaylorGreenReference(scene) if scene.initial.velocity == "taylor_green" else None
+        self.initial_volume = allreduce_sum(self.sim.comm, float(self.system.particles.owned("volume").sum()))
+        self.first_dt = None
+
+    # ---------------------------------------------------------------- pieces
+    def time_step(self) -> float:
+        s, scheme = self.scene, self.scheme
+        h = self.system.kernel.h
+        vmax = allreduce_max(self.sim.comm, scheme.max_transport_speed(self.system))
+        dt = s.time.cfl * h / (scheme.c0 + vmax)
+        if scheme.nu > 0:
+            dt = min(dt, 0.125 * h * h / scheme.nu)
+        return dt, vmax
+
+    def diagnostics(self, t) -> dict:
+        p, comm = self.system.particles, self.sim.comm
+        mask = fluid_mask(self.system)
+        m, u, rho, vol = p.owned("mass"), p.owned("velocity"), p.owned("density"), p.owned("volume")
+        sums = allreduce_sum(comm, np.concatenate([
+            [0.5 * float((m * (u * u).sum(axis=1))[mask].sum()), float(m[mask].sum()), float(vol[mask].sum())],
+            (m[:, None] * u)[mask].sum(axis=0)]))
+        drho = allreduce_max(comm, float(np.abs(rho[mask] / self.scheme.rho0 - 1.0).max()) if mask.any() else 0.0)
+        l2, linf = norms(comm, grad_c(self.system), mask, self.system.kernel.h)
+        out = {"kinetic_energy": sums[0], "total_mass": sums[1], "volume_error": sums[2] / self.initial_volume - 1.0,
+               "max_density_variation": drho, "L2_grad_c": l2, "Linf_grad_c": linf}
+        for a in range(p.dim):
+            out[f"momentum_{'xyz'[a]}"] = sums[3 + a]
+        if self.reference is not None:
+            out.update(self.reference.errors(self.system, t, sums[0]))
+        return out
+
+    def check(self, step, t, dt) -> None:
+        """Stop all ranks, naming step, time, particle and position, on a broken state. Collective."""
+        p = self.system.particles
+        error = None
+        bad = ~np.isfinite(p.owned("velocity")).all(axis=1) | ~np.isfinite(p.owned("density")) \
+            | ~np.isfinite(p.owned("position")).all(axis=1)
+        where = dict(step=step, time=t)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            error = NumericalError("non-finite field (NaN/Inf)", gid=int(p.owned("gid")[k]),
+                                   position=p.owned("position")[k], **where)
+        else:
+            dev = np.abs(p.owned("density") / self.scheme.rho0 - 1.0)
+            limit = self.scene.physics.max_density_variation
+            if dev.size and dev.max() > limit:
+                k = int(np.argmax(dev))
+                error = NumericalError(f"density left the weakly compressible range: |rho/rho0 - 1| = "
+                                       f"{dev[k]:.3g} > {limit:g} (physics.max_density_variation)",
+                                       gid=int(p.owned("gid")[k]), position=p.owned("position")[k], **where)
+        if error is None and dt < DT_COLLAPSE * self.first_dt:
+            error = NumericalError(f"time step collapsed to {dt:.3g} (first step {self.first_dt:.3g})", **where)
+        raise_if_any(self.sim.comm, error)
+
+    # ------------------------------------------------------------------ run
+    def run(self) -> dict:
+        sim, scene, system = self.sim, self.scene, self.system
+        t_end = scene.time.t_end
+        every = scene.output.every
+        next_output = every if every > 0 else math.inf
+        totals = {"iips_time_s": 0.0, "iips_newton": 0, "iips_linear": 0, "iips_calls": 0, "iips_failures": 0,
+                  "step_time_s": 0.0}
+        state = {"step": 0, "time": 0.0}
+        sim.history.append({"time": 0.0, "step": 0, "dt": 0.0, **self.diagnostics(0.0), **totals})
+        sim.snapshots.write(system.particles, step=0, time=0.0)
+        with sim.diagnose_failures(lambda: (state["step"], state["time"])):
+            while state["time"] < t_end * (1.0 - 1e-12):
+                start = time.perf_counter()
+                dt, vmax = self.time_step()
+                self.first_dt = self.first_dt or dt
+                dt = min(dt, t_end - state["time"])
+                t = state["time"]
+                with phase("fluid_step"):
+                    system.prepare_step(self.reach * dt * vmax)
+                    self.integrate(self.scheme, system, t, dt)
+                    self.scheme.end_step(system, dt)
+                state["step"] += 1
+                state["time"] = t = t + dt
+                step = state["step"]
+                if self.iips is not None:
+                    t0 = time.perf_counter()
+                    with phase("iips"):
+                        self.update.before(system, self.scheme)
+                        report = self.iips.correct(system, step=step, time=t)
+                        if report.iterations:
+                            self.update.after(system, self.scheme)
+                    totals["iips_time_s"] += time.perf_counter() - t0
+                    totals["iips_newton"] += report.iterations
+                    totals["iips_linear"] += report.linear_iterations
+                    totals["iips_calls"] += int(report.iterations > 0)
+                    if report.failed:
+                        totals["iips_failures"] += 1
+                        sim.log(f"step {step}, t = {t:.4g}: {report.message}")
+                system.check_escaped()
+                self.check(step, t, dt)
+                totals["step_time_s"] += time.perf_counter() - start
+                if step % scene.output.history_every == 0 or t >= t_end * (1.0 - 1e-12):
+                    sim.history.append({"time": t, "step": step, "dt": dt, **self.diagnostics(t), **totals})
+                if t >= next_output - 1e-9 * dt:
+                    sim.snapshots.write(system.particles, step=step, time=t)
+                    sim.log(f"t = {t:.4g}, step {step}, dt = {dt:.3g}")
+                    next_output += every
+        step, t = state["step"], state["time"]
+        if not sim.snapshots.entries or sim.snapshots.entries[-1][2] != step:
+            sim.snapshots.write(system.particles, step=step, time=t)
+        final = sim.history.rows[-1]
+        sim.log(f"t = {t:.4g} after {step} steps" + (f": L2|v_x - v_xA| = {final['L2_vx_error']:.4e}"
+                                                       if "L2_vx_error" in final else ""))
+        steps_min = allreduce_min(sim.comm, step)
+        return sim.summary(steps=steps_min, final={k: v for k, v in final.items() if k != "time"} | {"time": t},
+                           **totals)

@@ -1,0 +1,164 @@
+"""The delta-ALE-SPH scheme and its two simplified variants (seed 001 = Antuono et al. 2021).
+
+    delta_ale               eq. 13-15: density, mass and momentum m u evolve; V = m / rho
+    delta_ale_const_mass    eq. 23 (the consistent delta+-SPH): density and velocity evolve; V = m0 / rho
+    delta_ale_const_volume  eq. 25: density and velocity evolve; operators use V0; m = V0 rho
+
+with the equation of state of psph.schemes.eos, viscosity mu = rho0 U L / Re through the pi_ij operator
+(eq. 11, K = 2(d+2)), gravity, the diffusive terms D^rho (delta = 0.1) and D^m (eq. 14), the tensile
+switch (p_j - p_i where p_i < 0; no free surfaces yet) and the shifting velocity du of an explicit law
+(psph.shifting.velocity) with its du-terms (eq. 12); without shifting those terms are skipped.
+The kernels are in psph.compute.fluid.
+"""
+
+import numpy as np
+
+from psph.compute.fluid import delta_ale_rhs, renormalised_gradient
+from psph.particles import FieldSpec
+from psph.schemes.eos import make_eos
+from psph.shifting.velocity import make_velocity_shift
+
+VARIANTS = {"delta_ale": 0, "delta_ale_const_mass": 1, "delta_ale_const_volume": 2}
+
+
+class DeltaALE:
+    def __init__(self, scene):
+        phys = scene.physics
+        self.name = phys.scheme
+        self.variant = VARIANTS[phys.scheme]
+        self.c0, self.rho0 = phys.sound_speed, phys.density
+        self.nu = phys.reference_velocity * phys.reference_length / phys.reynolds
+        self.mu = self.rho0 * self.nu
+        self.delta, self.delta_m = phys.delta, phys.delta_m
+        dim = scene.domain.dimension
+        self.gravity = np.zeros(dim) if not phys.gravity else np.asarray(phys.gravity, dtype=np.float64)
+        self.tensile = phys.tensile_switch
+        self.eos = make_eos(phys)
+        self.shift = make_velocity_shift(scene)
+        self.state_names = (("position", "density", "mass", "momentum") if self.variant == 0
+                            else ("position", "density", "velocity"))
+
+    # ------------------------------------------------------------ description
+    def describe(self) -> list:
+        names = {0: "delta-ALE-SPH (seed 001 eq. 13-15)", 1: "delta-ALE-SPH with constant masses (eq. 23)",
+                 2: "delta-ALE-SPH with constant volumes (eq. 25)"}
+        lines = [f"scheme: {names[self.variant]}",
+                 f"equation of state: {self.eos.name}, c0 = {self.c0:g}, rho0 = {self.rho0:g}",
+                 f"viscosity: pi_ij operator (eq. 11), nu = {self.nu:g}",
+                 f"density diffusion D^rho, delta = {self.delta:g} (eq. 14)"]
+        if self.variant == 0:
+            lines.append(f"mass diffusion D^m, delta = {self.delta_m:g}" if self.delta_m else "mass diffusion off")
+        if np.any(self.gravity):
+            lines.append(f"gravity {tuple(self.gravity)}")
+        if self.tensile:
+            lines.append("tensile-instability switch (p_j - p_i where p_i < 0)")
+        lines.append(self.shift.describe())
+        return lines
+
+    # ----------------------------------------------------------------- fields
+    def field_specs(self):
+        specs = [FieldSpec("velocity", ("d",)), FieldSpec("density"), FieldSpec("mass"), FieldSpec("pressure"),
+                 FieldSpec("grad_rho", ("d",)), FieldSpec("volume0")]
+        if self.shift.active:
+            specs.append(FieldSpec("shift_velocity", ("d",)))
+        specs += list(self.shift.fields)
+        return specs
+
+    def halo_fields(self):
+        names = ["position", "gid", "kind", "volume", "density", "mass", "velocity", "pressure", "grad_rho"]
+        return names + (["shift_velocity"] if self.shift.active else [])
+
+    def initialize(self, system):
+        """Density from the initial pressure (or rho0), masses from volumes, the volumes V0. Collective."""
+        p = system.particles
+        for spec in self.field_specs():
+            p.add_field(spec)
+        if "pressure" in p:
+            p.owned("density")[:] = self.eos.density(p.owned("pressure"))
+        else:
+            p.owned("density")[:] = self.rho0
+        p.owned("mass")[:] = p.owned("density") * p.owned("volume")
+        p.owned("volume0")[:] = p.owned("volume")
+        p.owned("pressure")[:] = self.eos.pressure(p.owned("density"))
+        if "transport_velocity" in p:
+            p.owned("transport_velocity")[:] = p.owned("velocity")
+        for name in self.halo_fields():
+            system.add_halo_field(name)
+        system.refresh(self.halo_fields())
+
+    def initial_volume(self, system):
+        return system.particles["volume0"]
+
+    # ------------------------------------------------------------------ state
+    def state(self, system) -> dict:
+        """Copies of the integrated variables of the owned particles."""
+        p = system.particles
+        out = {"position": p.owned("position").copy(), "density": p.owned("density").copy()}
+        if self.variant == 0:
+            out["mass"] = p.owned("mass").copy()
+            out["momentum"] = p.owned("mass")[:, None] * p.owned("velocity")
+        else:
+            out["velocity"] = p.owned("velocity").copy()
+        return out
+
+    def set_state(self, system, state, refresh_positions=True) -> None:
+        """Write the integrated variables back and derive V, m, u, p (owned); refresh halo positions."""
+        p = system.particles
+        p.owned("position")[:] = state["position"]
+        rho = p.owned("density")
+        rho[:] = state["density"]
+        if self.variant == 0:
+            p.owned("mass")[:] = state["mass"]
+            p.owned("velocity")[:] = state["momentum"] / state["mass"][:, None]
+            p.owned("volume")[:] = state["mass"] / rho
+        else:
+            p.owned("velocity")[:] = state["velocity"]
+            if self.variant == 1:
+                p.owned("volume")[:] = p.owned("mass") / rho
+            else:
+                p.owned("mass")[:] = p.owned("volume0") * rho
+        p.owned("pressure")[:] = self.eos.pressure(rho)
+        if refresh_positions:
+            system.refresh(["position"])
+
+    # -------------------------------------------------------------------- rhs
+    def rhs(self, system, t, dt) -> dict:
+        """d(state)/dt at the current state (owned rows). Collective (halo exchanges)."""
+        p = system.particles
+        system.refresh(["density", "mass", "velocity", "volume", "pressure"])
+        if self.shift.active:
+            self.shift.velocity(system, self, dt)
+            system.refresh(["shift_velocity"])
+            du = p["shift_velocity"]
+        else:
+            du = p["velocity"]  # not read
+        kp = system.kernel.params
+        renormalised_gradient(p["position"], p["volume"], p["density"], system.nbr_ptr, system.nbr_idx, kp,
+                              p["grad_rho"])
+        system.refresh(["grad_rho"])
+        n, d = p.n_owned, p.dim
+        d_rho = np.zeros(n)
+        d_mass = np.zeros(n)
+        d_mom = np.zeros((n, d))
+        delta_ale_rhs(p["position"], p["volume"], p["density"], p["mass"], p["velocity"], du, p["pressure"],
+                      p["grad_rho"], system.nbr_ptr, system.nbr_idx, kp, self.c0, self.delta, self.delta_m,
+                      self.mu, self.gravity, self.variant, self.shift.active, self.tensile, d_rho, d_mass, d_mom)
+        transport = p.owned("velocity") + (p.owned("shift_velocity") if self.shift.active else 0.0)
+        out = {"position": transport, "density": d_rho}
+        if self.variant == 0:
+            out["mass"] = d_mass
+            out["momentum"] = d_mom
+        else:
+            out["velocity"] = d_mom
+        return out
+
+    def end_step(self, system, dt):
+        self.shift.end_step(system, self, dt)
+
+    def max_transport_speed(self, system) -> float:
+        """Largest |u + du| of the owned particles (local)."""
+        p = system.particles
+        v = p.owned("velocity")
+        if self.shift.active:
+            v = v + p.owned("shift_velocity")
+        return float(np.sqrt((v * v).sum(axis=1)).max()) if len(v) else 0.0

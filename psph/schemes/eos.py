@@ -1,0 +1,41 @@
+"""Equations of state of the weakly compressible fluid.
+
+linear: p = c0^2 (rho - rho0)                                  (seed 001 eq. 1)
+tait:   p = c0^2 rho0 / gamma [(rho / rho0)^gamma - 1],  gamma = 7  (thesis eq. 5.4, p0 = 0)
+"""
+
+import numpy as np
+
+GAMMA = 7.0
+
+
+class LinearEOS:
+    name = "linear"
+
+    def __init__(self, c0, rho0):
+        self.c0, self.rho0 = c0, rho0
+
+    def pressure(self, rho):
+        return self.c0 ** 2 * (rho - self.rho0)
+
+    def density(self, p):
+        return self.rho0 + p / self.c0 ** 2
+
+
+class TaitEOS:
+    name = "tait"
+
+    def __init__(self, c0, rho0):
+        self.c0, self.rho0 = c0, rho0
+        self.b = c0 ** 2 * rho0 / GAMMA
+
+    def pressure(self, rho):
+        return self.b * ((rho / self.rho0) ** GAMMA - 1.0)
+
+    def density(self, p):
+        return self.rho0 * (1.0 + np.asarray(p) / self.b) ** (1.0 / GAMMA)
+
+
+def make_eos(physics):
+    cls = {"linear": LinearEOS, "tait": TaitEOS}[physics.eos]
+    return cls(physics.sound_speed, physics.density)

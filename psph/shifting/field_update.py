@@ -1,0 +1,143 @@
+"""What happens to the fluid fields when IIPS moves particles after a physical step (thesis 000 ch. 9).
+
+    none   positions change, fields do not (the thesis' "implicit iterative shifting")
+    nfts   fictitious time step (eq. 9.7): the displacements are swept in N = ceil(max|dx| / (CFL dx))
+           sub-steps whose ALE fluxes update volume, mass and momentum (delta_ale only: the variants fix
+           masses or volumes)
+    mls1   first-order MLS re-interpolation (eq. 9.8) of volume, density and velocity from the pre-shift
+           positions; mass = rho V (delta_ale), or V = m / rho (constant mass), or m = V0 rho
+    mls2   second-order MLS re-interpolation (eq. 9.9), same fields
+Kernels in psph.compute.field_update.
+"""
+
+import math
+
+import numpy as np
+
+from psph.compute.field_update import mls_interpolate, nfts_increments
+from psph.compute.neighbours import build_cross_lists
+from psph.errors import NumericalError
+from psph.parallel.comm import allreduce_max, raise_if_any
+from psph.parallel.halo import build_halo_pattern, halo_copies
+from psph.particles import FieldSpec
+from psph.shifting.iips import SHIFT_FIELD
+
+
+class NoFieldUpdate:
+    name = "none"
+
+    def specs(self, dim):
+        return ()
+
+    def before(self, system, scheme):
+        """Called before each IIPS call: register this update's fields."""
+        for spec in self.specs(system.particles.dim):
+            system.particles.add_field(spec)
+
+    def after(self, system, scheme):
+        pass
+
+
+def _max_shift(system):
+    s = system.particles.owned(SHIFT_FIELD.name)
+    return allreduce_max(system.comm, float(np.sqrt((s * s).sum(axis=1)).max()) if len(s) else 0.0)
+
+
+class FictitiousTimeStep(NoFieldUpdate):
+    name = "nfts"
+
+    def specs(self, dim):
+        return (FieldSpec("nfts_step", ("d",)),)
+
+    def __init__(self, cfl, dx):
+        self.cfl, self.dx = cfl, dx
+        self.substeps = 0
+
+    def after(self, system, scheme):
+        p = system.particles
+        shift = p.owned(SHIFT_FIELD.name)
+        largest = _max_shift(system)
+        if largest == 0.0:
+            return
+        n = max(1, math.ceil(largest / (self.cfl * self.dx)))
+        self.substeps += n
+        p.owned("position")[:] -= shift  # back to the pre-shift positions, then sweep in n steps
+        p.owned("nfts_step")[:] = shift / n
+        p.owned(SHIFT_FIELD.name)[:] = 0.0
+        system.update()
+        for _ in range(n):
+            system.refresh(["position", "volume", "density", "velocity", "nfts_step"])
+            vol, rho, vel = p.owned("volume"), p.owned("density"), p.owned("velocity")
+            d_vol, d_mass = np.zeros(p.n_owned), np.zeros(p.n_owned)
+            d_mom = np.zeros((p.n_owned, p.dim))
+            nfts_increments(p["position"], p["volume"], p["density"], p["velocity"], p["nfts_step"],
+                            system.nbr_ptr, system.nbr_idx, system.kernel.params, d_vol, d_mass, d_mom)
+            mass = vol * rho + d_mass
+            mom = (vol * rho)[:, None] * vel + d_mom
+            vol += d_vol
+            rho[:] = mass / vol
+            vel[:] = mom / mass[:, None]
+            p.owned("mass")[:] = mass
+            p.owned("pressure")[:] = scheme.eos.pressure(rho)
+            p.owned("position")[:] += p.owned("nfts_step")
+            system.update()
+
+
+class MovingLeastSquares(NoFieldUpdate):
+    def __init__(self, order):
+        self.order = order
+        self.name = f"mls{order}"
+
+    def specs(self, dim):
+        return (FieldSpec("old_position", ("d",)), FieldSpec("old_fields", (3 + dim,)))
+
+    def before(self, system, scheme):
+        super().before(system, scheme)
+        p = system.particles
+        p.owned("old_position")[:] = p.owned("position")
+        old = p.owned("old_fields")
+        old[:, 0] = p.owned("volume")
+        old[:, 1] = p.owned("volume")
+        old[:, 2] = p.owned("density")
+        old[:, 3:] = p.owned("velocity")
+
+    def after(self, system, scheme):
+        """Re-interpolate at the new positions from the old ones. The old positions reach other ranks
+        through a halo pattern built from the old positions themselves, so a large IIPS displacement does
+        not lose neighbours. Collective."""
+        p = system.particles
+        owned_old = p.owned("old_position")
+        pattern = build_halo_pattern(system.comm, owned_old, system.decomposition, system.domain,
+                                     system.list_radius)
+        got = halo_copies(system.comm, pattern, {"old_position": owned_old, "old_fields": p.owned("old_fields")},
+                          shifted=("old_position",))
+        old_pos = np.concatenate([owned_old, got["old_position"]])
+        old = np.concatenate([p.owned("old_fields"), got["old_fields"]])
+        ptr, idx = build_cross_lists(p.owned("position"), old_pos, system.kernel.support)
+        new = np.zeros((p.n_owned, old.shape[1] - 1))
+        mls_interpolate(p.owned("position"), old_pos, old[:, 0], np.ascontiguousarray(old[:, 1:]), ptr, idx,
+                        system.kernel.params, self.order, new)
+        error = None
+        if not np.all(np.isfinite(new)):
+            error = NumericalError("MLS update: a particle has no old neighbour to interpolate from")
+        raise_if_any(system.comm, error)
+        vol, rho = p.owned("volume"), p.owned("density")
+        rho[:] = new[:, 1]
+        p.owned("velocity")[:] = new[:, 2:]
+        if scheme.variant == 0:
+            vol[:] = new[:, 0]
+            p.owned("mass")[:] = rho * vol
+        elif scheme.variant == 1:
+            vol[:] = p.owned("mass") / rho
+        else:
+            p.owned("mass")[:] = p.owned("volume0") * rho
+        p.owned("pressure")[:] = scheme.eos.pressure(rho)
+
+
+def make_field_update(scene):
+    mode = scene.iips.update
+    if mode == "nfts":
+        return FictitiousTimeStep(0.2, scene.domain.dx)
+    if mode in ("mls1", "mls2"):
+        return MovingLeastSquares(int(mode[-1]))
+    return NoFieldUpdate()

@@ -1,0 +1,179 @@
+"""Explicit shifting laws used inside the fluid schemes: each gives a shifting velocity du per particle,
+added to the fluid velocity as the transport velocity u + du (seed 001 eq. 10; the ALE terms in du keep
+the scheme consistent). Laws defined as displacements (Lind, Skillen: dx per time step) are applied as
+du = dx / dt.
+
+    none        du = 0 (a Lagrangian scheme; the du-terms are skipped)
+    delta_plus  seed 001 eq. 16-17 (Sun et al.):  du* = -Ma (2h) c0 grad C^, R = 0.2, n = 4;
+                |du| <= U_max / 2
+    lind        thesis eq. 6.15-6.16 (Lind et al. 2012): dx = -0.5 h^2 grad C^ (b = 0.2, n = 4), |dx| <= 0.2 h
+    skillen     thesis eq. 6.18 (Skillen et al. 2013): dx = -A h |u_i| dt grad C, A = `shifting.skillen_a`
+    oger        thesis eq. 6.32 (Oger et al. 2016): du = -U_char 2 dx grad C, U_char = Ma c0 = U_max,
+                |du| <= 0.25 |u_i|
+    neuhauser   thesis eq. 6.33-6.35 with the particle-shifting coefficient P_S (eq. 7.1), or the fictitious
+                pressure P^F (eq. 7.4) when `shifting.fictitious_pressure`: du = dt (dv0/dt)_smooth,
+                p_ref = rho0 c0^2 / gamma (gamma = 7), alpha = 0.1; v0 of the previous step in the
+                upwind and smoothing terms.
+"""
+
+import numpy as np
+
+from psph.compute.shift_velocity import corrected_grad_c, limit_magnitude, neuhauser_acceleration
+from psph.particles import FieldSpec, Kind
+
+TAIT_GAMMA = 7.0
+
+
+class VelocityShift:
+    """Base: `velocity(system, scheme, dt)` fills the owned rows of field 'shift_velocity'."""
+
+    name = "none"
+    active = False
+    fields = ()
+
+    def __init__(self, scene=None):
+        self.dx = scene.domain.dx if scene is not None else None
+
+    def velocity(self, system, scheme, dt):
+        return None
+
+    def end_step(self, system, scheme, dt):
+        """Called after a completed time step (laws with memory update it here)."""
+
+    def describe(self) -> str:
+        return "shifting: none (Lagrangian particles; the du-terms of the scheme are skipped)"
+
+
+class NoVelocityShift(VelocityShift):
+    pass
+
+
+def _grad_c_hat(system, coeff, power, dx):
+    """grad C corrected with [1 + coeff (W_ij / W(dx))^power] (coeff = 0: plain grad C)."""
+    p, k = system.particles, system.kernel
+    w_ref = float(k.value(np.array([dx]))[0])
+    out = np.zeros((p.n_owned, p.dim))
+    corrected_grad_c(p["position"], p["volume"], system.nbr_ptr, system.nbr_idx, k.params, coeff, power,
+                     w_ref, out)
+    return out
+
+
+def _free(system):
+    return (system.particles.owned("kind") == Kind.FLUID)[:, None]
+
+
+class DeltaPlus(VelocityShift):
+    name = "delta_plus"
+    active = True
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        self.coeff, self.power = scene.shifting.delta_plus_r, scene.shifting.delta_plus_n
+        self.u_max = scene.physics.reference_velocity
+
+    def velocity(self, system, scheme, dt):
+        grad = _grad_c_hat(system, self.coeff, self.power, self.dx)
+        raw = -self.u_max * 2.0 * system.kernel.h * grad  # Ma (2h) c0 = U_max 2h
+        out = system.particles.owned("shift_velocity")
+        limit_magnitude(raw, np.full(len(raw), 0.5 * self.u_max), out)
+        out *= _free(system)
+
+    def describe(self):
+        return (f"shifting: delta-plus velocity du = -Ma 2h c0 grad C^ (R = {self.coeff:g}, n = {self.power:g}), "
+                f"|du| <= U_max/2 (seed 001 eq. 16-17)")
+
+
+class Lind(VelocityShift):
+    name = "lind"
+    active = True
+
+    def velocity(self, system, scheme, dt):
+        h = system.kernel.h
+        grad = _grad_c_hat(system, 0.2, 4.0, self.dx)
+        raw = -0.5 * h * h * grad / dt
+        out = system.particles.owned("shift_velocity")
+        limit_magnitude(raw, np.full(len(raw), 0.2 * h / dt), out)
+        out *= _free(system)
+
+    def describe(self):
+        return "shifting: Lind (Fickian) dx = -0.5 h^2 grad C^, |dx| <= 0.2 h per step (thesis eq. 6.16)"
+
+
+class Skillen(VelocityShift):
+    name = "skillen"
+    active = True
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        self.a = scene.shifting.skillen_a
+
+    def velocity(self, system, scheme, dt):
+        p = system.particles
+        grad = _grad_c_hat(system, 0.0, 1.0, self.dx)
+        speed = np.sqrt((p.owned("velocity") ** 2).sum(axis=1))[:, None]
+        p.owned("shift_velocity")[:] = -self.a * system.kernel.h * speed * grad * _free(system)
+
+    def describe(self):
+        return f"shifting: Skillen dx = -A h |u| dt grad C, A = {self.a:g} (thesis eq. 6.18)"
+
+
+class Oger(VelocityShift):
+    name = "oger"
+    active = True
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        self.u_char = scene.physics.reference_velocity
+
+    def velocity(self, system, scheme, dt):
+        p = system.particles
+        grad = _grad_c_hat(system, 0.0, 1.0, self.dx)
+        raw = -self.u_char * 2.0 * self.dx * grad
+        limit = 0.25 * np.sqrt((p.owned("velocity") ** 2).sum(axis=1))
+        out = p.owned("shift_velocity")
+        limit_magnitude(raw, limit, out)
+        out *= _free(system)
+
+    def describe(self):
+        return "shifting: Oger du = -Ma c0 2 dx grad C, |du| <= 0.25 |u| (thesis eq. 6.32)"
+
+
+class Neuhauser(VelocityShift):
+    name = "neuhauser"
+    active = True
+    fields = (FieldSpec("transport_velocity", ("d",)),)
+
+    def __init__(self, scene):
+        super().__init__(scene)
+        spec, physics = scene.shifting, scene.physics
+        self.ps = spec.neuhauser_ps
+        self.fictitious = spec.fictitious_pressure
+        self.alpha = 0.1
+        self.c0 = physics.sound_speed
+        self.rho0 = physics.density
+        self.p_ref = physics.density * physics.sound_speed ** 2 / TAIT_GAMMA
+
+    def velocity(self, system, scheme, dt):
+        p = system.particles
+        if self.fictitious:  # P^F / rho0 = p_ref / rho0 (V0 / V)^gamma (eq. 7.3)
+            pref = self.p_ref / self.rho0 * (scheme.initial_volume(system) / p["volume"]) ** TAIT_GAMMA
+        else:
+            pref = np.full(p.n_local, self.ps * self.p_ref / self.rho0)
+        system.refresh(["transport_velocity"])
+        acc = np.zeros((p.n_owned, p.dim))
+        neuhauser_acceleration(p["position"], p["volume"], p["transport_velocity"], pref, system.nbr_ptr,
+                               system.nbr_idx, system.kernel.params, self.c0, self.alpha, acc)
+        p.owned("shift_velocity")[:] = dt * acc * _free(system)
+
+    def end_step(self, system, scheme, dt):
+        p = system.particles
+        p.owned("transport_velocity")[:] = p.owned("velocity") + p.owned("shift_velocity")
+
+    def describe(self):
+        how = "fictitious pressure P^F (eq. 7.4)" if self.fictitious else f"P_S = {self.ps:g} (eq. 7.1)"
+        return f"shifting: Neuhauser Riemann-based transport-velocity correction with {how}, alpha = 0.1"
+
+
+def make_velocity_shift(scene) -> VelocityShift:
+    laws = {"delta_plus": DeltaPlus, "lind": Lind, "skillen": Skillen, "oger": Oger, "neuhauser": Neuhauser}
+    return laws.get(scene.shifting.method, NoVelocityShift)(scene)

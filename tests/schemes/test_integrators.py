@@ -1,0 +1,51 @@
+"""Time integrators reach their orders (Kutta RK3 with the corrected last stage: 3; RK4: 4)."""
+
+import numpy as np
+import pytest
+
+from psph.schemes.integrators import INTEGRATORS
+
+
+class LinearODE:
+    """dy/dt = A y with a rotation-plus-decay A; exact solution by the matrix exponential."""
+
+    a = np.array([[-0.3, 2.0], [-2.0, -0.3]])
+
+    def __init__(self):
+        self.y = np.array([1.0, 0.5])
+
+    def state(self, system):
+        return {"y": self.y.copy()}
+
+    def set_state(self, system, state):
+        self.y = state["y"].copy()
+
+    def rhs(self, system, t, dt):
+        return {"y": self.a @ self.y}
+
+
+@pytest.mark.parametrize("name,order", [("rk3", 3), ("rk4", 4)])
+def test_order(name, order):
+    from scipy.linalg import expm
+
+    exact = expm(LinearODE.a * 1.0) @ np.array([1.0, 0.5])
+    errors = []
+    for n in (20, 40):
+        ode = LinearODE()
+        for k in range(n):
+            INTEGRATORS[name](ode, None, k / n, 1.0 / n)
+        errors.append(np.abs(ode.y - exact).max())
+    assert np.log2(errors[0] / errors[1]) == pytest.approx(order, abs=0.15)
+
+
+def test_printed_rk3_last_stage_is_only_first_order():
+    """Thesis eq. 5.51 as printed (dt only on H1) is not a consistent third-order scheme."""
+    ode = LinearODE()
+    y0 = ode.y.copy()
+    dt = 0.01
+    h1 = ode.a @ y0
+    h2 = ode.a @ (y0 + 0.5 * dt * h1)
+    h3 = ode.a @ (y0 - dt * h1 + 2 * dt * h2)
+    printed = y0 + dt * h1 / 6 + 2 * h2 / 3 + h3 / 6
+    INTEGRATORS["rk3"](ode, None, 0.0, dt)
+    assert np.abs(printed - ode.y).max() > 0.1
