@@ -97,8 +97,9 @@ class FluidDriver:
             (m[:, None] * u)[mask].sum(axis=0)]))
         drho = allreduce_max(comm, float(np.abs(rho[mask] / self.scheme.rho0 - 1.0).max()) if mask.any() else 0.0)
         l2, linf = norms(comm, grad_c(self.system), mask, self.system.kernel.h)
+        dvol = allreduce_max(comm, float(np.abs(vol / p.owned("volume0") - 1.0).max()) if p.n_owned else 0.0)
         out = {"kinetic_energy": sums[0], "total_mass": sums[1], "volume_error": sums[2] / self.initial_volume - 1.0,
-               "max_density_variation": drho, "L2_grad_c": l2, "Linf_grad_c": linf}
+               "max_density_variation": drho, "max_volume_variation": dvol, "L2_grad_c": l2, "Linf_grad_c": linf}
         for a in range(p.dim):
             out[f"momentum_{'xyz'[a]}"] = sums[3 + a]
         if self.reference is not None:
@@ -124,6 +125,14 @@ class FluidDriver:
                 error = NumericalError(f"density left the weakly compressible range: |rho/rho0 - 1| = "
                                        f"{dev[k]:.3g} > {limit:g} (physics.max_density_variation)",
                                        gid=int(p.owned("gid")[k]), position=p.owned("position")[k], **where)
+            elif self.scheme.variant == 0 and p.n_owned:
+                drift = np.abs(p.owned("volume") / p.owned("volume0") - 1.0)
+                limit = self.scene.physics.max_volume_variation
+                if drift.max() > limit:
+                    k = int(np.argmax(drift))
+                    error = NumericalError(f"particle volume drifted by {drift[k]:.3g} (> {limit:g}, "
+                                           "physics.max_volume_variation)", gid=int(p.owned("gid")[k]),
+                                           position=p.owned("position")[k], **where)
         if error is None and dt < DT_COLLAPSE * self.first_dt:
             error = NumericalError(f"time step collapsed to {dt:.3g} (first step {self.first_dt:.3g})", **where)
         raise_if_any(self.sim.comm, error)

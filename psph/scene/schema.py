@@ -85,6 +85,9 @@ class PhysicsSpec:
     tensile_switch: bool = option(True, doc="use p_j - p_i where p_i < 0 (tensile-instability control)")
     max_density_variation: float = option(0.1, doc="stop when |rho / rho0 - 1| exceeds this (weak "
                                           "compressibility violated)", gt=0.0)
+    max_volume_variation: float = option(0.5, doc="delta_ale: stop when a particle volume drifts by more than "
+                                         "this fraction of its initial value (seed 001 fig. 6: without D^m "
+                                         "volumes drift by 50%)", gt=0.0)
 
     def check(self, path):
         if self.gravity and len(self.gravity) not in (1, 2, 3):

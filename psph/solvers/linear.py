@@ -46,25 +46,34 @@ class LinearSolver:
 
     def __init__(self, comm, prefix: str, *, ksp_type="bcgs", pc_type="jacobi", rtol=1e-2, atol=1e-50,
                  max_it=10000):
-        PETSc = petsc()
+        self.comm = comm
         self.prefix = prefix
-        self.ksp = PETSc.KSP().create(comm=comm)
-        self.ksp.setOptionsPrefix(prefix)
-        with petsc_errors(f"setting up the -{prefix} solver"):
-            self.ksp.setType(ksp_type)
-            self.ksp.getPC().setType(pc_type)
-            self.ksp.setTolerances(rtol=rtol, atol=atol, max_it=max_it)
-            self.ksp.setFromOptions()
+        self.defaults = dict(ksp_type=ksp_type, pc_type=pc_type, rtol=rtol, atol=atol, max_it=max_it)
+        self.ksp = self._create()
         self.operator = None
         self.iterations = 0
 
-    def set_operator(self, mat) -> None:
-        """Use `mat` from now on (a new matrix, possibly of another size, after a rebuild)."""
+    def _create(self):
+        """A KSP with the code defaults, then the command line's options (which win)."""
+        PETSc = petsc()
+        d = self.defaults
         with petsc_errors(f"setting up the -{self.prefix} solver"):
-            if self.operator is not None:
-                self.ksp.reset()
+            ksp = PETSc.KSP().create(comm=self.comm)
+            ksp.setOptionsPrefix(self.prefix)
+            ksp.setType(d["ksp_type"])
+            ksp.getPC().setType(d["pc_type"])
+            ksp.setTolerances(rtol=d["rtol"], atol=d["atol"], max_it=d["max_it"])
+            ksp.setFromOptions()
+        return ksp
+
+    def set_operator(self, mat) -> None:
+        """Use `mat` from now on. A matrix of another size (after a neighbour-list rebuild) gets a fresh
+        KSP: some preconditioners (GAMG) cannot be reset to new sizes."""
+        if self.operator is not None and self.operator.getSizes() != mat.getSizes():
+            self.ksp.destroy()
+            self.ksp = self._create()
+        with petsc_errors(f"setting up the -{self.prefix} solver"):
             self.ksp.setOperators(mat)
-            self.ksp.setFromOptions()
         self.operator = mat
 
     def solve(self, b, x) -> int:

@@ -1,0 +1,106 @@
+"""Taylor-Green vortex at Re = 100 (thesis 000 Tables 7.1 and 9.1): L2|v_x - v_xA| and the kinetic-energy
+error at t = 1 for each shifting method and resolution, the convergence rates, and the wall time against
+the error (the Pareto front a user needs to choose a method), with the IIPS overhead relative to the step.
+
+    .venv/bin/python run_scripts/tgv_tradeoff.py [--ranks 2] [--resolutions 0.05 0.025 0.0125 0.00625]
+
+Writes results/tgv_tradeoff/{convergence,tradeoff}.{md,csv} and tradeoff.png. Scheme: delta-ALE-SPH (seed
+001), Wendland C6, h/dx = 2, c0 = 10, RK3, CFL 0.2 (thesis eq. 5.52); IIPS Procedure B with
+Linf(grad C) <= 0.001 (thesis ch. 9).
+"""
+
+import argparse
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from psph.studies import CASES, rate, run_scene, write_table  # noqa: E402
+
+METHODS = {  # label: scene overrides
+    "no shifting": ["shifting.method=none", "iips.update=none"],
+    "delta+": ["shifting.method=delta_plus", "iips.update=none"],
+    "Neuhauser P_S=10": ["shifting.method=neuhauser", "shifting.neuhauser_ps=10", "iips.update=none"],
+    "IIPS": ["shifting.method=iips", "iips.update=none"],
+    "IIPS + NFTS": ["shifting.method=iips", "iips.update=nfts"],
+    "IIPS + MLS-II": ["shifting.method=iips", "iips.update=mls2"],
+}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("results/tgv_tradeoff"))
+    parser.add_argument("--ranks", type=int, default=1)
+    parser.add_argument("--t-end", type=float, default=1.0)
+    parser.add_argument("--resolutions", type=float, nargs="+", default=[0.05, 0.025, 0.0125, 0.00625])
+    parser.add_argument("--methods", nargs="+", default=list(METHODS))
+    args = parser.parse_args()
+    runs = {}
+    for dx in args.resolutions:
+        for label in args.methods:
+            tag = label.replace(" ", "").replace("+", "_").replace("=", "")
+            try:
+                run = run_scene(CASES / "taylor_green.toml", args.out / f"{tag}_dx{dx}", ranks=args.ranks,
+                                sets=METHODS[label] + [f"domain.dx={dx}", f"time.t_end={args.t_end}",
+                                                       "output.every=0", "output.history_every=50"])
+            except RuntimeError as exc:  # a run stopped by a diagnosis is a result too
+                print(f"{label} dx={dx}: stopped: {str(exc).splitlines()[-1]}", flush=True)
+                runs[(label, dx)] = None
+                continue
+            runs[(label, dx)] = run
+            f = run.summary["final"]
+            print(f"{label:18s} dx={dx}: L2={f['L2_vx_error']:.4e} E_k err={f['kinetic_energy_error']:.3e} "
+                  f"wall={run.summary['wall_time_s']:.1f}s", flush=True)
+
+    def err(label, dx, key="L2_vx_error"):
+        run = runs.get((label, dx))
+        return run.summary["final"][key] if run else float("nan")
+
+    rows = []
+    for label in args.methods:
+        e = [err(label, dx) for dx in args.resolutions]
+        row = [label]
+        for k, dx in enumerate(args.resolutions):
+            row += [e[k], rate(e[k - 1], e[k], args.resolutions[k - 1] / dx) if k else float("nan")]
+        row.append(err(label, args.resolutions[-1], "kinetic_energy_error"))
+        rows.append(row)
+    header = ["method"]
+    for dx in args.resolutions:
+        header += [f"L2 dx={dx}", "rate"]
+    header.append(f"E_k error dx={args.resolutions[-1]}")
+    print(write_table(args.out / "convergence", header, rows,
+                      title=f"Taylor-Green Re = 100: L2|v_x - v_xA| at t = {args.t_end} (thesis Table 9.1)",
+                      note="rate = observed order between successive resolutions."))
+
+    trade, fig = [], plt.figure(figsize=(6, 4.5))
+    for label in args.methods:
+        pts = [(runs[(label, dx)].summary["wall_time_s"], err(label, dx), dx) for dx in args.resolutions
+               if runs.get((label, dx))]
+        if pts:
+            plt.loglog([p[0] for p in pts], [p[1] for p in pts], "o-", label=label)
+        for wall, e, dx in pts:
+            s = runs[(label, dx)].summary
+            overhead = s.get("iips_time_s", 0.0) / max(s["step_time_s"] - s.get("iips_time_s", 0.0), 1e-12)
+            trade.append([label, dx, wall, e, s["steps"], overhead if label.startswith("IIPS") else "-"])
+    front = set()
+    for i, a in enumerate(trade):
+        if not any(b[2] <= a[2] and b[3] <= a[3] and b is not a for b in trade):
+            front.add(i)
+    for i, row in enumerate(trade):
+        row.append("*" if i in front else "")
+    plt.xlabel("wall time [s]")
+    plt.ylabel("L2|v_x - v_xA| at t = 1")
+    plt.legend(fontsize=7)
+    plt.tight_layout()
+    fig.savefig(args.out / "tradeoff.png", dpi=120)
+    print(write_table(args.out / "tradeoff", ["method", "dx/L", "wall time [s]", "L2 error", "steps",
+                                               "IIPS time / rest of the step", "Pareto"], trade,
+                      title=f"Taylor-Green: cost against accuracy ({args.ranks} rank(s))",
+                      note="IIPS overhead = time in IIPS and its field update over the remaining step time "
+                           "(thesis: 10-70% for Procedure B)."))
+
+
+if __name__ == "__main__":
+    main()
