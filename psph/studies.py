@@ -24,8 +24,11 @@ class Run:
     history: list
 
 
-def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True) -> Run:
-    """`psph run scene --out out --set ... [PETSc options]` on `ranks` MPI ranks; raises on failure."""
+def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None) -> Run:
+    """`psph run scene --out out --set ... [PETSc options]` on `ranks` MPI ranks; raises on failure.
+
+    With reuse (default: the PSPH_STUDY_REUSE environment variable is set), a directory holding a
+    complete run of exactly this command is read instead of run again (to resume or extend a study)."""
     cmd = [sys.executable, "-m", "psph", "run", str(scene), "--out", str(out), "--overwrite"]
     for s in sets:
         cmd += ["--set", s]
@@ -34,11 +37,18 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True) -> Run:
     cmd += list(petsc)
     if ranks > 1:
         cmd = ["mpiexec", "-n", str(ranks), "--oversubscribe"] + cmd
+    out = Path(out)
+    stamp = out / "study_command.json"
+    if reuse is None:
+        reuse = bool(os.environ.get("PSPH_STUDY_REUSE"))
+    if reuse and stamp.exists() and json.loads(stamp.read_text()) == cmd[cmd.index("-m"):] \
+            and (out / "summary.json").exists():
+        return Run(out, json.loads((out / "summary.json").read_text()), read_history(out / "history.csv"))
     env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_COMM", "PMIX"))}
     res = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if res.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed:\n{res.stderr[-2000:]}")
-    out = Path(out)
+    stamp.write_text(json.dumps(cmd[cmd.index("-m"):]))
     return Run(out, json.loads((out / "summary.json").read_text()), read_history(out / "history.csv"))
 
 

@@ -37,6 +37,17 @@ class KinematicDriver:
         self.n_steps = math.ceil(scene.time.t_end / self.dt - 1e-9)
         self.length = d.upper[0] - d.lower[0]
 
+    def pre_procedure(self, system):
+        """The static pre-procedure (thesis Algorithms 2-4, line 2): iips.pre_newton IIPS iterations, for
+        every method, so that Procedures A, B and C start from the same distribution."""
+        if self.scene.iips.pre_newton == 0:
+            return None
+        if self.scene.shifting.method == "iips":
+            return self.shifting.prepare(system)
+        from psph.shifting.iips import ImplicitShifting
+
+        return ImplicitShifting(self.scene.iips, self.sim.comm).prepare(system)
+
     def advect(self):
         """Move the owned particles by the frozen field (thesis eq. 8.33) and refresh. Collective."""
         system = self.sim.system
@@ -55,7 +66,7 @@ class KinematicDriver:
         state = {"step": 0, "time": 0.0}
         with sim.diagnose_failures(lambda: (state["step"], state["time"])):
             t0 = time.perf_counter()
-            init_linf = self.shifting.prepare(system)
+            init_linf = self.pre_procedure(system)
             pre_time = time.perf_counter() - t0
             if init_linf is not None:
                 sim.log(f"pre-procedure: Linf(grad C) = {init_linf:.4e}"
