@@ -43,6 +43,9 @@ class Simulation:
         self.scene = scene
         self.comm = comm.Dup()
         self.out_dir = Path(out_dir)
+        if self.comm.rank == 0:
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.comm.Barrier()
         self.log = log or (lambda msg: None)
         warm_up(scene.domain.dimension, scene.domain.kernel)
         self.system = build_system(scene, self.comm, specs, halo_fields)

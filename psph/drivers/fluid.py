@@ -159,6 +159,7 @@ class FluidDriver:
                     system.prepare_step(self.reach * dt * vmax)
                     self.integrate(self.scheme, system, t, dt)
                     self.scheme.end_step(system, dt)
+                    system.refresh(["volume"])  # V = m / rho changed: IIPS and diagnostics read halo volumes
                 state["step"] += 1
                 state["time"] = t = t + dt
                 step = state["step"]

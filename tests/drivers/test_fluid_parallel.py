@@ -1,0 +1,33 @@
+"""The fluid solver gives the same answer on 1, 2 and 3 ranks: to round-off with an explicit shifting law,
+to the linear-solver tolerance with IIPS (compared by gid with a serial run of the same scene)."""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from psph.drivers.fluid import FluidDriver
+from tests.conftest import gather_by_gid, periodic_scene
+from tests.shifting.test_iips import petsc_options
+
+pytestmark = pytest.mark.mpi
+
+
+def run(scene, comm, out):
+    driver = FluidDriver(scene, comm, out)
+    driver.run()
+    p = driver.system.particles
+    return {k: gather_by_gid(comm, p.owned("gid"), p.owned(k))[1] for k in ("position", "velocity", "density")}
+
+
+@pytest.mark.parametrize("shifting,update,tol", [("delta_plus", "none", 1e-11), ("iips", "nfts", 1e-7),
+                                                  ("iips", "mls2", 1e-7)])
+def test_fluid_run_matches_serial(comm, mpi_tmp_path, shifting, update, tol):
+    scene = periodic_scene(n=16, initial={"velocity": "taylor_green"}, physics={"scheme": "delta_ale"},
+                           time={"t_end": 0.04}, shifting={"method": shifting},
+                           iips={"update": update, "threshold": 1e-3})
+    with petsc_options(iips_ksp_rtol=1e-12, iips_ksp_atol=1e-30):
+        parallel = run(scene, comm, mpi_tmp_path / "par")
+        serial = run(scene, MPI.COMM_SELF, mpi_tmp_path / f"ser{comm.rank}")
+    for k in parallel:
+        scale = max(np.abs(serial[k]).max(), 1.0)
+        assert np.abs(parallel[k] - serial[k]).max() < tol * scale, k
