@@ -16,6 +16,7 @@ class Domain:
     lower: tuple
     upper: tuple
     periodic: tuple
+    margin: float = 0.0  # how far outside the box particles (walls) may sit along non-periodic axes
 
     @property
     def dim(self) -> int:
@@ -40,7 +41,7 @@ class Domain:
         mask = np.zeros(len(pos), dtype=bool)
         for a in range(self.dim):
             if not self.periodic[a]:
-                mask |= (pos[:, a] < self.lower[a]) | (pos[:, a] > self.upper[a])
+                mask |= (pos[:, a] < self.lower[a] - self.margin) | (pos[:, a] > self.upper[a] + self.margin)
         return mask
 
     def minimum_image(self, dx: np.ndarray) -> np.ndarray:

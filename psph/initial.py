@@ -43,13 +43,28 @@ def initial_fields(scene, pos) -> dict:
 INITIAL_FIELD_SPECS = {"velocity": FieldSpec("velocity", ("d",)), "pressure": FieldSpec("pressure")}
 
 
+def hydrostatic_pressure(scene, pos) -> np.ndarray:
+    """p = rho0 |g| (y_s - y): gravity along -y, free surface y_s at the top of the fluid region."""
+    g = abs(scene.physics.gravity[1]) if len(scene.physics.gravity) > 1 else 0.0
+    top = scene.initial.fill_upper[1] if scene.initial.fill_upper else scene.domain.upper[1]
+    return scene.physics.density * g * (top - pos[:, 1])
+
+
 def create_particles(scene, comm, specs=()) -> ParticleSet:
-    """This rank's share of the initial particles (not yet spatially distributed). Collective-free."""
+    """This rank's share of the initial particles (not yet spatially distributed): the fluid lattice
+    (within the fill region and the walls, outside immersed bodies), then the bodies' solid particles."""
+    from psph.boundaries import SOLID_FIELDS, fluid_mask, solid_arrays
+
     dspec = scene.domain
     particles = ParticleSet(dspec.dimension)
     for spec in specs:
         particles.add_field(spec)
+    if scene.bodies:
+        for spec in SOLID_FIELDS:
+            particles.add_field(spec, fill=-1 if spec.name == "body" else 0)
     gid, pos = lattice_block(dspec, comm.rank, comm.size)
+    keep = fluid_mask(scene, pos)
+    gid, pos = gid[keep], pos[keep]
     perturb(gid, pos, scene.initial.sigma_over_dx * dspec.dx, scene.initial.seed)
     arrays = {name: np.zeros(spec.array_shape(len(gid), dspec.dimension), dtype=spec.dtype)
               for name, spec in particles.specs.items()}
@@ -57,8 +72,23 @@ def create_particles(scene, comm, specs=()) -> ParticleSet:
     arrays["position"] = pos
     arrays["kind"] = np.full(len(gid), Kind.FLUID, dtype=np.int8)
     arrays["volume"] = np.full(len(gid), dspec.dx ** dspec.dimension)
-    for name, values in initial_fields(scene, pos).items():
+    if "body" in arrays:
+        arrays["body"][:] = -1
+    fields = initial_fields(scene, pos)
+    if scene.initial.pressure == "hydrostatic":
+        fields["pressure"] = hydrostatic_pressure(scene, pos)
+    for name, values in fields.items():
         particles.add_field(INITIAL_FIELD_SPECS[name])
         arrays[name] = values
+    solids = solid_arrays(scene, comm.rank, comm.size, int(np.prod(dspec.lattice_shape())))
+    if solids is not None:
+        n = len(solids["gid"])
+        for name, spec in particles.specs.items():
+            extra = solids.get(name)
+            if extra is None:
+                extra = np.zeros(spec.array_shape(n, dspec.dimension), dtype=spec.dtype)
+            arrays[name] = np.concatenate([arrays[name], np.asarray(extra, dtype=spec.dtype)])
+        if "pressure" in arrays and scene.initial.pressure == "hydrostatic":
+            arrays["pressure"][-n:] = 0.0
     particles.set_owned(arrays)
     return particles

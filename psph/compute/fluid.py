@@ -52,15 +52,20 @@ def _solve_sym(m00, m01, m02, m11, m12, m22, g0, g1, g2, d, tol):
 
 
 @njit(cache=True)
-def renormalised_gradient(pos, vol, phi, ptr, idx, kp, out):
-    """<grad phi>^L_i = L_i sum_j (phi_j - phi_i) grad_i W_ij V_j (seed 001 eq. 15), fused in one pass."""
+def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out):
+    """<grad phi>^L_i = L_i sum_j (phi_j - phi_i) grad_i W_ij V_j (seed 001 eq. 15), fused in one pass.
+    fluid_only: sum over fluid particles (kind 0) only, and only for fluid rows (walls carry no field)."""
     d = pos.shape[1]
     support = 2.0 * kp[1]
     for i in range(ptr.size - 1):
         m00 = m01 = m02 = m11 = m12 = m22 = 0.0
         g0 = g1 = g2 = 0.0
+        if fluid_only and kind[i] != 0:
+            continue
         for k in range(ptr[i], ptr[i + 1]):
             j = idx[k]
+            if fluid_only and kind[j] != 0:
+                continue
             x0, x1, x2, r = pair(pos, i, j, d)
             if r >= support:
                 continue
@@ -85,12 +90,13 @@ def renormalised_gradient(pos, vol, phi, ptr, idx, kp, out):
 
 @njit(cache=True)
 def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, ptr, idx, kp, c0, delta, delta_m, mu,
-                  gravity, variant, with_shift, tensile_switch, d_rho, d_mass, d_mom):
+                  gravity, variant, with_shift, tensile_switch, kind, fluid_only, d_rho, d_mass, d_mom):
     """Time derivatives of the owned particles (rows of ptr) for the delta-ALE-SPH family.
 
     variant 0: d_rho, d_mass, d_mom = d(m u)/dt (seed 001 eq. 13); 1 and 2: d_rho and d_mom = du/dt
     (eq. 23 and 25; d_mass untouched). vol holds the operators' volumes (V = m / rho, or V0 for variant 2).
     with_shift = False skips every du-term (du is then not read). delta_m = 0 switches D^m off.
+    fluid_only: fluid-fluid pairs and fluid rows only (the walls' pairs: psph.compute.walls).
     """
     d = pos.shape[1]
     h = kp[1]
@@ -101,6 +107,12 @@ def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, ptr, idx, kp, c0,
     use_dm = variant == 0 and delta_m > 0.0
     sqrt_vol = np.sqrt(vol) if use_dm else vol
     for i in range(ptr.size - 1):
+        if fluid_only and kind[i] != 0:
+            d_rho[i] = 0.0
+            d_mass[i] = 0.0
+            for a in range(d):
+                d_mom[i, a] = 0.0
+            continue
         ui0 = vel[i, 0]
         ui1 = vel[i, 1] if d > 1 else 0.0
         ui2 = vel[i, 2] if d > 2 else 0.0
@@ -125,6 +137,8 @@ def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, ptr, idx, kp, c0,
         sh0 = sh1 = sh2 = 0.0
         for k in range(ptr[i], ptr[i + 1]):
             j = idx[k]
+            if fluid_only and kind[j] != 0:
+                continue
             x0, x1, x2, r = pair(pos, i, j, d)
             if r >= support or r == 0.0:
                 continue

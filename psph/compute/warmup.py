@@ -7,7 +7,7 @@ start-up keeps that cost out of the time loops (it stays in the run's total wall
 
 import numpy as np
 
-from psph.compute import iips, neighbours, random, sums
+from psph.compute import fluid, iips, neighbours, random, sums
 from psph.compute.smoothing import make_kernel
 
 
@@ -38,3 +38,7 @@ def warm_up(dim: int, kernel_name: str) -> None:
     row = gid.copy()
     _, _, slot = iips.iips_structure(row, ptr, idx, dim)
     iips.iips_values(pos, vol, row, ptr, idx, kp, np.zeros(len(slot)))
+    kind = np.zeros(n, dtype=np.int8)
+    fluid.renormalised_gradient(pos, vol, field, ptr, idx, kp, kind, False, vector)
+    fluid.delta_ale_rhs(pos, vol, field, field, vector, vector, field, vector, ptr, idx, kp, 1.0, 0.1, 0.1, 0.01,
+                        np.zeros(dim), 0, True, True, kind, False, scalar, scalar.copy(), vector.copy())

@@ -75,7 +75,8 @@ class FluidDriver:
             self.iips = ImplicitShifting(scene.iips, self.sim.comm)
         self.update = make_field_update(scene)
         self.reference = TaylorGreenReference(scene) if scene.initial.velocity == "taylor_green" else None
-        self.initial_volume = allreduce_sum(self.sim.comm, float(self.system.particles.owned("volume").sum()))
+        self.initial_volume = allreduce_sum(self.sim.comm, float(
+            self.system.particles.owned("volume")[fluid_mask(self.system)].sum()))
         self.first_dt = None
 
     # ---------------------------------------------------------------- pieces
@@ -104,6 +105,8 @@ class FluidDriver:
             out[f"momentum_{'xyz'[a]}"] = sums[3 + a]
         if self.reference is not None:
             out.update(self.reference.errors(self.system, t, sums[0]))
+        if self.scheme.walls is not None:
+            out.update(self.scheme.walls.body_forces(comm))
         return out
 
     def check(self, step, t, dt) -> None:
@@ -159,7 +162,10 @@ class FluidDriver:
                     system.prepare_step(self.reach * dt * vmax)
                     self.integrate(self.scheme, system, t, dt)
                     self.scheme.end_step(system, dt)
-                    system.refresh(["volume"])  # V = m / rho changed: IIPS and diagnostics read halo volumes
+                    if self.scheme.walls is not None:  # solids exactly where their bodies are at t + dt
+                        self.scheme.walls.place(system, t + dt)
+                    # V = m / rho changed: IIPS and diagnostics read halo volumes (and positions)
+                    system.refresh(["position", "volume"])
                 state["step"] += 1
                 state["time"] = t = t + dt
                 step = state["step"]

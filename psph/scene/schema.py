@@ -49,6 +49,42 @@ class DomainSpec:
 
 
 @dataclass(frozen=True)
+class MotionSpec:
+    law: str = option("fixed", doc="rigid motion: fixed; constant (velocity from t = 0); ramp (velocity reached "
+                      "smoothly over ramp_time, tau^2 (3 - 2 tau)); spheric6 (the SPHERIC benchmark 6 "
+                      "acceleration a(t) = 2.8209512 exp(-(t - 0.525652151)^2 / (2 0.14142151^2)) up to t = 1)",
+                      choices=("fixed", "constant", "ramp", "spheric6"))
+    velocity: tuple[float, ...] = option((), doc="translation velocity reached (spheric6: its direction and "
+                                         "size are scaled to this vector)")
+    angular_velocity: float = option(0.0, doc="rotation rate reached [rad per time unit], about the centre")
+    ramp_time: float = option(1.0, doc="ramp: time to reach the velocity", gt=0.0)
+
+
+@dataclass(frozen=True)
+class BodySpec:
+    name: str = option(doc="body name (suffix of its force columns when a scene has several)")
+    shape: str = option(doc="box (fluid inside: tank or cavity walls), rectangle or ellipse (immersed)",
+                        choices=("box", "rectangle", "ellipse"))
+    center: tuple[float, ...] = option(doc="centre", length=2)
+    size: tuple[float, ...] = option(doc="box/rectangle: width and height; ellipse: semi-axes a and b",
+                                     length=2, gt=0.0)
+    angle: float = option(0.0, doc="rotation of the shape [degrees]")
+    wall: str = option("no_slip", doc="no_slip or free_slip", choices=("no_slip", "free_slip"))
+    lid_velocity: tuple[float, ...] = option((), doc="box: tangential velocity of its top side (a cavity lid)")
+    motion: MotionSpec = option(MotionSpec(), doc="prescribed rigid motion")
+    reference_length: float = option(0.0, doc="length D of the force coefficients 2 F / (rho0 U^2 D) (0: the "
+                                     "width for rectangles, the major axis for ellipses)", ge=0.0)
+
+    def check(self, path):
+        if self.lid_velocity and (self.shape != "box" or len(self.lid_velocity) != 2):
+            raise SceneError(f"{path}.lid_velocity", "a lid is the top side of a box: give 2 entries")
+        if self.motion.law != "fixed" and self.shape == "box":
+            raise SceneError(f"{path}.motion.law", "boxes stay fixed (give the lid a velocity instead)")
+        if self.motion.law not in ("fixed",) and len(self.motion.velocity) != 2 and not self.motion.angular_velocity:
+            raise SceneError(f"{path}.motion.velocity", "a moving body needs a velocity (2 entries) or a rotation")
+
+
+@dataclass(frozen=True)
 class InitialSpec:
     type: str = option("lattice", doc="initial particle arrangement", choices=("lattice",))
     sigma_over_dx: float = option(0.0, doc="std. deviation of the Gaussian position perturbation, in dx",
@@ -57,6 +93,12 @@ class InitialSpec:
                        ge=0, lt=2**63)
     velocity: str = option("zero", doc="initial velocity and pressure: zero (no fields) or the analytic "
                            "taylor_green vortex (2-D bi-periodic square)", choices=("zero", "taylor_green"))
+    fill_lower: tuple[float, ...] = option((), doc="lower corner of the region the fluid fills (default: "
+                                           "the domain)")
+    fill_upper: tuple[float, ...] = option((), doc="upper corner of the fluid region (a tank's free surface)")
+    pressure: str = option("zero", doc="initial pressure without an analytic velocity field: zero, or "
+                           "hydrostatic (rho0 |g| (free surface - depth) with gravity along -y)",
+                           choices=("zero", "hydrostatic"))
 
 
 FLUID_SCHEMES = ("delta_ale", "delta_ale_const_mass", "delta_ale_const_volume")
@@ -190,9 +232,22 @@ class Scene:
     output: OutputSpec = option(OutputSpec(), doc="what is written and when")
     diagnostics: DiagnosticsSpec = option(DiagnosticsSpec(), doc="diagnostics")
     neighbours: NeighboursSpec = option(NeighboursSpec(), doc="neighbour lists and load balance")
+    bodies: tuple[BodySpec, ...] = option((), doc="solid walls and bodies ([[bodies]] tables; clone particles)")
 
     def check(self, path):
         fluid = self.physics.scheme in FLUID_SCHEMES
+        if self.bodies:
+            if self.domain.dimension != 2:
+                raise SceneError("bodies", "solid bodies are 2-D (seed 004 gives the 2-D clone particles)")
+            if not fluid and self.physics.scheme != "none":
+                raise SceneError("bodies", f"bodies need a fluid scheme or a static run, not {self.physics.scheme!r}")
+            names = [b.name for b in self.bodies]
+            if len(set(names)) != len(names):
+                raise SceneError("bodies", f"body names must be unique, got {names}")
+        for key in ("fill_lower", "fill_upper"):
+            value = getattr(self.initial, key)
+            if value and len(value) != self.domain.dimension:
+                raise SceneError(f"initial.{key}", f"expected {self.domain.dimension} entries (domain.dimension)")
         method = self.shifting.method
         if fluid and method == "explicit_iterative":
             raise SceneError("shifting.method", "explicit_iterative is for static and kinematic runs; fluid "

@@ -129,7 +129,7 @@ def to_table(obj) -> dict:
         if dataclasses.is_dataclass(v):
             out[f.name] = to_table(v)
         elif isinstance(v, tuple):
-            out[f.name] = list(v)
+            out[f.name] = [to_table(x) if dataclasses.is_dataclass(x) else x for x in v]
         else:
             out[f.name] = v
     return out

@@ -37,6 +37,11 @@ class DeltaALE:
         self.shift = make_velocity_shift(scene)
         self.state_names = (("position", "density", "mass", "momentum") if self.variant == 0
                             else ("position", "density", "velocity"))
+        self.walls = None
+        if scene.bodies:
+            from psph.boundaries.clone import WallTerms
+
+            self.walls = WallTerms(scene)
 
     # ------------------------------------------------------------ description
     def describe(self) -> list:
@@ -53,6 +58,8 @@ class DeltaALE:
         if self.tensile:
             lines.append("tensile-instability switch (p_j - p_i where p_i < 0)")
         lines.append(self.shift.describe())
+        if self.walls is not None:
+            lines += self.walls.describe()
         return lines
 
     # ----------------------------------------------------------------- fields
@@ -62,10 +69,18 @@ class DeltaALE:
         if self.shift.active:
             specs.append(FieldSpec("shift_velocity", ("d",)))
         specs += list(self.shift.fields)
+        if self.walls is not None:
+            from psph.boundaries import SOLID_FIELDS
+
+            specs += list(SOLID_FIELDS)
         return specs
 
     def halo_fields(self):
         names = ["position", "gid", "kind", "volume", "density", "mass", "velocity", "pressure", "grad_rho"]
+        if self.walls is not None:
+            from psph.boundaries import SOLID_HALO_FIELDS
+
+            names += list(SOLID_HALO_FIELDS)
         return names + (["shift_velocity"] if self.shift.active else [])
 
     def initialize(self, system):
@@ -82,6 +97,12 @@ class DeltaALE:
         p.owned("pressure")[:] = self.eos.pressure(p.owned("density"))
         if "transport_velocity" in p:
             p.owned("transport_velocity")[:] = p.owned("velocity")
+        if self.walls is not None:
+            solid = p.owned("kind") != 0
+            p.owned("density")[solid] = self.rho0
+            p.owned("mass")[solid] = self.rho0 * p.owned("volume")[solid]
+            p.owned("pressure")[solid] = 0.0
+            self.walls.place(system, 0.0)
         for name in self.halo_fields():
             system.add_halo_field(name)
         system.refresh(self.halo_fields())
@@ -125,6 +146,10 @@ class DeltaALE:
     def rhs(self, system, t, dt) -> dict:
         """d(state)/dt at the current state (owned rows). Collective (halo exchanges)."""
         p = system.particles
+        walls = self.walls is not None
+        if walls:  # solid velocities, normals and accelerations at the stage time
+            self.walls.place(system, t, positions=False)
+            system.refresh(["normal", "wall_accel", "wall_velocity"])
         system.refresh(["density", "mass", "velocity", "volume", "pressure"])
         if self.shift.active:
             self.shift.velocity(system, self, dt)
@@ -134,7 +159,7 @@ class DeltaALE:
             du = p["velocity"]  # not read
         kp = system.kernel.params
         renormalised_gradient(p["position"], p["volume"], p["density"], system.nbr_ptr, system.nbr_idx, kp,
-                              p["grad_rho"])
+                              p["kind"], walls, p["grad_rho"])
         system.refresh(["grad_rho"])
         n, d = p.n_owned, p.dim
         d_rho = np.zeros(n)
@@ -142,7 +167,10 @@ class DeltaALE:
         d_mom = np.zeros((n, d))
         delta_ale_rhs(p["position"], p["volume"], p["density"], p["mass"], p["velocity"], du, p["pressure"],
                       p["grad_rho"], system.nbr_ptr, system.nbr_idx, kp, self.c0, self.delta, self.delta_m,
-                      self.mu, self.gravity, self.variant, self.shift.active, self.tensile, d_rho, d_mass, d_mom)
+                      self.mu, self.gravity, self.variant, self.shift.active, self.tensile, p["kind"], walls,
+                      d_rho, d_mass, d_mom)
+        if walls:
+            self.walls.add(system, self, t, d_rho, d_mom)
         transport = p.owned("velocity") + (p.owned("shift_velocity") if self.shift.active else 0.0)
         out = {"position": transport, "density": d_rho}
         if self.variant == 0:

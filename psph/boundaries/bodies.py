@@ -1,0 +1,132 @@
+"""Walls and bodies: profiles, prescribed rigid motion, solid particles and the per-body bookkeeping.
+
+A body's material points follow x(t) = c0 + d(t) + R(theta(t)) (x_ref - c0), with velocity
+v(t) + omega e_z x (x - c) and acceleration a(t) + alpha e_z x r - omega^2 r (r = x - c). The translation
+and rotation follow the body's motion law (MotionSpec). A box body may have a lid: its top side moves
+tangentially with `lid_velocity` while the particles stay in place (a cavity).
+"""
+
+import math
+
+import numpy as np
+
+from psph.boundaries.geometry import ellipse_profile, rectangle_profile, solid_particles
+from psph.particles import Kind
+
+SPHERIC6 = (2.8209512, 0.525652151, 0.14142151)  # amplitude, centre, width of the benchmark acceleration
+
+
+class MotionLaw:
+    """Scalar law s(t), s'(t), s''(t) scaled so that s'(t) reaches 1 (times the body's velocity vector)."""
+
+    def __init__(self, spec):
+        self.law, self.ramp = spec.law, spec.ramp_time
+        if self.law == "spheric6":  # tabulate the integral of the benchmark velocity once
+            t = np.linspace(0.0, 1.0, 20001)
+            v = self._spheric_velocity(t)
+            self._t, self._v = t, v / v[-1]
+            self._d = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))]) / v[-1]
+
+    @staticmethod
+    def _spheric_velocity(t):
+        amp, mu, sigma = SPHERIC6
+        k = sigma * math.sqrt(2.0)
+        erf = np.vectorize(math.erf)
+        return amp * sigma * math.sqrt(math.pi / 2.0) * (erf((np.asarray(t) - mu) / k) + math.erf(mu / k))
+
+    def __call__(self, t):
+        """(displacement, velocity, acceleration) of the unit law at time t."""
+        if self.law == "fixed":
+            return 0.0, 0.0, 0.0
+        if self.law == "constant":
+            return t, 1.0, 0.0
+        if self.law == "ramp":
+            tau = t / self.ramp
+            if tau >= 1.0:
+                return self.ramp * 0.5 + (t - self.ramp), 1.0, 0.0
+            return (self.ramp * (tau**3 - 0.5 * tau**4), tau * tau * (3.0 - 2.0 * tau),
+                    6.0 * tau * (1.0 - tau) / self.ramp)
+        # spheric6
+        if t >= 1.0:
+            return float(self._d[-1]) + (t - 1.0), 1.0, 0.0
+        amp, mu, sigma = SPHERIC6
+        accel = amp * math.exp(-((t - mu) ** 2) / (2.0 * sigma**2)) / self._v_scale()
+        return float(np.interp(t, self._t, self._d)), float(np.interp(t, self._t, self._v)), accel
+
+    def _v_scale(self):
+        return float(self._spheric_velocity(np.array([1.0]))[0])
+
+
+class Body:
+    """One wall or immersed body of the scene."""
+
+    def __init__(self, spec, index, dx):
+        self.spec, self.index, self.name = spec, index, spec.name
+        ds = dx / 4.0
+        if spec.shape == "ellipse":
+            self.profile = ellipse_profile(spec.center, spec.size, spec.angle, ds, fluid_inside=False)
+        else:
+            self.profile = rectangle_profile(spec.center, spec.size, spec.angle, ds,
+                                             fluid_inside=spec.shape == "box")
+        self.center0 = np.asarray(spec.center, dtype=np.float64)
+        self.velocity = np.asarray(spec.motion.velocity or (0.0, 0.0), dtype=np.float64)
+        self.omega = spec.motion.angular_velocity
+        self.law = MotionLaw(spec.motion)
+        self.kind = Kind.WALL if spec.shape == "box" else Kind.BODY
+        self.no_slip = spec.wall == "no_slip"
+        self.lid = np.zeros(len(self.profile.nodes), dtype=bool)
+        if spec.lid_velocity:  # nodes on the top side of the box, its two corners excepted
+            local = (self.profile.nodes - self.center0) @ _rot(spec.angle)
+            tol = 1e-9 * max(spec.size)
+            self.lid = (local[:, 1] > spec.size[1] / 2.0 - tol) & (np.abs(local[:, 0]) < spec.size[0] / 2.0 - tol)
+        self.lid_velocity = np.asarray(spec.lid_velocity or (0.0, 0.0), dtype=np.float64)
+        if spec.reference_length > 0:
+            self.reference_length = spec.reference_length
+        else:
+            self.reference_length = 2.0 * spec.size[0] if spec.shape == "ellipse" else spec.size[0]
+
+    @property
+    def moves(self) -> bool:
+        return self.spec.motion.law != "fixed"
+
+    def rigid(self, t):
+        """(centre, rotation matrix, velocity, omega, acceleration, alpha) at time t."""
+        s, ds, dds = self.law(t)
+        theta = self.omega * s
+        return (self.center0 + self.velocity * s, _rot_rad(theta), self.velocity * ds, self.omega * ds,
+                self.velocity * dds, self.omega * dds)
+
+    def material(self, x_ref, t):
+        """Positions, velocities and accelerations at time t of points with reference positions x_ref."""
+        c, rot, v, om, a, al = self.rigid(t)
+        r = (x_ref - self.center0) @ rot.T
+        perp = np.stack([-r[:, 1], r[:, 0]], axis=1)
+        return c + r, v + om * perp, a + al * perp - om * om * r
+
+    def nodes(self, t):
+        """Body nodes at time t: positions, normals and velocities (the lid's included)."""
+        pos, vel, _ = self.material(self.profile.nodes, t)
+        _, rot, _, _, _, _ = self.rigid(t)
+        normals = self.profile.normals @ rot.T
+        vel = vel.copy()
+        vel[self.lid] += self.lid_velocity @ rot.T
+        return pos, normals, vel
+
+    def solid_particles(self, lattice, thickness):
+        """Reference positions, normals, distances and closest nodes of this body's solid particles."""
+        spec = (("ellipse" if self.spec.shape == "ellipse" else "rectangle"), self.spec.center, self.spec.size,
+                self.spec.angle)
+        pos, node, dist = solid_particles(self.profile, spec, lattice, thickness)
+        return pos, self.profile.normals[node], dist, node
+
+
+def _rot(angle_deg):
+    return _rot_rad(np.deg2rad(angle_deg))
+
+
+def _rot_rad(a):
+    return np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+
+
+def make_bodies(scene):
+    return [Body(spec, k, scene.domain.dx) for k, spec in enumerate(scene.bodies)]

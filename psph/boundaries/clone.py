@@ -1,0 +1,108 @@
+"""The walls' part of a fluid scheme: body motion, per-stage geometry and the clone-particle terms.
+
+Solid particles are ordinary rows of the particle set (kinds WALL and BODY) whose positions follow their
+body's rigid motion, whose velocity is the body's and whose other fields are never integrated; every
+fluid-solid interaction is computed pair by pair from mirrored values (psph.compute.walls.clone_rhs).
+The body forces of the last right-hand side evaluation are kept for the history.
+"""
+
+import numpy as np
+
+from psph.boundaries.bodies import make_bodies
+from psph.compute.walls import clone_rhs, near_wall_rows
+from psph.parallel.comm import allreduce_sum
+from psph.particles import Kind
+
+
+class WallTerms:
+    def __init__(self, scene):
+        self.bodies = make_bodies(scene)
+        self.ds = scene.domain.dx / 4.0
+        self.no_slip = np.array([b.no_slip for b in self.bodies], dtype=np.bool_)
+        self.centers = np.zeros((len(self.bodies), 2))
+        self.force = np.zeros((len(self.bodies), 2, 2))
+        self.torque = np.zeros((len(self.bodies), 2))
+        self.gravity = np.zeros(2)
+        if scene.physics.gravity:
+            self.gravity[:] = scene.physics.gravity
+        self.u_ref = scene.physics.reference_velocity
+        self.rho0 = scene.physics.density
+
+    def describe(self) -> list:
+        out = []
+        for b in self.bodies:
+            how = {"fixed": "fixed", "constant": "constant velocity", "ramp": "ramped velocity",
+                   "spheric6": "SPHERIC 6 acceleration law"}[b.spec.motion.law]
+            lid = f", lid velocity {tuple(b.lid_velocity)}" if b.lid.any() else ""
+            out.append(f"body {b.name!r}: {b.spec.shape}, {b.spec.wall.replace('_', '-')}, {how}{lid}; clone "
+                       "particles with local mirroring (seed 004 eq. 5-9)")
+        return out
+
+    # ------------------------------------------------------------ kinematics
+    def place(self, system, t, positions=True):
+        """Move the solid particles to time t (positions, normals, velocities, accelerations). Owned rows."""
+        p = system.particles
+        body = p.owned("body")
+        for b in self.bodies:
+            rows = np.flatnonzero(body == b.index)
+            self.centers[b.index] = b.rigid(t)[0]
+            if len(rows):  # the wall velocity each solid particle mirrors: its own closest node's
+                p.owned("wall_velocity")[rows] = b.nodes(t)[2][p.owned("wall_node")[rows]]
+            if not b.moves or not len(rows):
+                continue
+            pos, vel, acc = b.material(p.owned("ref_position")[rows], t)
+            if positions:
+                p.owned("position")[rows] = pos
+            p.owned("velocity")[rows] = vel
+            p.owned("wall_accel")[rows] = acc
+            p.owned("normal")[rows] = p.owned("ref_normal")[rows] @ b.rigid(t)[1].T
+
+    def nearest_node_data(self, system, rows, t):
+        """Normal, distance and velocity of the closest body node for each fluid row near a wall (the
+        kernel uses the normal and distance; wall velocities come from the solid particles' own nodes)."""
+        from scipy.spatial import cKDTree
+
+        pos_all, nrm_all, vel_all = [], [], []
+        for b in self.bodies:
+            pos, nrm, vel = b.nodes(t)
+            pos_all.append(pos)
+            nrm_all.append(nrm)
+            vel_all.append(vel)
+        nodes = np.concatenate(pos_all)
+        points = system.particles.owned("position")[rows]
+        dist, k = cKDTree(nodes).query(points) if len(points) else (np.zeros(0), np.zeros(0, np.int64))
+        return np.concatenate(nrm_all)[k], dist, np.concatenate(vel_all)[k]
+
+    # ----------------------------------------------------------------- rhs
+    def add(self, system, scheme, t, d_rho, d_mom):
+        """Add the clone-particle terms to the owned fluid rows' rates; keep the body forces. Collective
+        only in that the forces are reduced when asked (body_forces)."""
+        p = system.particles
+        rows = near_wall_rows(p["kind"], system.nbr_ptr, system.nbr_idx)
+        n_i, s_i, _ = self.nearest_node_data(system, rows, t)
+        eos = scheme.eos
+        eos_b = getattr(eos, "b", 0.0)
+        self.force[:] = 0.0
+        self.torque[:] = 0.0
+        du = p["shift_velocity"] if scheme.shift.active else p["velocity"]
+        clone_rhs(p["position"], p["volume"], p["density"], p["velocity"], du, p["pressure"], p["kind"],
+                  p["body"], p["normal"], p["wall_distance"], p["wall_accel"], p["wall_velocity"], rows, n_i, s_i,
+                  self.no_slip,
+                  system.nbr_ptr, system.nbr_idx, system.kernel.params, scheme.c0, scheme.rho0, eos_b, 7.0,
+                  scheme.mu, self.gravity, self.ds, scheme.variant, scheme.shift.active, self.centers, d_rho,
+                  d_mom, self.force, self.torque)
+
+    def body_forces(self, comm) -> dict:
+        """Drag and lift coefficients 2 F / (rho0 U^2 D) of every immersed body, pressure and viscous parts,
+        from the last right-hand side. Collective."""
+        force = allreduce_sum(comm, self.force.copy())
+        immersed = [b for b in self.bodies if b.kind == Kind.BODY]
+        out = {}
+        for b in immersed:
+            scale = 2.0 / (self.rho0 * self.u_ref ** 2 * b.reference_length)
+            suffix = f"_{b.name}" if len(immersed) > 1 else ""
+            out[f"cd_pressure{suffix}"] = scale * force[b.index, 0, 0]
+            out[f"cd_viscous{suffix}"] = scale * force[b.index, 1, 0]
+            out[f"cl_pressure{suffix}"] = scale * force[b.index, 0, 1]
+            out[f"cl_viscous{suffix}"] = scale * force[b.index, 1, 1]
+        return out
