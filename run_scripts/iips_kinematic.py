@@ -8,7 +8,7 @@ h/dx = 2.0, 1.6, 1.3 (Table 8.3).
 Every run: 100-iteration static pre-procedure from sigma/dx = 0.1, U = 1, c0 = 10, dt = 0.2 dx / c0,
 test wavelength l = L (thesis eq. 3.6 with its lambda/L = 0.5 read literally: f = sin(2 pi x) + cos(2 pi y),
 so that the error of the particle distribution, not the kernel's smoothing error, dominates), IIPS stalls
-reported and counted (on_failure = warn). Procedure C is eq. 8.36: one explicit step per time step with
+reported and counted (on_failure = on_stall = warn). Procedure C is eq. 8.36: one explicit step per time step with
 D = (c0 dt)^2.
 """
 
@@ -34,7 +34,8 @@ PROCEDURES = {  # name: (directory tag, scene overrides)
 
 def sets_for(name, dx, ratio, t_end):
     base = [f"domain.dx={dx}", f"domain.h_over_dx={ratio}", f"time.t_end={t_end}", "iips.pre_newton=100",
-            "iips.max_newton=50", "iips.on_failure=warn", "output.every=0", "output.history_every=5"]
+            "iips.max_newton=50", "iips.on_failure=warn", "iips.on_stall=warn", "output.every=0",
+            "output.history_every=5"]
     extra = list(PROCEDURES[name][1])
     if name.startswith("C"):
         extra.append(f"shifting.diffusion={(0.2 / ratio) ** 2}")  # D = (c0 dt)^2 = (0.2 dx)^2

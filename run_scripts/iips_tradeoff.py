@@ -71,7 +71,7 @@ def kinematic_sweep(out, ranks):
             run = run_scene(CASES / "kinematic_tgv.toml", out / f"kin_h{ratio}_b{beta}", ranks=ranks,
                             sets=["domain.dx=0.025", f"domain.h_over_dx={ratio}", "time.t_end=0.1",
                                   f"iips.beta={beta}", "iips.max_newton=50", "iips.on_failure=warn",
-                                  "output.every=0"])
+                                  "iips.on_stall=warn", "output.every=0"])
             s = run.summary
             linf = [r["Linf_grad_c"] for r in run.history[1:]]
             mean_linf = sum(linf) / len(linf)

@@ -65,5 +65,6 @@ def solid_arrays(scene, rank, size, first_gid):
     kind = np.concatenate([np.full(len(p[1]), int(p[0].kind)) for p in parts])
     sl = slice(start, stop)
     return {"gid": first_gid + np.arange(start, stop, dtype=np.int64), "position": pos[sl].copy(),
-            "ref_position": pos[sl].copy(), "normal": normal[sl], "ref_normal": normal[sl], "wall_distance": dist[sl],
-            "body": body[sl], "wall_node": node[sl], "kind": kind[sl].astype(np.int8), "volume": np.full(stop - start, scene.domain.dx ** 2)}
+            "ref_position": pos[sl].copy(), "normal": normal[sl], "ref_normal": normal[sl],
+            "wall_distance": dist[sl], "body": body[sl], "wall_node": node[sl], "kind": kind[sl].astype(np.int8),
+            "volume": np.full(stop - start, scene.domain.dx ** scene.domain.dimension)}

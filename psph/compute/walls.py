@@ -13,7 +13,10 @@ to i, and n_j, s_j the solid particle's normal and distance to the profile:
   divergence (eq. 6) u_j.t = u_i.t,   u_j.n = [(u_b - u_i) s_j / max(s_i, ds) + u_b] . n
   Laplacian (eq. 7)  no slip:   u_j.t = [(u_b - u_i) s_j / max(s_i, ds) + u_b] . t,  u_j.n = u_i.n
                      free slip: u_j = u_i
-  pressure (eq. 8-9) p_j = p_i + rho_i (g - a_j) . n  (x_j - x_i) . n,  rho_j from the equation of state
+  pressure (eq. 8-9) p_j = p_i + rho_i (g - a_j) . (x_j - x_i),  rho_j from the equation of state; eq. 8
+                     keeps only the normal part, (g - a_j) . n (x_j - x_i) . n, which leaves a hydrostatic
+                     column unbalanced along vertical walls (the clones would carry p_i at every height);
+                     the two agree when g - a_j is normal to the wall
   shifting           du_j = (du_i . t) t - (du_i . n) n   (du . n = 0 on the wall, seed 001 section 6.2)
 with ds = dx / 4 (the body-node spacing). These pairs enter the continuity equation (divergence velocity,
 shifting terms), the pressure and the viscous forces (Laplacian velocity); the diffusive terms D^rho and
@@ -106,8 +109,7 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
             else:
                 ul0, ul1 = ui0, ui1
             # pressure (eq. 8-9) and density from the equation of state
-            xn = (pos[j, 0] - xi0) * n0 + (pos[j, 1] - xi1) * n1
-            p_j = p_i + rho_i * ((g0 - accel[j, 0]) * n0 + (g1 - accel[j, 1]) * n1) * xn
+            p_j = p_i + rho_i * ((g0 - accel[j, 0]) * (pos[j, 0] - xi0) + (g1 - accel[j, 1]) * (pos[j, 1] - xi1))
             if eos_b > 0.0:
                 base = 1.0 + p_j / eos_b
                 rho_j = rho0 * (base if base > 0.0 else 0.0) ** (1.0 / eos_gamma)

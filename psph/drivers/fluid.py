@@ -99,7 +99,10 @@ class FluidDriver:
         drho = allreduce_max(comm, float(np.abs(rho[mask] / self.scheme.rho0 - 1.0).max()) if mask.any() else 0.0)
         l2, linf = norms(comm, grad_c(self.system), mask, self.system.kernel.h)
         dvol = allreduce_max(comm, float(np.abs(vol / p.owned("volume0") - 1.0).max()) if p.n_owned else 0.0)
+        speed = np.sqrt((u * u).sum(axis=1))[mask]
+        vmax = allreduce_max(comm, float(speed.max()) if len(speed) else 0.0)
         out = {"kinetic_energy": sums[0], "total_mass": sums[1], "volume_error": sums[2] / self.initial_volume - 1.0,
+               "max_speed": vmax,
                "max_density_variation": drho, "max_volume_variation": dvol, "L2_grad_c": l2, "Linf_grad_c": linf}
         for a in range(p.dim):
             out[f"momentum_{'xyz'[a]}"] = sums[3 + a]

@@ -69,8 +69,9 @@ class KinematicDriver:
             init_linf = self.pre_procedure(system)
             pre_time = time.perf_counter() - t0
             if init_linf is not None:
+                threshold = getattr(self.shifting, "threshold", None)
                 sim.log(f"pre-procedure: Linf(grad C) = {init_linf:.4e}"
-                        + (f", threshold {self.shifting.threshold:.4e}" if self.shifting.threshold else ""))
+                        + (f", threshold {threshold:.4e}" if threshold else ""))
             report = distribution_report(system, wavelength)
             sim.history.append({"time": 0.0, "step": 0, **report, "newton": 0, "ksp_iterations": 0, **totals})
             sim.snapshots.write(system.particles, step=0, time=0.0, extra={"grad_c": grad_c(system)})

@@ -175,9 +175,13 @@ class IIPSSpec:
     update: str = option("none", doc="fluid runs: field update after IIPS moved the particles: none, nfts "
                          "(fictitious time step, thesis eq. 9.7), mls1, mls2 (MLS re-interpolation, eq. 9.8-9.9)",
                          choices=("none", "nfts", "mls1", "mls2"))
-    on_failure: str = option("stop", doc="KSP divergence, Newton stall or divergence: stop the run; reject the "
+    on_failure: str = option("stop", doc="KSP divergence or Newton divergence: stop the run; reject the "
                              "call (undo its displacements, report, continue); or warn (keep them, report, "
                              "continue)", choices=("stop", "reject", "warn"))
+    on_stall: str = option("best", doc="threshold not reached after max_newton iterations: keep the call's "
+                           "iterate of lowest Linf(grad C) and report it (best; the thesis caps the iterations "
+                           "for cost, section 10.1.1), or stop, reject, warn as on_failure",
+                           choices=("best", "stop", "reject", "warn"))
 
     def check(self, path):
         if self.threshold > 0 and self.beta > 0:

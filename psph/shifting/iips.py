@@ -11,10 +11,13 @@ Triggering and stopping (thesis Algorithms 1-3, eq. 8.34-8.35):
   beta times the value after a static pre-procedure of `iips.pre_newton` iterations (`iips.beta`);
 - Procedure A: at least one Newton iteration per call, then more while above the threshold;
   Procedure B: iterate only while above the threshold;
-- at most `iips.max_newton` iterations per call. With a threshold, not reaching it is a stall; growth of
-  Linf(grad C) by `iips.divergence_factor` within a call is a divergence. Both, and a diverged linear
-  solve, stop the run (`iips.on_failure = "stop"`) or undo the call's displacements and carry on
-  (`"reject"`), reported either way.
+- at most `iips.max_newton` iterations per call. With a threshold, not reaching it is a stall: by default
+  (`iips.on_stall = "best"`) the call keeps its iterate of lowest Linf(grad C) and the stall is reported
+  and counted, as the thesis caps the iterations for cost (section 10.1.1). The printed operator is not
+  the exact Jacobian (seeds/README.md), so near the threshold the iteration can wander instead of
+  converging. Growth of Linf(grad C) by `iips.divergence_factor` within a call is a divergence; it and a
+  diverged linear solve stop the run (`iips.on_failure = "stop"`), or undo the call's displacements and
+  carry on (`"reject"`), reported either way.
 """
 
 import time
@@ -31,6 +34,8 @@ from psph.solvers.aij import FixedPatternMatrix
 from psph.solvers.linear import LinearSolver, petsc_errors
 
 SHIFT_FIELD = FieldSpec("iips_shift", ("d",))
+# the call's displacement at its iterate of lowest Linf(grad C) (a field: it migrates with the particles)
+BEST_FIELD = FieldSpec("iips_best_shift", ("d",))
 # particles closer than COINCIDENT h count as coincident and are first nudged NUDGE h apart
 COINCIDENT = 1e-6
 NUDGE = 1e-3
@@ -132,6 +137,9 @@ class ImplicitShifting:
         if separated:
             report.message = f"{separated} coincident particle(s) nudged apart by {NUDGE:g} h"
         failure = None
+        p.add_field(BEST_FIELD)
+        p.owned(BEST_FIELD.name)[:] = 0.0
+        best_linf = linf
         while report.iterations < max_newton:
             above = threshold is None or linf > threshold
             if not (above or (at_least_one and report.iterations == 0)):
@@ -146,6 +154,9 @@ class ImplicitShifting:
             report.iterations += 1
             report.linear_iterations += its
             report.L2_grad_c, report.Linf_grad_c = l2, linf
+            if linf < best_linf:
+                best_linf = linf
+                p.owned(BEST_FIELD.name)[:] = p.owned(SHIFT_FIELD.name)
             if not np.isfinite(linf) or linf > self.spec.divergence_factor * max(start_linf, DIVERGENCE_FLOOR):
                 failure = NumericalError(f"IIPS Newton iteration diverged: Linf(grad C) grew from "
                                          f"{start_linf:.3e} to {linf:.3e}", **where)
@@ -154,28 +165,39 @@ class ImplicitShifting:
                     {"newton": report.iterations, "ksp_iterations": its, "L2_grad_c": l2, "Linf_grad_c": linf,
                      "newton_time_s": time.perf_counter() - t0}):
                 break
+        mode = self.spec.on_failure
         if failure is None and threshold is not None and linf > threshold and report.iterations >= max_newton:
+            mode = self.spec.on_stall
             failure = NumericalError(f"IIPS Newton stalled: Linf(grad C) = {linf:.3e} above the threshold "
                                      f"{threshold:.3e} after {report.iterations} iterations", **where)
+            if mode == "best":
+                self._restore(system, p.owned(BEST_FIELD.name), report)
+                failure = NumericalError(f"{failure}; kept the iterate of Linf(grad C) = "
+                                         f"{report.Linf_grad_c:.3e}", **where)
         if failure is not None:
-            self._fail(system, report, failure, where)
+            self._fail(system, report, failure, where, mode)
         return report
 
-    def _fail(self, system, report, failure, where):
-        """Stop (raise on all ranks), or reject (undo this call's displacements) or warn (keep them), and
-        report it in the call's report (logged and counted by the drivers)."""
-        mode = self.spec.on_failure
+    def _restore(self, system, shift, report):
+        """Move the particles back to the iterate whose accumulated displacement is `shift` (None: the
+        call's start) and re-measure. Collective."""
+        p = system.particles
+        current = p.owned(SHIFT_FIELD.name)
+        p.owned("position")[:] -= current if shift is None else current - shift
+        current[:] = 0.0 if shift is None else shift
+        system.update()
+        _, report.L2_grad_c, report.Linf_grad_c = measure(system)
+
+    def _fail(self, system, report, failure, where, mode):
+        """Stop (raise on all ranks), or reject (undo this call's displacements), warn (keep them) or best
+        (already restored), and report it in the call's report (logged and counted by the drivers)."""
         if mode == "stop" or (mode == "warn" and isinstance(failure, SolverError)):
             if isinstance(failure, SolverError) and where:
                 failure = NumericalError(f"{failure}", **where)
             failure.collective = True
             raise failure
         if mode == "reject":
-            p = system.particles
-            p.owned("position")[:] -= p.owned(SHIFT_FIELD.name)
-            p.owned(SHIFT_FIELD.name)[:] = 0.0
-            system.update()
-            _, report.L2_grad_c, report.Linf_grad_c = measure(system)
+            self._restore(system, None, report)
             report.rejected = True
             self.rejections += 1
         report.failed = True

@@ -64,7 +64,7 @@ def test_kinematic_explicit_procedure_c_lets_the_distribution_degrade(tmp_path):
 def test_failure_stops_with_step_and_saves_state(tmp_path):
     out = tmp_path / "out"
     res = run_psph("run", CASES / "kinematic_tgv.toml", "--out", out, *KINEMATIC, "--set", "iips.beta=1.0001",
-                   "--set", "iips.max_newton=1")
+                   "--set", "iips.max_newton=1", "--set", "iips.on_stall=stop")
     assert res.returncode == 1
     assert "psph: error: IIPS Newton stalled" in res.stderr and "[step " in res.stderr
     assert "Traceback" not in res.stderr

@@ -10,6 +10,7 @@ from mpi4py import MPI
 from psph.diagnostics import distribution_report
 from psph.errors import NumericalError
 from psph.particles import Kind
+from psph.shifting.base import measure
 from psph.shifting.explicit import ExplicitIterativeShifting
 from psph.shifting.iips import ImplicitShifting
 from psph.simulation import build_system, unperturbed
@@ -115,22 +116,36 @@ def test_beta_threshold_from_pre_procedure():
     assert distribution_report(system, 0.5)["Linf_grad_c"] == pytest.approx(init)
 
 
-def test_stall_is_reported_or_rejected():
-    """An unreachable threshold is a stall: stop (error naming the step), or reject (positions restored)."""
+def test_stall_is_reported_and_handled_as_configured():
+    """An unreachable threshold is a stall: keep the best iterate (default, reported), stop (error naming
+    the step), reject (positions restored) or warn (last iterate kept)."""
     base = {"max_newton": 2, "threshold": 1e-9}
-    scene = periodic_scene(n=20, sigma=0.1, iips=base)
+    scene = periodic_scene(n=20, sigma=0.1, iips={**base, "on_stall": "stop"})
     with pytest.raises(NumericalError, match=r"stalled.*step 7"):
         ImplicitShifting(scene.iips, MPI.COMM_SELF).correct(build_system(scene, MPI.COMM_SELF), step=7)
-    scene = periodic_scene(n=20, sigma=0.1, iips={**base, "on_failure": "reject"})
+    scene = periodic_scene(n=20, sigma=0.1, iips={**base, "on_stall": "reject"})
     system = build_system(scene, MPI.COMM_SELF)
     before = dict(zip(system.particles.owned("gid"), system.particles.owned("position").copy()))
     report = ImplicitShifting(scene.iips, MPI.COMM_SELF).correct(system)
     assert report.rejected and report.failed and "stalled" in report.message
     for g, x in zip(system.particles.owned("gid"), system.particles.owned("position")):
         assert np.allclose(x, before[g], atol=1e-14)
-    scene = periodic_scene(n=20, sigma=0.1, iips={**base, "on_failure": "warn"})
+    scene = periodic_scene(n=20, sigma=0.1, iips={**base, "on_stall": "warn"})
     report = ImplicitShifting(scene.iips, MPI.COMM_SELF).correct(build_system(scene, MPI.COMM_SELF))
     assert report.failed and not report.rejected and report.iterations == 2
+
+
+def test_stall_keeps_the_iterate_of_lowest_grad_c():
+    """on_stall = "best": the call ends at the iterate of lowest Linf(grad C) it visited, re-measured."""
+    scene = periodic_scene(n=20, sigma=0.1, iips={"max_newton": 4, "threshold": 1e-9})
+    assert scene.iips.on_stall == "best"
+    system = build_system(scene, MPI.COMM_SELF)
+    seen = []
+    shifting = ImplicitShifting(scene.iips, MPI.COMM_SELF)
+    report = shifting.correct(system, on_iteration=lambda info: seen.append(info["Linf_grad_c"]))
+    assert report.failed and not report.rejected and "kept the iterate" in report.message
+    assert len(seen) == 4 and report.Linf_grad_c == pytest.approx(min(seen), rel=1e-12)
+    assert measure(system)[2] == pytest.approx(min(seen), rel=1e-12)
 
 
 def test_diverged_linear_solve_raises_with_reason():
