@@ -29,3 +29,15 @@ def taylor_green_kinetic_energy(t, *, U=1.0, L=1.0, rho=1.0, reynolds=np.inf):
     """E_k(t) = rho U^2 L^2 / 4 e^{-16 pi^2 t U / (L Re)} of the whole square (thesis eq. 3.2)."""
     decay = np.exp(-16.0 * np.pi**2 * t * U / (L * reynolds)) if np.isfinite(reynolds) else 1.0
     return 0.25 * rho * U**2 * L**2 * decay
+
+
+def couette_startup(y, t, *, U=1.0, H=1.0, nu=1.0, terms=200):
+    """Start-up Couette flow between a plate at rest (y = 0) and one set moving at U at t = 0 (y = H):
+        u(y, t) = U y / H + sum_n 2 U (-1)^n / (n pi) sin(n pi y / H) exp(-nu n^2 pi^2 t / H^2),
+    the separation-of-variables solution of u_t = nu u_yy with u(0) = 0, u(H) = U, u(y, 0) = 0 (the
+    series of y / H cancels the steady part at t = 0). tests/test_analytic.py checks the equation, the
+    boundary and the initial conditions."""
+    y = np.asarray(y, float)
+    n = np.arange(1, terms + 1)[:, None]
+    series = 2.0 * U * (-1.0) ** n / (n * np.pi) * np.sin(n * np.pi * y / H) * np.exp(-nu * (n * np.pi / H) ** 2 * t)
+    return U * y / H + series.sum(axis=0)

@@ -3,7 +3,7 @@
 import numpy as np
 import sympy as sp
 
-from psph.analytic import taylor_green, taylor_green_kinetic_energy
+from psph.analytic import couette_startup, taylor_green, taylor_green_kinetic_energy
 
 
 def test_taylor_green_solves_navier_stokes():
@@ -41,3 +41,23 @@ def test_numeric_field_matches_formula_and_energy():
     vel, _ = taylor_green(lattice, 0.3, U=2.0, reynolds=100.0)
     ek = 0.5 * (vel**2).sum(axis=1).mean()
     assert np.isclose(ek, taylor_green_kinetic_energy(0.3, U=2.0, reynolds=100.0), rtol=1e-10)
+
+
+def test_couette_startup_solves_the_diffusion_problem():
+    """Each series term solves u_t = nu u_yy (symbolically); numerically the sum meets u(0) = 0, u(H) = U,
+    starts from rest (away from the moving plate, where the series converges slowly) and tends to U y / H."""
+    y, t, nu, H, n = sp.symbols("y t nu H n", positive=True)
+    term = sp.sin(n * sp.pi * y / H) * sp.exp(-nu * (n * sp.pi / H) ** 2 * t)
+    assert sp.simplify(sp.diff(term, t) - nu * sp.diff(term, y, 2)) == 0
+    U, Hn, nun = 2.0, 0.5, 0.3
+    assert abs(couette_startup([0.0], 0.7, U=U, H=Hn, nu=nun)[0]) < 1e-14
+    assert abs(couette_startup([Hn], 0.7, U=U, H=Hn, nu=nun)[0] - U) < 1e-12
+    ys = np.linspace(0.0, 0.8 * Hn, 9)
+    assert np.abs(couette_startup(ys, 0.0, U=U, H=Hn, nu=nun, terms=20000)).max() < 2e-3 * U
+    assert np.allclose(couette_startup(ys, 50.0, U=U, H=Hn, nu=nun), U * ys / Hn, atol=1e-12)
+    # against a finite-difference time derivative and second space derivative of the sum
+    yy, tt, e = np.array([0.2]), 0.05, 1e-4
+    u_t = (couette_startup(yy, tt + e, U=U, H=Hn, nu=nun) - couette_startup(yy, tt - e, U=U, H=Hn, nu=nun)) / (2 * e)
+    u_yy = (couette_startup(yy + e, tt, U=U, H=Hn, nu=nun) - 2 * couette_startup(yy, tt, U=U, H=Hn, nu=nun)
+            + couette_startup(yy - e, tt, U=U, H=Hn, nu=nun)) / e**2
+    assert abs(u_t[0] - nun * u_yy[0]) < 1e-4 * abs(u_t[0])

@@ -22,11 +22,19 @@ from psph.compute.sums import pair
 
 
 @njit(cache=True)
-def nfts_increments(pos, vol, rho, vel, step, ptr, idx, kp, d_vol, d_mass, d_mom):
-    """Increments of V, V rho and V rho u for one fictitious sub-step of displacement `step` (owned rows)."""
+def nfts_increments(pos, vol, rho, vel, step, kind, normal, wall_vel, ptr, idx, kp, d_vol, d_mass, d_mom):
+    """Increments of V, V rho and V rho u for one fictitious sub-step of displacement `step` (owned rows).
+
+    A solid neighbour j (kind != 0) is a clone of i (seed 004 section III, as for the shifting terms of
+    the right-hand side): its step is i's mirrored in the wall, s_j = s_i - 2 (s_i . n_j) n_j (so nothing
+    crosses the wall: the pair's normal fluxes cancel), rho_j = rho_i, and u_j = u_i mirrored about the
+    wall velocity u_b, u_j = u_i - 2 ((u_i - u_b) . n_j) n_j.
+    """
     d = pos.shape[1]
     support = 2.0 * kp[1]
     for i in range(ptr.size - 1):
+        if kind[i] != 0:  # solid rows keep their fields
+            continue
         sv = 0.0
         sm = 0.0
         p0 = p1 = p2 = 0.0
@@ -40,18 +48,38 @@ def nfts_increments(pos, vol, rho, vel, step, ptr, idx, kp, d_vol, d_mass, d_mom
                 continue
             s = kernel_f(r, kp) * vol[j]
             w0, w1, w2 = s * x0, s * x1, s * x2
-            sj0 = step[j, 0]
-            sj1 = step[j, 1] if d > 1 else 0.0
-            sj2 = step[j, 2] if d > 2 else 0.0
+            if kind[j] != 0:
+                n0 = normal[j, 0]
+                n1 = normal[j, 1] if d > 1 else 0.0
+                n2 = normal[j, 2] if d > 2 else 0.0
+                sn = si0 * n0 + si1 * n1 + si2 * n2
+                sj0, sj1, sj2 = si0 - 2.0 * sn * n0, si1 - 2.0 * sn * n1, si2 - 2.0 * sn * n2
+                rho_j = rho[i]
+                un = (vel[i, 0] - wall_vel[j, 0]) * n0
+                if d > 1:
+                    un += (vel[i, 1] - wall_vel[j, 1]) * n1
+                if d > 2:
+                    un += (vel[i, 2] - wall_vel[j, 2]) * n2
+                uj0 = vel[i, 0] - 2.0 * un * n0
+                uj1 = vel[i, 1] - 2.0 * un * n1 if d > 1 else 0.0
+                uj2 = vel[i, 2] - 2.0 * un * n2 if d > 2 else 0.0
+            else:
+                sj0 = step[j, 0]
+                sj1 = step[j, 1] if d > 1 else 0.0
+                sj2 = step[j, 2] if d > 2 else 0.0
+                rho_j = rho[j]
+                uj0 = vel[j, 0]
+                uj1 = vel[j, 1] if d > 1 else 0.0
+                uj2 = vel[j, 2] if d > 2 else 0.0
             fj = sj0 * w0 + sj1 * w1 + sj2 * w2
             fi = si0 * w0 + si1 * w1 + si2 * w2
             sv += fj - fi
-            sm += rho[i] * fi + rho[j] * fj
-            p0 += rho[i] * vel[i, 0] * fi + rho[j] * vel[j, 0] * fj
+            sm += rho[i] * fi + rho_j * fj
+            p0 += rho[i] * vel[i, 0] * fi + rho_j * uj0 * fj
             if d > 1:
-                p1 += rho[i] * vel[i, 1] * fi + rho[j] * vel[j, 1] * fj
+                p1 += rho[i] * vel[i, 1] * fi + rho_j * uj1 * fj
             if d > 2:
-                p2 += rho[i] * vel[i, 2] * fi + rho[j] * vel[j, 2] * fj
+                p2 += rho[i] * vel[i, 2] * fi + rho_j * uj2 * fj
         d_vol[i] = vol[i] * sv
         d_mass[i] = vol[i] * sm
         d_mom[i, 0] = vol[i] * p0

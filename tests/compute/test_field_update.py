@@ -21,7 +21,8 @@ def cloud(n=14, jitter=0.2, seed=0):
 def increments(pos, vol, rho, vel, step, ptr, idx, k):
     n = len(pos)
     dv, dm, dp = np.zeros(n), np.zeros(n), np.zeros((n, 2))
-    nfts_increments(pos, vol, rho, vel, step, ptr, idx, k.params, dv, dm, dp)
+    nfts_increments(pos, vol, rho, vel, step, np.zeros(n, np.int8), np.zeros((1, 2)), np.zeros((1, 2)), ptr, idx,
+                    k.params, dv, dm, dp)
     return dv, dm, dp
 
 
