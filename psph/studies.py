@@ -93,3 +93,27 @@ def first_iteration(history, predicate):
         if predicate(row):
             return row
     return None
+
+
+def last_snapshot(out) -> tuple:
+    """(fields by name, time) of the last snapshot a run wrote in `out`."""
+    import h5py
+
+    path = sorted(Path(out).glob("snapshot_*.h5"))[-1]
+    with h5py.File(path) as f:
+        return {k: f["particles"][k][:] for k in f["particles"]}, float(f.attrs["time"])
+
+
+def shepard_sample(pos, vol, values, points, kernel):
+    """Kernel (Shepard) interpolation sum_j W_j V_j f_j / sum_j W_j V_j of particle `values` at `points`
+    (probes, e.g. a centreline), from the particles within the kernel support."""
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(pos)
+    out = np.full((len(points),) + values.shape[1:], np.nan)
+    for k, neighbours in enumerate(tree.query_ball_point(points, kernel.support)):
+        if neighbours:
+            w = kernel.value(np.linalg.norm(pos[neighbours] - points[k], axis=1)) * vol[neighbours]
+            out[k] = np.tensordot(w, values[neighbours], axes=1) / w.sum()
+    return out

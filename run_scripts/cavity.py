@@ -1,0 +1,105 @@
+"""Lid-driven cavity (seed 001 section 6.2): centreline velocities against Ghia, Ghia & Shin (1982) and
+the global volume error eps_V(t) (seed 001 eq. 27, fig. 15).
+
+    .venv/bin/python run_scripts/cavity.py [--re 100 1000] [--resolutions 50 100] [--t-end 20] [--ranks 2]
+
+For each Reynolds number and L/dx it runs cases/lid_driven_cavity.toml to t_end (steady state), samples
+u(y) on x = 0.5 and v(x) on y = 0.5 by kernel interpolation of the fluid particles at Ghia's points, and
+writes results/cavity/{deviation.md,csv}, centrelines_Re*.png and volume_error.png. The reference data is
+run_scripts/reference/ghia1982_Re100_Re1000.csv (provenance in its README).
+"""
+
+import argparse
+import csv
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from psph.compute.smoothing import make_kernel  # noqa: E402
+from psph.particles import Kind  # noqa: E402
+from psph.studies import CASES, last_snapshot, run_scene, shepard_sample, write_table  # noqa: E402
+
+GHIA = Path(__file__).resolve().parent / "reference" / "ghia1982_Re100_Re1000.csv"
+
+
+def ghia(re):
+    with open(GHIA) as f:
+        rows = list(csv.DictReader(line for line in f if not line.startswith("#")))
+    col = lambda k: np.array([float(r[k]) for r in rows])  # noqa: E731
+    return col("y"), col(f"u_Re{re}"), col("x"), col(f"v_Re{re}")
+
+
+def centrelines(run, ratio, dx):
+    snap, _ = last_snapshot(run.out)
+    fluid = snap["kind"] == Kind.FLUID
+    pos, vol, vel = snap["position"][fluid], snap["volume"][fluid], snap["velocity"][fluid]
+    kernel = make_kernel("wendland_c6", 2, ratio * dx)
+    sample = lambda pts: shepard_sample(pos, vol, vel, pts, kernel)  # noqa: E731
+    return sample, pos, vel
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("results/cavity"))
+    parser.add_argument("--ranks", type=int, default=1)
+    parser.add_argument("--t-end", type=float, default=20.0)
+    parser.add_argument("--re", type=int, nargs="+", default=[100])
+    parser.add_argument("--resolutions", type=int, nargs="+", default=[50, 100], help="L/dx")
+    parser.add_argument("--h-over-dx", type=float, default=2.0)
+    args = parser.parse_args()
+    table, histories = [], {}
+    for re in args.re:
+        gy, gu, gx, gv = ghia(re)
+        fig, (ax_u, ax_v) = plt.subplots(1, 2, figsize=(10, 4.5))
+        ax_u.plot(gu, gy, "ko", label="Ghia et al. 1982")
+        ax_v.plot(gx, gv, "ko", label="Ghia et al. 1982")
+        for n in args.resolutions:
+            dx = 1.0 / n
+            run = run_scene(CASES / "lid_driven_cavity.toml", args.out / f"Re{re}_L{n}",
+                            sets=[f"domain.dx={dx}", f"domain.h_over_dx={args.h_over_dx}",
+                                  f"physics.reynolds={re}", f"time.t_end={args.t_end}",
+                                  f"output.every={args.t_end}", "output.history_every=50"], ranks=args.ranks)
+            sample, _, _ = centrelines(run, args.h_over_dx, dx)
+            inner_y, inner_x = (gy > 0) & (gy < 1), (gx > 0) & (gx < 1)  # the walls' values are boundary data
+            u = sample(np.stack([np.full(inner_y.sum(), 0.5), gy[inner_y]], 1))[:, 0]
+            v = sample(np.stack([gx[inner_x], np.full(inner_x.sum(), 0.5)], 1))[:, 1]
+            dev_u, dev_v = np.abs(u - gu[inner_y]).max(), np.abs(v - gv[inner_x]).max()
+            rows = run.history
+            eps = [r["volume_error"] for r in rows]
+            mass = np.array([r["total_mass"] for r in rows])
+            table.append([re, n, dev_u, dev_v, max(dev_u, dev_v), eps[-1], float(np.abs(mass / mass[0] - 1).max()),
+                          run.summary["wall_time_s"] if "wall_time_s" in run.summary else "-"])
+            print(f"Re={re} L/dx={n}: max|u - u_Ghia| = {dev_u:.4f}, max|v - v_Ghia| = {dev_v:.4f}, "
+                  f"eps_V(t_end) = {eps[-1]:.3e}", flush=True)
+            line = np.linspace(0.0, 1.0, 201)
+            ax_u.plot(sample(np.stack([np.full_like(line, 0.5), line], 1))[:, 0], line, label=f"psph L/dx = {n}")
+            ax_v.plot(line, sample(np.stack([line, np.full_like(line, 0.5)], 1))[:, 1], label=f"psph L/dx = {n}")
+            histories[(re, n)] = ([r["time"] for r in rows], eps)
+        ax_u.set(xlabel="u / U", ylabel="y / L", title=f"u on x = 0.5, Re = {re}")
+        ax_v.set(xlabel="x / L", ylabel="v / U", title=f"v on y = 0.5, Re = {re}")
+        ax_u.legend()
+        fig.tight_layout()
+        fig.savefig(args.out / f"centrelines_Re{re}.png", dpi=120)
+        plt.close(fig)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for (re, n), (t, eps) in histories.items():
+        ax.plot(t, eps, label=f"Re = {re}, L/dx = {n}")
+    ax.set(xlabel="t U / L", ylabel="eps_V", title="global volume error (seed 001 eq. 27)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(args.out / "volume_error.png", dpi=120)
+    print(write_table(args.out / "deviation",
+                      ["Re", "L/dx", "max dev. u", "max dev. v", "max dev.", "eps_V(t_end)", "max mass drift",
+                       "wall s"], table,
+                      title=f"Lid-driven cavity at t = {args.t_end}: deviation from Ghia et al. (1982), in U",
+                      note="Command: " + " ".join(["run_scripts/cavity.py", "--re", *map(str, args.re),
+                                                   "--resolutions", *map(str, args.resolutions),
+                                                   "--t-end", str(args.t_end)])))
+
+
+if __name__ == "__main__":
+    main()
