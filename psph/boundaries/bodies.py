@@ -70,6 +70,9 @@ class Body:
                                              fluid_inside=spec.shape == "box")
         self.center0 = np.asarray(spec.center, dtype=np.float64)
         self.velocity = np.asarray(spec.motion.velocity or (0.0, 0.0), dtype=np.float64)
+        # drag acts along the flow seen from the body: against its motion, or along +x for a body at rest
+        speed = float(np.linalg.norm(self.velocity))
+        self.drag_direction = -self.velocity / speed if speed > 0 else np.array([1.0, 0.0])
         self.omega = spec.motion.angular_velocity
         self.law = MotionLaw(spec.motion)
         self.kind = Kind.WALL if spec.shape == "box" else Kind.BODY

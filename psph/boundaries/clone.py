@@ -94,15 +94,17 @@ class WallTerms:
 
     def body_forces(self, comm) -> dict:
         """Drag and lift coefficients 2 F / (rho0 U^2 D) of every immersed body, pressure and viscous parts,
-        from the last right-hand side. Collective."""
+        from the last right-hand side: drag along the flow seen from the body (against a moving body's
+        velocity, +x for a body at rest), lift 90 degrees anticlockwise from it. Collective."""
         force = allreduce_sum(comm, self.force.copy())
         immersed = [b for b in self.bodies if b.kind == Kind.BODY]
         out = {}
         for b in immersed:
             scale = 2.0 / (self.rho0 * self.u_ref ** 2 * b.reference_length)
             suffix = f"_{b.name}" if len(immersed) > 1 else ""
-            out[f"cd_pressure{suffix}"] = scale * force[b.index, 0, 0]
-            out[f"cd_viscous{suffix}"] = scale * force[b.index, 1, 0]
-            out[f"cl_pressure{suffix}"] = scale * force[b.index, 0, 1]
-            out[f"cl_viscous{suffix}"] = scale * force[b.index, 1, 1]
+            drag = b.drag_direction
+            lift = np.array([-drag[1], drag[0]])
+            for part, k in (("pressure", 0), ("viscous", 1)):
+                out[f"cd_{part}{suffix}"] = scale * float(force[b.index, k] @ drag)
+                out[f"cl_{part}{suffix}"] = scale * float(force[b.index, k] @ lift)
         return out

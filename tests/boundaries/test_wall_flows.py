@@ -3,6 +3,7 @@ tank at rest, the lid-driven cavity conserving mass, and IIPS next to walls (sol
 
 import glob
 import json
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -114,3 +115,34 @@ def test_cavity_extremes_run_or_stop_clearly(tmp_path, sets):
         assert np.isfinite(json.loads((out / "summary.json").read_text())["final"]["max_speed"])
     else:
         assert res.stderr.count("\n") <= 3 and "[step " in res.stderr
+
+
+def test_body_force_is_archimedes_buoyancy(tmp_path):
+    """A block held in water at rest feels its displaced weight: cl_pressure = 2 rho g A / (rho0 U^2 D)
+    = 0.6, no drag, and a negligible viscous part (time average over t = 0.2-1)."""
+    out = tmp_path / "b"
+    res = run_psph("run", Path(__file__).parent / "buoyancy.toml", "--out", out, "--quiet")
+    assert res.returncode == 0, res.stderr
+    rows = [r for r in read_history(out / "history.csv") if r["time"] >= 0.2]
+    lift = np.mean([r["cl_pressure"] for r in rows])
+    assert abs(lift - 0.6) < 0.012
+    assert max(abs(r["cd_pressure"]) for r in rows) < 1e-3
+    assert max(abs(r["cl_viscous"]) for r in rows) < 1e-2
+
+
+def test_moving_square_accelerates_against_a_positive_drag(tmp_path):
+    """SPHERIC 6 law at a coarse resolution: the square has moved by the law's displacement and the
+    drag (against the motion) is positive while it accelerates."""
+    from psph.boundaries.bodies import MotionLaw
+    from psph.scene.schema import MotionSpec
+
+    out = run(tmp_path, "moving_square.toml", "sq", "domain.dx=0.1", "time.t_end=0.6", "output.every=0.6",
+              "shifting.method=neuhauser", "iips.update=none", "output.history_every=5")
+    rows = read_history(out / "history.csv")
+    accelerating = [r["cd_pressure"] for r in rows if 0.4 < r["time"] < 0.6]
+    assert min(accelerating) > 0.5
+    snap, t = last_snapshot(out)
+    square = snap["body"] == 1
+    shift = snap["position"][square] - snap["ref_position"][square]
+    expected = MotionLaw(MotionSpec(law="spheric6", velocity=(1.0, 0.0)))(t)[0]
+    assert np.allclose(shift, [expected, 0.0], atol=1e-12)
