@@ -61,7 +61,10 @@ def _row_pointers(lib, handle):
     if not done.value:
         raise PsphError("MatGetRowIJ is not supported for this matrix")
     int_type = ctypes.c_int32 if np.dtype(petsc().IntType).itemsize == 4 else ctypes.c_int64
-    rows = np.ctypeslib.as_array(ctypes.cast(ia, ctypes.POINTER(int_type)), shape=(n.value + 1,)).astype(np.int64)
+    if n.value == 0 or not ia.value:  # a rank without rows: PETSc need not give a row-pointer array
+        rows = np.zeros(1, dtype=np.int64)
+    else:
+        rows = np.ctypeslib.as_array(ctypes.cast(ia, ctypes.POINTER(int_type)), shape=(n.value + 1,)).astype(np.int64)
     _check(lib.MatRestoreRowIJ(handle, 0, 0, 0, ctypes.byref(n), ctypes.byref(ia), ctypes.byref(ja),
                                ctypes.byref(done)), "MatRestoreRowIJ")
     return rows
