@@ -9,6 +9,7 @@ and the iteration count.
 from contextlib import contextmanager
 
 import numpy as np
+from mpi4py import MPI
 
 from psph.errors import PsphError, SolverError
 from psph.profiling import phase
@@ -68,8 +69,10 @@ class LinearSolver:
 
     def set_operator(self, mat) -> None:
         """Use `mat` from now on. A matrix of another size (after a neighbour-list rebuild) gets a fresh
-        KSP: some preconditioners (GAMG) cannot be reset to new sizes."""
-        if self.operator is not None and self.operator.getSizes() != mat.getSizes():
+        KSP: some preconditioners (GAMG) cannot be reset to new sizes. Collective: the local sizes may
+        change on some ranks only, and creating a KSP is collective, so the ranks decide together."""
+        changed = self.operator is not None and self.operator.getSizes() != mat.getSizes()
+        if self.comm.allreduce(changed, op=MPI.LOR):
             self.ksp.destroy()
             self.ksp = self._create()
         with petsc_errors(f"setting up the -{self.prefix} solver"):

@@ -19,18 +19,23 @@ def run(scene, comm, out):
     return {k: gather_by_gid(comm, p.owned("gid"), p.owned(k))[1] for k in ("position", "velocity", "density")}
 
 
+def assert_matches_serial(scene, comm, tmp, tol):
+    """Positions, velocities and densities of a run on `comm` equal a serial run's by gid, within tol."""
+    with petsc_options(iips_ksp_rtol=1e-12, iips_ksp_atol=1e-30):
+        parallel = run(scene, comm, tmp / "par")
+        serial = run(scene, MPI.COMM_SELF, tmp / f"ser{comm.rank}")
+    for k in parallel:
+        scale = max(np.abs(serial[k]).max(), 1.0)
+        assert np.abs(parallel[k] - serial[k]).max() < tol * scale, k
+
+
 @pytest.mark.parametrize("shifting,update,tol", [("delta_plus", "none", 1e-11), ("iips", "nfts", 1e-7),
                                                   ("iips", "mls2", 1e-7)])
 def test_fluid_run_matches_serial(comm, mpi_tmp_path, shifting, update, tol):
     scene = periodic_scene(n=16, initial={"velocity": "taylor_green"}, physics={"scheme": "delta_ale"},
                            time={"t_end": 0.04}, shifting={"method": shifting},
                            iips={"update": update, "threshold": 1e-3})
-    with petsc_options(iips_ksp_rtol=1e-12, iips_ksp_atol=1e-30):
-        parallel = run(scene, comm, mpi_tmp_path / "par")
-        serial = run(scene, MPI.COMM_SELF, mpi_tmp_path / f"ser{comm.rank}")
-    for k in parallel:
-        scale = max(np.abs(serial[k]).max(), 1.0)
-        assert np.abs(parallel[k] - serial[k]).max() < tol * scale, k
+    assert_matches_serial(scene, comm, mpi_tmp_path, tol)
 
 
 @pytest.mark.parametrize("case,sets,tol", [
@@ -44,9 +49,4 @@ def test_runs_with_walls_match_serial(comm, mpi_tmp_path, case, sets, tol):
     from tests.helpers import CASES
 
     scene = load_scene(CASES / case, ["domain.dx=0.05", "time.t_end=0.05", "output.every=0", *sets])
-    with petsc_options(iips_ksp_rtol=1e-12, iips_ksp_atol=1e-30):
-        parallel = run(scene, comm, mpi_tmp_path / "par")
-        serial = run(scene, MPI.COMM_SELF, mpi_tmp_path / f"ser{comm.rank}")
-    for k in parallel:
-        scale = max(np.abs(serial[k]).max(), 1.0)
-        assert np.abs(parallel[k] - serial[k]).max() < tol * scale, k
+    assert_matches_serial(scene, comm, mpi_tmp_path, tol)

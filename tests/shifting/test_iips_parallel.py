@@ -15,9 +15,10 @@ pytestmark = pytest.mark.mpi
 
 @pytest.mark.parametrize("dim,n", [(2, 24), (3, 8)])
 def test_static_iips_positions_independent_of_rank_count(comm, dim, n, request):
-    if dim == 3 and comm.size == 3:  # known bug, open (issue 3 note): visible here, and strict so a fix shows
-        request.applymarker(pytest.mark.xfail(strict=True, reason="3-D IIPS on 3 ranks differs from serial "
-                                              "by 6e-3 (n = 8); n = 12 overflows PETSc's global size"))
+    if dim == 3 and comm.size == 3:  # open bug, strict so that a fix shows
+        request.applymarker(pytest.mark.xfail(strict=True, reason=(
+            "open bug: on 3 ranks (not 2 or 4), a kernel support of 0.375 L or more in the periodic box "
+            "gives positions 2e-3 to 6e-3 away from serial, in 2-D and 3-D; 0.25 L agrees to 1e-12")))
     scene = periodic_scene(dim=dim, n=n, sigma=0.15, iips={"max_newton": 6})
     with petsc_options(iips_ksp_rtol=1e-13, iips_ksp_atol=1e-30):
         par_shift = ImplicitShifting(scene.iips, comm)
@@ -48,9 +49,6 @@ def test_explicit_shifting_independent_of_rank_count(comm):
 def test_iips_with_an_empty_rank(comm):
     """All particles start on rank 0 of a non-periodic box with a tiny fluid patch: ranks without free
     particles (or without any) take part in assembly and solve."""
-    if comm.size == 3:  # known bug, open (issue 3 note); running it desynchronises the ranks' collectives
-        pytest.xfail("known bug: on 3 ranks the KSP solve reports a PETSc 'Global size overflow' and the ranks' "
-                     "collectives fall out of step")
     from psph.compute.smoothing import make_kernel
     from psph.domain import Domain
     from psph.particles import Kind, ParticleSet
