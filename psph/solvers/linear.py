@@ -54,10 +54,10 @@ class LinearSolver:
         self.operator = None
         self.iterations = 0
 
-    def _create(self):
-        """A KSP with the code defaults, then the command line's options (which win)."""
+    def _create(self, settings=None):
+        """A KSP with `settings` (the code defaults unless given), then the options database's (which win)."""
         PETSc = petsc()
-        d = self.defaults
+        d = settings or self.defaults
         with petsc_errors(f"setting up the -{self.prefix} solver"):
             ksp = PETSc.KSP().create(comm=self.comm)
             ksp.setOptionsPrefix(self.prefix)
@@ -69,12 +69,17 @@ class LinearSolver:
 
     def set_operator(self, mat) -> None:
         """Use `mat` from now on. A matrix of another size (after a neighbour-list rebuild) gets a fresh
-        KSP: some preconditioners (GAMG) cannot be reset to new sizes. Collective: the local sizes may
-        change on some ranks only, and creating a KSP is collective, so the ranks decide together."""
+        KSP: some preconditioners (GAMG) cannot be reset to new sizes. The new KSP keeps the old one's
+        types and tolerances (options set only while the solver was built, as a program or test may do,
+        are gone from the database by then). Collective: the local sizes may change on some ranks only,
+        and creating a KSP is collective, so the ranks decide together."""
         changed = self.operator is not None and self.operator.getSizes() != mat.getSizes()
         if self.comm.allreduce(changed, op=MPI.LOR):
+            rtol, atol, _, max_it = self.ksp.getTolerances()
+            settings = dict(ksp_type=self.ksp.getType(), pc_type=self.ksp.getPC().getType(), rtol=rtol,
+                            atol=atol, max_it=max_it)
             self.ksp.destroy()
-            self.ksp = self._create()
+            self.ksp = self._create(settings)
         with petsc_errors(f"setting up the -{self.prefix} solver"):
             self.ksp.setOperators(mat)
         self.operator = mat

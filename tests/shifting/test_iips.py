@@ -168,6 +168,28 @@ def test_command_line_options_reach_the_solver():
     assert default.getTolerances()[0] == 1e-2
 
 
+def test_solver_settings_survive_a_change_of_matrix_size():
+    """A rebuild that changes the local size gets a fresh KSP; it must keep the options the solver was built
+    with even when they are no longer in the database (on 3 ranks this once fell back to rtol 1e-2)."""
+    from psph.solvers.linear import LinearSolver
+    from psph.solvers.petsc import petsc
+
+    PETSc = petsc()
+    with petsc_options(iips_ksp_type="gmres", iips_ksp_rtol=1e-11):
+        solver = LinearSolver(MPI.COMM_SELF, "iips_")
+    for n in (4, 6):
+        mat = PETSc.Mat().createAIJ((n, n), nnz=1, comm=MPI.COMM_SELF)
+        for i in range(n):
+            mat.setValue(i, i, 2.0)
+        mat.assemble()
+        solver.set_operator(mat)
+        b, x = mat.createVecs()
+        b.set(1.0)
+        solver.solve(b, x)
+        assert solver.ksp.getType() == "gmres" and solver.ksp.getTolerances()[0] == 1e-11
+        assert np.allclose(x.getArray(), 0.5)
+
+
 def test_explicit_iterative_baseline_is_much_slower():
     """Thesis Table 8.2: the explicit Fickian iteration needs far more iterations than IIPS."""
     scene = periodic_scene(n=20, sigma=0.1, shifting={"method": "explicit_iterative"})

@@ -14,11 +14,7 @@ pytestmark = pytest.mark.mpi
 
 
 @pytest.mark.parametrize("dim,n", [(2, 24), (3, 8)])
-def test_static_iips_positions_independent_of_rank_count(comm, dim, n, request):
-    if dim == 3 and comm.size == 3:  # open bug, strict so that a fix shows
-        request.applymarker(pytest.mark.xfail(strict=True, reason=(
-            "open bug: on 3 ranks (not 2 or 4), a kernel support of 0.375 L or more in the periodic box "
-            "gives positions 2e-3 to 6e-3 away from serial, in 2-D and 3-D; 0.25 L agrees to 1e-12")))
+def test_static_iips_positions_independent_of_rank_count(comm, dim, n):
     scene = periodic_scene(dim=dim, n=n, sigma=0.15, iips={"max_newton": 6})
     with petsc_options(iips_ksp_rtol=1e-13, iips_ksp_atol=1e-30):
         par_shift = ImplicitShifting(scene.iips, comm)
