@@ -5,6 +5,37 @@ from numba import njit
 
 
 @njit(cache=True)
+def split_csr(indptr, indices, col_start, col_end):
+    """Split a CSR (global, sorted columns) into PETSc's MPIAIJ blocks: the diagonal block's row pointers
+    and local columns (col - col_start for col_start <= col < col_end), and the off-diagonal block's row
+    pointers and global columns."""
+    n = indptr.size - 1
+    di = np.zeros(n + 1, dtype=np.int64)
+    oi = np.zeros(n + 1, dtype=np.int64)
+    for r in range(n):
+        inside = 0
+        for k in range(indptr[r], indptr[r + 1]):
+            if col_start <= indices[k] < col_end:
+                inside += 1
+        di[r + 1] = di[r] + inside
+        oi[r + 1] = oi[r] + indptr[r + 1] - indptr[r] - inside
+    dj = np.empty(di[n], dtype=np.int64)
+    oj = np.empty(oi[n], dtype=np.int64)
+    for r in range(n):
+        pd = di[r]
+        po = oi[r]
+        for k in range(indptr[r], indptr[r + 1]):
+            c = indices[k]
+            if col_start <= c < col_end:
+                dj[pd] = c - col_start
+                pd += 1
+            else:
+                oj[po] = c
+                po += 1
+    return di, dj, oi, oj
+
+
+@njit(cache=True)
 def split_positions(indptr, indices, col_start, col_end, ia_d, ia_o, slot, target, offset):
     """For each natural value (via slot -> CSR position): block (0 diagonal, 1 off-diagonal) and position.
 
