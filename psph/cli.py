@@ -23,14 +23,21 @@ def _parser() -> argparse.ArgumentParser:
                      epilog="Unknown options starting with a single dash are passed to PETSc.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
-    def scene_args(p):
-        p.add_argument("scene", help="scene file (TOML)")
+    def scene_args(p, optional=False):
+        p.add_argument("scene", nargs="?" if optional else None, help="scene file (TOML)")
         p.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
                        help="override a scene key; the value is a TOML literal, a bare word a string")
 
-    run = sub.add_parser("run", help="run a scene")
-    scene_args(run)
-    run.add_argument("--out", help="output directory (default: ./<scene name>_out)")
+    run = sub.add_parser("run", help="run a scene, or continue a run from a checkpoint")
+    scene_args(run, optional=True)
+    run.add_argument("--restart", metavar="CHECKPOINT",
+                     help="continue the run saved in CHECKPOINT (OUT/checkpoint_NNNNNN.h5) instead of a scene; "
+                          "--set may change time.* and output.* keys only")
+    run.add_argument("--checkpoint-every", type=int, metavar="STEPS",
+                     help="same as --set output.checkpoint_every=STEPS")
+    run.add_argument("--checkpoint-minutes", type=float, metavar="T",
+                     help="same as --set output.checkpoint_minutes=T")
+    run.add_argument("--out", help="output directory (default: ./<scene name>_out; on restart, the checkpoint's)")
     run.add_argument("--overwrite", action="store_true", help="replace results already in the output directory")
     run.add_argument("--allow-large", action="store_true",
                      help="run even if the estimated memory exceeds this machine's")
@@ -112,17 +119,54 @@ def _toml_value(v):
     return repr(v)
 
 
+RESTART_KEYS = ("time.", "output.")
+
+
+def _scene_and_restart(args, comm):
+    """The scene to run and, for --restart, the checkpoint's contents (read collectively)."""
+    from psph.drivers import FluidDriver, driver_for
+    from psph.scene.load import apply_overrides, load_scene, scene_from_table
+
+    sets = list(args.set)
+    if args.checkpoint_every is not None:
+        sets.append(f"output.checkpoint_every={args.checkpoint_every}")
+    if args.checkpoint_minutes is not None:
+        sets.append(f"output.checkpoint_minutes={args.checkpoint_minutes}")
+    restart = None
+    if args.restart:
+        from psph.io.checkpoint import read_checkpoint
+
+        if args.scene:
+            raise UsageError("give a scene or --restart CHECKPOINT, not both (the checkpoint holds its scene)")
+        for item in sets:
+            if not item.startswith(RESTART_KEYS):
+                raise UsageError(f"--set {item!r}: a restart may change only time.* and output.* keys")
+        restart = read_checkpoint(comm, args.restart)
+        scene = scene_from_table(apply_overrides(restart[0]["scene"], sets))
+    elif args.scene:
+        scene = load_scene(args.scene, sets)
+    else:
+        raise UsageError("run needs a scene file (or --restart CHECKPOINT)")
+    out = scene.output
+    if (out.checkpoint_every or out.checkpoint_minutes) and driver_for(scene) is not FluidDriver:
+        key = "output.checkpoint_every" if out.checkpoint_every else "output.checkpoint_minutes"
+        raise SceneError(key, f"checkpoints are written by flow runs only, not physics.scheme = "
+                              f"{scene.physics.scheme!r}")
+    return scene, restart
+
+
 def cmd_run(args, petsc_options, comm) -> int:
     from psph.drivers import driver_for
     from psph.io.files import holds_results
-    from psph.scene.load import load_scene
     from psph.simulation import check_resources
     from psph.solvers.petsc import initialize
 
-    scene = load_scene(args.scene, args.set)
+    scene, restart = _scene_and_restart(args, comm)
     check_resources(scene, allow_large=args.allow_large)
-    out = os.path.abspath(args.out or f"{scene.name}_out")
-    if holds_results(out) and not args.overwrite:
+    default_out = os.path.dirname(os.path.abspath(args.restart)) if restart else f"{scene.name}_out"
+    out = os.path.abspath(args.out or default_out)
+    continuing = restart is not None and out == os.path.dirname(os.path.abspath(args.restart))
+    if holds_results(out) and not args.overwrite and not continuing:
         raise UsageError(f"output directory {out!r} already holds results; choose another --out or pass --overwrite")
     if os.path.exists(out) and not os.path.isdir(out):
         raise UsageError(f"output path {out!r} exists and is not a directory")
@@ -132,7 +176,8 @@ def cmd_run(args, petsc_options, comm) -> int:
     comm.Barrier()
     log = _say(comm, args.quiet)
     log(f"psph: running scene {scene.name!r} on {comm.size} rank(s)")
-    summary = driver_for(scene)(scene, comm, out, log=log).run()
+    kwargs = {"restart": restart} if restart else {}  # only flow runs write checkpoints
+    summary = driver_for(scene)(scene, comm, out, log=log, **kwargs).run()
     log(f"psph: {summary['n_particles']} particles, {summary['steps']} steps, "
         f"{summary['wall_time_s']:.2f} s; results in {out}")
     return 0

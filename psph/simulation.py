@@ -22,13 +22,17 @@ def make_domain(scene) -> Domain:
     return Domain(lower=tuple(d.lower), upper=tuple(d.upper), periodic=tuple(d.periodic), margin=margin)
 
 
-def build_system(scene, comm, specs=(), halo_fields=BASE_HALO_FIELDS) -> ParticleSystem:
-    """Initial particles of `scene`, decomposed over `comm`, with halo and neighbour lists. Collective."""
+def build_system(scene, comm, specs=(), halo_fields=BASE_HALO_FIELDS, particles=None,
+                 decomposition=None) -> ParticleSystem:
+    """The particles of `scene` (initial ones unless `particles`, e.g. from a checkpoint, are given),
+    decomposed over `comm` (from `decomposition` if given), with halo and neighbour lists. Collective."""
     d = scene.domain
     kernel = make_kernel(d.kernel, d.dimension, d.h)
-    particles = create_particles(scene, comm, specs)
+    if particles is None:
+        particles = create_particles(scene, comm, specs)
     return ParticleSystem(comm, make_domain(scene), kernel, particles, skin=scene.neighbours.skin,
-                          rebalance_threshold=scene.neighbours.rebalance_threshold, halo_fields=halo_fields)
+                          rebalance_threshold=scene.neighbours.rebalance_threshold, halo_fields=halo_fields,
+                          decomposition=decomposition)
 
 
 def unperturbed(scene):
@@ -37,9 +41,12 @@ def unperturbed(scene):
 
 
 class Simulation:
-    """A scene set up on a communicator with its output directory. Drivers advance it."""
+    """A scene set up on a communicator with its output directory. Drivers advance it.
 
-    def __init__(self, scene, comm, out_dir, *, specs=(), halo_fields=BASE_HALO_FIELDS, log=None):
+    restart: (state, particles, decomposition) from io.checkpoint.read_checkpoint: the particles, the
+    history rows and the snapshot index continue from the checkpoint."""
+
+    def __init__(self, scene, comm, out_dir, *, specs=(), halo_fields=BASE_HALO_FIELDS, log=None, restart=None):
         self.started = time.perf_counter()
         self.scene = scene
         self.comm = comm.Dup()
@@ -49,10 +56,15 @@ class Simulation:
         self.comm.Barrier()
         self.log = log or (lambda msg: None)
         warm_up(scene.domain.dimension, scene.domain.kernel)
-        self.system = build_system(scene, self.comm, specs, halo_fields)
+        state, particles, decomposition = restart or (None, None, None)
+        self.system = build_system(scene, self.comm, specs, halo_fields, particles, decomposition)
         self.snapshots = SnapshotWriter(self.comm, self.out_dir, self.system.domain)
         self.history = History(self.comm, self.out_dir)
         self.n_particles = self.system.n_global
+        if state is not None:
+            self.system.rebuilds = state["rebuilds"]
+            self.history.restore(state["history"])
+            self.snapshots.restore(state["snapshots"])
 
     @contextmanager
     def diagnose_failures(self, where):

@@ -25,11 +25,12 @@ class ParticleSystem:
     comm: communicator (duplicated here; the library never picks the world communicator itself);
     domain: Domain;
     kernel: compute.smoothing.Kernel; particles: this rank's ParticleSet (any distribution);
-    skin: Verlet skin as a fraction of the kernel support.
+    skin: Verlet skin as a fraction of the kernel support; decomposition: boxes to start from (a restart
+    on as many ranks), else the particles are balanced by recursive bisection.
     """
 
     def __init__(self, comm, domain, kernel, particles, *, skin=0.1, rebalance_threshold=1.1,
-                 halo_fields=BASE_HALO_FIELDS):
+                 halo_fields=BASE_HALO_FIELDS, decomposition=None):
         self.comm = comm.Dup()
         self.domain = domain
         self.kernel = kernel
@@ -38,13 +39,13 @@ class ParticleSystem:
         self.list_radius = kernel.support + self.skin
         self.rebalance_threshold = rebalance_threshold
         self.halo_fields = list(dict.fromkeys(halo_fields))
-        self.decomposition = None
+        self.decomposition = decomposition
         self.pattern = None
         self.nbr_ptr = np.zeros(1, dtype=np.int64)
         self.nbr_idx = np.zeros(0, dtype=np.int64)
         self.rebuilds = 0
         self._reference = None
-        self.rebuild()
+        self.rebuild(rebalance=decomposition is None)
 
     # ----------------------------------------------------------------- layout
     @property

@@ -59,13 +59,15 @@ class FluidDriver:
             lines.append("diagnostics against the analytic Taylor-Green vortex: L2|v_x - v_xA| (eq. 3.8), E_k")
         return lines
 
-    def __init__(self, scene, comm, out_dir, log=None):
+    def __init__(self, scene, comm, out_dir, log=None, restart=None):
+        """restart: io.checkpoint.read_checkpoint's (state, particles, decomposition), to continue a run."""
         self.scene = scene
         self.scheme = make_scheme(scene)
         self.sim = Simulation(scene, comm, out_dir, specs=self.scheme.field_specs(),
-                              halo_fields=self.scheme.halo_fields(), log=log)
+                              halo_fields=self.scheme.halo_fields(), log=log, restart=restart)
         self.system = self.sim.system
-        self.scheme.initialize(self.system)
+        self.resumed = restart[0]["driver"] if restart else None
+        self.scheme.initialize(self.system, t=self.resumed["time"] if restart else 0.0, fresh=restart is None)
         self.integrate = INTEGRATORS[scene.time.integrator]
         self.reach = STAGE_REACH[scene.time.integrator]
         self.iips = None
@@ -78,6 +80,37 @@ class FluidDriver:
         self.initial_volume = allreduce_sum(self.sim.comm, float(
             self.system.particles.owned("volume")[fluid_mask(self.system)].sum()))
         self.first_dt = None
+        if self.resumed:
+            self.initial_volume = self.resumed["initial_volume"]
+            self.first_dt = self.resumed["first_dt"]
+            if self.iips is not None:
+                self.iips.restore(self.resumed["iips"])
+
+    # ------------------------------------------------------------ checkpoints
+    def checkpoint(self, step, t, totals, next_output) -> None:
+        """Rebuild the lists (so that a restart, which must rebuild, continues bit for bit) and write
+        OUT/checkpoint_NNNNNN.h5. Collective."""
+        from psph.io.checkpoint import write_checkpoint
+        from psph.scene.validate import to_table
+
+        self.system.rebuild(rebalance=False)
+        driver = {"step": step, "time": t, "totals": totals, "next_output": next_output, "first_dt": self.first_dt,
+                  "initial_volume": self.initial_volume,
+                  "iips": self.iips.checkpoint_state() if self.iips is not None else None}
+        path = write_checkpoint(self.sim.comm, self.sim.out_dir, self.system, step, t, {
+            "scene": to_table(self.scene), "driver": driver, "history": self.sim.history.rows,
+            "snapshots": self.sim.snapshots.checkpoint_state()})
+        self.sim.log(f"step {step}, t = {t:.4g}: checkpoint {path.name}")
+
+    def checkpoint_due(self, step, last_wall) -> bool:
+        """Every output.checkpoint_every steps, or output.checkpoint_minutes of wall time (rank 0's clock
+        decides, so all ranks agree). Collective."""
+        out = self.scene.output
+        if out.checkpoint_every and step % out.checkpoint_every == 0:
+            return True
+        if out.checkpoint_minutes:
+            return bool(self.sim.comm.bcast(time.monotonic() - last_wall >= 60.0 * out.checkpoint_minutes, root=0))
+        return False
 
     # ---------------------------------------------------------------- pieces
     def time_step(self) -> float:
@@ -152,8 +185,15 @@ class FluidDriver:
         totals = {"iips_time_s": 0.0, "iips_newton": 0, "iips_linear": 0, "iips_calls": 0, "iips_failures": 0,
                   "step_time_s": 0.0}
         state = {"step": 0, "time": 0.0}
-        sim.history.append({"time": 0.0, "step": 0, "dt": 0.0, **self.diagnostics(0.0), **totals})
-        sim.snapshots.write(system.particles, step=0, time=0.0)
+        if self.resumed:
+            state = {"step": self.resumed["step"], "time": self.resumed["time"]}
+            totals.update(self.resumed["totals"])
+            next_output = self.resumed["next_output"]
+            sim.log(f"psph: continuing from step {state['step']}, t = {state['time']:.6g}")
+        else:
+            sim.history.append({"time": 0.0, "step": 0, "dt": 0.0, **self.diagnostics(0.0), **totals})
+            sim.snapshots.write(system.particles, step=0, time=0.0)
+        last_checkpoint = time.monotonic()
         with sim.diagnose_failures(lambda: (state["step"], state["time"])):
             while state["time"] < t_end * (1.0 - 1e-12):
                 start = time.perf_counter()
@@ -195,6 +235,9 @@ class FluidDriver:
                     sim.snapshots.write(system.particles, step=step, time=t)
                     sim.log(f"t = {t:.4g}, step {step}, dt = {dt:.3g}")
                     next_output += every
+                if t < t_end * (1.0 - 1e-12) and self.checkpoint_due(step, last_checkpoint):
+                    self.checkpoint(step, t, totals, next_output)
+                    last_checkpoint = time.monotonic()
         step, t = state["step"], state["time"]
         if not sim.snapshots.entries or sim.snapshots.entries[-1][2] != step:
             sim.snapshots.write(system.particles, step=step, time=t)

@@ -28,10 +28,10 @@ def write_text_atomic(path, text: str) -> None:
 
 
 def write_json_atomic(path, data) -> None:
-    write_text_atomic(path, json.dumps(data, indent=2, sort_keys=True, default=_jsonable) + "\n")
+    write_text_atomic(path, json.dumps(data, indent=2, sort_keys=True, default=jsonable) + "\n")
 
 
-def _jsonable(value):
+def jsonable(value):
     try:
         import numpy as np
 

@@ -40,6 +40,13 @@ class History:
         if flush or (flush is None and time.monotonic() - self._last_flush >= self.interval):
             self.flush()
 
+    def restore(self, rows) -> None:
+        """Continue from the rows of a checkpoint (restart)."""
+        self.columns = None
+        self.rows = []
+        for row in rows:
+            self.append(row, flush=False)
+
     def flush(self) -> None:
         """Rewrite history.csv with every row so far (rank 0; others return)."""
         self._last_flush = time.monotonic()

@@ -30,25 +30,34 @@ def snapshot_name(index: int) -> str:
     return f"snapshot_{index:06d}.h5"
 
 
-def _write_collective(comm, path, start, total, data, attrs):
-    with h5py.File(path, "w", driver="mpio", comm=comm) as f:
-        grp = f.create_group("particles")
-        for name, arr in data.items():
-            ds = grp.create_dataset(name, shape=(total,) + arr.shape[1:], dtype=arr.dtype)
-            with ds.collective:
-                ds[start:start + len(arr)] = arr
-        for k, v in attrs.items():
-            f.attrs[k] = v
-
-
-def _write_gathered(comm, path, data, attrs):
-    """Fallback for an h5py without MPI: rank 0 gathers the (gid-ordered) blocks and writes."""
+def write_particle_file(comm, path, start, total, data, attrs, extra=None) -> None:
+    """HDF5 file with /particles/<name> datasets (this rank's rows of `data` at [start, start + len)),
+    file attributes `attrs` and root datasets `extra` (rank 0's values: every rank must create the same
+    datasets). Collective: parallel HDF5, or, for an h5py without MPI, rank 0 gathers the blocks (in rank
+    order) and writes."""
+    extra = comm.bcast(extra or {}, root=0)
+    if h5py_has_mpi():
+        with h5py.File(path, "w", driver="mpio", comm=comm) as f:
+            grp = f.create_group("particles")
+            for name, arr in data.items():
+                ds = grp.create_dataset(name, shape=(total,) + arr.shape[1:], dtype=arr.dtype)
+                with ds.collective:
+                    ds[start:start + len(arr)] = arr
+            for name, arr in extra.items():
+                ds = f.create_dataset(name, shape=arr.shape, dtype=arr.dtype)
+                if comm.rank == 0:
+                    ds[...] = arr
+            for k, v in attrs.items():
+                f.attrs[k] = v
+        return
     parts = {name: comm.gather(arr, root=0) for name, arr in data.items()}
     if comm.rank == 0:
         with h5py.File(path, "w") as f:
             grp = f.create_group("particles")
             for name, blocks in parts.items():
                 grp.create_dataset(name, data=np.concatenate(blocks))
+            for name, arr in extra.items():
+                f.create_dataset(name, data=arr)
             for k, v in attrs.items():
                 f.attrs[k] = v
 
@@ -61,6 +70,17 @@ class SnapshotWriter:
         self.out_dir = Path(out_dir)
         self.domain = domain
         self.entries = []  # (file name, time, step, {field: (shape tail, dtype)})
+
+    def checkpoint_state(self) -> list:
+        """The snapshot index, JSON-able (for checkpoints)."""
+        return [[name, t, step, total, {n: [list(tail), np.dtype(dt).str] for n, (tail, dt) in meta.items()}]
+                for name, t, step, total, meta in self.entries]
+
+    def restore(self, entries) -> None:
+        """Continue the index from a checkpoint's; snapshots written after the checkpoint are dropped from
+        the XDMF (their files are overwritten as the run reaches them again)."""
+        self.entries = [(name, t, step, total, {n: (tuple(tail), np.dtype(dt)) for n, (tail, dt) in meta.items()})
+                        for name, t, step, total, meta in entries]
 
     def write(self, particles, step: int, time: float, extra=None, names=None, exclude=("row",)) -> Path:
         """Write owned particles' fields (all but `exclude`, or `names`) plus `extra` owned arrays."""
@@ -79,10 +99,7 @@ class SnapshotWriter:
         path = self.out_dir / name
         tmp = path.with_name(name + ".tmp")
         attrs = {"time": float(time), "step": int(step)}
-        if h5py_has_mpi():
-            _write_collective(self.comm, str(tmp), start, total, ordered, attrs)
-        else:
-            _write_gathered(self.comm, str(tmp), ordered, attrs)
+        write_particle_file(self.comm, str(tmp), start, total, ordered, attrs)
         self.comm.Barrier()
         meta = {n: (a.shape[1:], a.dtype) for n, a in ordered.items()}
         self.entries.append((name, float(time), int(step), total, meta))

@@ -83,11 +83,21 @@ class DeltaALE:
             names += list(SOLID_HALO_FIELDS)
         return names + (["shift_velocity"] if self.shift.active else [])
 
-    def initialize(self, system):
-        """Density from the initial pressure (or rho0), masses from volumes, the volumes V0. Collective."""
+    def initialize(self, system, t=0.0, fresh=True):
+        """Density from the initial pressure (or rho0), masses from volumes, the volumes V0; solids placed
+        at time t. A restart (fresh=False) keeps the fields it read. Collective."""
         p = system.particles
         for spec in self.field_specs():
             p.add_field(spec)
+        if fresh:
+            self._initial_fields(p)
+        if self.walls is not None:
+            self.walls.place(system, t)
+        for name in self.halo_fields():
+            system.add_halo_field(name)
+        system.refresh(self.halo_fields())
+
+    def _initial_fields(self, p):
         if "pressure" in p:
             p.owned("density")[:] = self.eos.density(p.owned("pressure"))
         else:
@@ -102,10 +112,6 @@ class DeltaALE:
             p.owned("density")[solid] = self.rho0
             p.owned("mass")[solid] = self.rho0 * p.owned("volume")[solid]
             p.owned("pressure")[solid] = 0.0
-            self.walls.place(system, 0.0)
-        for name in self.halo_fields():
-            system.add_halo_field(name)
-        system.refresh(self.halo_fields())
 
     def initial_volume(self, system):
         return system.particles["volume0"]

@@ -57,6 +57,15 @@ class ImplicitShifting:
         self.rejections = 0
         self.failures = 0
 
+    COUNTERS = ("threshold", "initial_linf", "calls", "newton_iterations", "rejections", "failures")
+
+    def checkpoint_state(self) -> dict:
+        """Threshold state and counters (what a restart needs; the matrix is rebuilt)."""
+        return {name: getattr(self, name) for name in self.COUNTERS}
+
+    def restore(self, state: dict) -> None:
+        for name in self.COUNTERS:
+            setattr(self, name, state[name])
 
     # ------------------------------------------------------------- assembly
     def _structure(self, system):

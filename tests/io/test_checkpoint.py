@@ -1,0 +1,139 @@
+"""Checkpoints and restarts: a continued run equals the uninterrupted one bit for bit (same ranks) or to
+round-off / solver tolerance (other ranks); a run killed while writing a checkpoint keeps the last one."""
+
+import textwrap
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from psph.drivers.fluid import FluidDriver
+from psph.io.checkpoint import latest_checkpoint, read_checkpoint
+from psph.io.history import read_history
+from tests.conftest import gather_by_gid, periodic_scene
+from tests.helpers import CASES, run_psph
+from tests.shifting.test_iips import petsc_options
+
+FIELDS = ("position", "velocity", "density", "volume", "mass")
+TIMING = ("step_time_s", "iips_time_s")
+
+
+def scene(method):
+    """A short Taylor-Green run with a checkpoint every 7 steps."""
+    iips = {"threshold": 1e-3, "update": "nfts"} if method == "iips" else {}
+    return periodic_scene(n=16, initial={"velocity": "taylor_green"}, physics={"scheme": "delta_ale"},
+                          time={"t_end": 0.05}, shifting={"method": method}, iips=iips,
+                          output={"checkpoint_every": 7})
+
+
+def final_state(driver, comm):
+    p = driver.system.particles
+    return {k: gather_by_gid(comm, p.owned("gid"), p.owned(k))[1] for k in FIELDS}
+
+
+def run(sc, comm, out, restart=None):
+    with petsc_options(iips_ksp_rtol=1e-12, iips_ksp_atol=1e-30):
+        driver = FluidDriver(sc, comm, out, restart=read_checkpoint(comm, restart) if restart else None)
+        summary = driver.run()
+    return final_state(driver, comm), summary
+
+
+def same_history(a, b):
+    rows_a, rows_b = read_history(a / "history.csv"), read_history(b / "history.csv")
+    assert len(rows_a) == len(rows_b)
+    for ra, rb in zip(rows_a, rows_b):
+        assert {k: v for k, v in ra.items() if k not in TIMING} == {k: v for k, v in rb.items() if k not in TIMING}
+
+
+def kill_mid_checkpoint_script(out):
+    """A run that SIGKILLs itself halfway through writing its second checkpoint (half of the particle
+    fields in the temporary file, no state, no rename)."""
+    return textwrap.dedent(f"""
+        import os, signal, sys
+        import psph.io.checkpoint as ck
+        from psph.cli import main
+        written = []
+        original = ck.write_particle_file
+        def dying(comm, path, start, total, data, attrs, extra=None):
+            written.append(path)
+            if len(written) == 2:
+                original(comm, path, start, total, dict(list(data.items())[: len(data) // 2]), {{}})
+                os.kill(os.getpid(), signal.SIGKILL)
+            original(comm, path, start, total, data, attrs, extra)
+        ck.write_particle_file = dying
+        sys.exit(main(["run", "{CASES / 'taylor_green.toml'}", "--out", "{out}", "--set", "domain.dx=0.05",
+                       "--set", "time.t_end=0.06", "--checkpoint-every", "10"]))
+        """)
+
+
+@pytest.mark.parametrize("method", ["delta_plus", "iips"])
+def test_restart_continues_bit_for_bit(tmp_path, method):
+    sc = scene(method)
+    whole, summary = run(sc, MPI.COMM_SELF, tmp_path / "whole")
+    kept = list((tmp_path / "whole").glob("checkpoint_*"))  # older ones removed once a newer one is complete
+    assert len(kept) == 1 and 0 < read_checkpoint(MPI.COMM_SELF, kept[0])[0]["step"] < summary["steps"]
+    # continue in a copy of the directory from the last checkpoint
+    import shutil
+
+    shutil.copytree(tmp_path / "whole", tmp_path / "again")
+    again, summary2 = run(sc, MPI.COMM_SELF, tmp_path / "again", restart=latest_checkpoint(tmp_path / "again"))
+    for k in FIELDS:
+        assert np.array_equal(whole[k], again[k]), k
+    assert summary2["steps"] == summary["steps"] and summary2["iips_newton"] == summary["iips_newton"]
+    same_history(tmp_path / "whole", tmp_path / "again")
+
+
+def test_killed_while_writing_a_checkpoint_restarts_from_the_last_complete_one(tmp_path):
+    script = tmp_path / "dying.py"
+    out = tmp_path / "run"
+    script.write_text(kill_mid_checkpoint_script(out))
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300,
+                          cwd=str(CASES.parent))
+    assert proc.returncode == -9, proc.stderr
+    assert sorted(p.name for p in out.glob("checkpoint_*")) == ["checkpoint_000010.h5", "checkpoint_000020.h5.tmp"]
+    assert latest_checkpoint(out).name == "checkpoint_000010.h5"
+    done = run_psph("run", "--restart", latest_checkpoint(out))
+    assert done.returncode == 0, done.stderr
+    reference = run_psph("run", CASES / "taylor_green.toml", "--out", tmp_path / "reference", "--set", "domain.dx=0.05",
+                         "--set", "time.t_end=0.06", "--checkpoint-every", "10")
+    assert reference.returncode == 0, reference.stderr
+    same_history(out, tmp_path / "reference")
+
+
+def test_restart_errors_are_one_line(tmp_path):
+    bad = tmp_path / "not_a_checkpoint.h5"
+    bad.write_bytes(b"garbage")
+    done = run_psph("run", "--restart", bad)
+    assert done.returncode == 2 and done.stderr.startswith("psph: error: cannot restart from") \
+        and "Traceback" not in done.stderr
+    done = run_psph("run", "--restart", bad, "--set", "domain.dx=0.1")
+    assert done.returncode == 2 and "may change only time.* and output.*" in done.stderr
+    done = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "s", "--checkpoint-every", "5")
+    assert done.returncode == 2 and "output.checkpoint_every: checkpoints are written by flow runs only" in done.stderr
+    assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("method,tol", [("delta_plus", 1e-11), ("iips", 1e-7)])
+def test_restart_on_the_same_and_on_more_ranks(comm, mpi_tmp_path, method, tol):
+    """Same ranks: bit for bit. A checkpoint of size - 1 ranks (1 -> 2, 2 -> 3) continued on all ranks:
+    equal to the uninterrupted run to round-off (explicit) or the KSP tolerance (IIPS)."""
+    sc = scene(method)
+    whole, _ = run(sc, comm, mpi_tmp_path / "whole")
+    again, _ = run(sc, comm, mpi_tmp_path / "again", restart=latest_checkpoint(mpi_tmp_path / "whole"))
+    for k in FIELDS:
+        assert np.array_equal(whole[k], again[k]), k
+    if comm.size == 1:
+        return
+    fewer = comm.Split(0 if comm.rank < comm.size - 1 else MPI.UNDEFINED, comm.rank)
+    if fewer != MPI.COMM_NULL:
+        run(sc, fewer, mpi_tmp_path / "fewer")
+        fewer.Free()
+    comm.Barrier()
+    more, _ = run(sc, comm, mpi_tmp_path / "more", restart=latest_checkpoint(mpi_tmp_path / "fewer"))
+    for k in FIELDS:
+        scale = max(np.abs(whole[k]).max(), 1.0)
+        assert np.abs(more[k] - whole[k]).max() < tol * scale, k
