@@ -1,4 +1,5 @@
-"""Command line: `psph run SCENE`, `psph info SCENE`.
+"""Command line: `psph run SCENE`, `psph run --restart CHECKPOINT`, `psph info SCENE`, `psph keys`,
+`psph plot OUT_DIR`.
 
 Options psph does not know and that start with a single dash are PETSc options and pass through
 untouched (`-iips_pc_type hypre -log_view`). Errors print one line `psph: error: ...` and exit non-zero
@@ -41,10 +42,14 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--overwrite", action="store_true", help="replace results already in the output directory")
     run.add_argument("--allow-large", action="store_true",
                      help="run even if the estimated memory exceeds this machine's")
-    run.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    run.add_argument("--quiet", action="store_true", help="print nothing but errors (the log file still gets it all)")
+    run.add_argument("--log", metavar="FILE", help="log file (default: OUT/psph.log); messages and errors are appended")
     info = sub.add_parser("info", help="print the resolved scene, its model terms and estimated size")
     scene_args(info)
     sub.add_parser("keys", help="list every scene key with its type, default and meaning")
+    plot = sub.add_parser("plot", help="PNG figures of a run (fields, history) or of a study directory of runs")
+    plot.add_argument("out_dir", help="a run's output directory, or a directory of runs")
+    plot.add_argument("--figures", help="where to write the PNGs (default: OUT_DIR/figures)")
     return parser
 
 
@@ -73,10 +78,24 @@ def _is_number(tok: str) -> bool:
         return False
 
 
+_LOG = {"path": None}  # the run's log file, once its output directory exists
+
+
+def _append_log(line: str) -> None:
+    if _LOG["path"]:
+        try:
+            with open(_LOG["path"], "a") as f:
+                f.write(line + "\n")
+        except OSError:
+            pass  # the log is a convenience; never let it end a run
+
+
 def _say(comm, quiet=False):
     def log(msg):
-        if comm.rank == 0 and not quiet:
-            print(msg, flush=True)
+        if comm.rank == 0:
+            if not quiet:
+                print(msg, flush=True)
+            _append_log(msg)
     return log
 
 
@@ -84,7 +103,7 @@ def cmd_info(args, petsc_options, comm) -> int:
     from psph.drivers import describe_model
     from psph.scene.load import load_scene
     from psph.scene.validate import to_table
-    from psph.simulation import estimate_resources
+    from psph.simulation import estimate_resources, estimate_time_step
 
     scene = load_scene(args.scene, args.set)
     if comm.rank == 0:
@@ -96,6 +115,9 @@ def cmd_info(args, petsc_options, comm) -> int:
         n, nbytes, per_particle = estimate_resources(scene)
         print(f"# estimated particles: {n}, memory: {nbytes / 2**30:.3g} GiB "
               f"({per_particle:.0f} bytes per particle)")
+        step = estimate_time_step(scene)
+        if step:
+            print(f"# {step}")
     return 0
 
 
@@ -173,11 +195,13 @@ def cmd_run(args, petsc_options, comm) -> int:
     initialize(petsc_options)
     if comm.rank == 0:
         os.makedirs(out, exist_ok=True)
+    _LOG["path"] = os.path.abspath(args.log) if args.log else os.path.join(out, "psph.log")
     comm.Barrier()
     log = _say(comm, args.quiet)
-    log(f"psph: running scene {scene.name!r} on {comm.size} rank(s)")
+    log(f"psph: running scene {scene.name!r} on {comm.size} rank(s)"
+        + (f", continuing {args.restart}" if restart else "") + f" ({' '.join(sys.argv[1:]) or 'run'})")
     kwargs = {"restart": restart} if restart else {}  # only flow runs write checkpoints
-    summary = driver_for(scene)(scene, comm, out, log=log, **kwargs).run()
+    summary = driver_for(scene)(scene, comm, out, log=log, progress=not args.quiet, **kwargs).run()
     log(f"psph: {summary['n_particles']} particles, {summary['steps']} steps, "
         f"{summary['wall_time_s']:.2f} s; results in {out}")
     return 0
@@ -193,7 +217,16 @@ def cmd_keys(args, petsc_options, comm) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "info": cmd_info, "keys": cmd_keys}
+def cmd_plot(args, petsc_options, comm) -> int:
+    from psph.plot import plot
+
+    if comm.rank == 0:
+        for path in plot(args.out_dir, args.figures):
+            print(f"psph: wrote {path}")
+    return 0
+
+
+COMMANDS = {"run": cmd_run, "info": cmd_info, "keys": cmd_keys, "plot": cmd_plot}
 
 
 def main(argv=None) -> int:
@@ -210,8 +243,10 @@ def main(argv=None) -> int:
         if comm.size == 1 or collective:
             if comm.rank == 0:
                 print(f"psph: error: {err}", file=sys.stderr, flush=True)
+                _append_log(f"psph: error: {err}")
             return err.exit_code
         print(f"psph: error on rank {comm.rank}: {err}", file=sys.stderr, flush=True)
+        _append_log(f"psph: error on rank {comm.rank}: {err}")
         comm.Abort(err.exit_code)
     except KeyboardInterrupt:
         print("psph: interrupted", file=sys.stderr, flush=True)

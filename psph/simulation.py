@@ -46,7 +46,8 @@ class Simulation:
     restart: (state, particles, decomposition) from io.checkpoint.read_checkpoint: the particles, the
     history rows and the snapshot index continue from the checkpoint."""
 
-    def __init__(self, scene, comm, out_dir, *, specs=(), halo_fields=BASE_HALO_FIELDS, log=None, restart=None):
+    def __init__(self, scene, comm, out_dir, *, specs=(), halo_fields=BASE_HALO_FIELDS, log=None, restart=None,
+                 progress=False):
         self.started = time.perf_counter()
         self.scene = scene
         self.comm = comm.Dup()
@@ -55,6 +56,7 @@ class Simulation:
             self.out_dir.mkdir(parents=True, exist_ok=True)
         self.comm.Barrier()
         self.log = log or (lambda msg: None)
+        self.show_progress = progress
         warm_up(scene.domain.dimension, scene.domain.kernel)
         state, particles, decomposition = restart or (None, None, None)
         self.system = build_system(scene, self.comm, specs, halo_fields, particles, decomposition)
@@ -65,6 +67,12 @@ class Simulation:
             self.system.rebuilds = state["rebuilds"]
             self.history.restore(state["history"])
             self.snapshots.restore(state["snapshots"])
+
+    def progress(self, t_start, t_end):
+        """A Progress display for a time loop (rank 0, if the run shows progress)."""
+        from psph.progress import Progress
+
+        return Progress(self.comm, t_start, t_end, enabled=self.show_progress)
 
     @contextmanager
     def diagnose_failures(self, where):
@@ -115,6 +123,31 @@ def estimate_resources(scene) -> tuple:
     per_particle = 8 * 64 + ball * (8 + 12 * d.dimension**2)
     n = d.estimated_particles()
     return n, n * per_particle, per_particle
+
+
+def estimate_time_step(scene) -> str:
+    """The time step a run of `scene` starts with and its number of steps, as a line (empty for static runs).
+
+    Fluid: cfl h / (c0 + U) (thesis eq. 5.52, U the reference velocity; the run adapts it to the actual
+    speed) and at most 0.125 h^2 / nu; kinematic: cfl dx / c0."""
+    import math
+
+    d, ph, t = scene.domain, scene.physics, scene.time
+    if ph.scheme == "none":
+        return ""
+    if ph.scheme == "kinematic":
+        dt = t.cfl * d.dx / ph.sound_speed
+        how = f"cfl dx / c0 = {t.cfl:g} x {d.dx:g} / {ph.sound_speed:g}"
+    else:
+        from psph.schemes import make_scheme
+
+        scheme = make_scheme(scene)
+        dt = t.cfl * d.h / (scheme.c0 + ph.reference_velocity)
+        how = f"cfl h / (c0 + U) = {t.cfl:g} x {d.h:g} / ({scheme.c0:g} + {ph.reference_velocity:g})"
+        if scheme.nu > 0 and 0.125 * d.h**2 / scheme.nu < dt:
+            dt = 0.125 * d.h**2 / scheme.nu
+            how = f"viscous limit 0.125 h^2 / nu = 0.125 x {d.h:g}^2 / {scheme.nu:g}"
+    return f"estimated time step: {dt:.4g} ({how}), about {math.ceil(t.t_end / dt)} steps to t_end = {t.t_end:g}"
 
 
 def machine_memory() -> int:

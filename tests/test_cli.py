@@ -66,3 +66,30 @@ def test_info_lists_the_model_terms():
     assert "dx = 0.0125" in res.stdout
     assert "# model terms (only these run)" in res.stdout and "physics none" in res.stdout
     assert "estimated particles: 6400" in res.stdout
+
+
+def test_info_estimates_the_time_step():
+    res = run_psph("info", CASES / "taylor_green.toml", "--set", "domain.dx=0.05")
+    assert res.returncode == 0, res.stderr
+    # cfl h / (c0 + U) = 0.2 x 0.1 / (10 + 1); nu = U L / Re = 0.01 gives 0.125 h^2 / nu = 0.125, not limiting
+    assert "estimated time step: 0.001818 (cfl h / (c0 + U)" in res.stdout and "about 550 steps" in res.stdout
+
+
+def test_quiet_run_logs_to_file_and_plots(tmp_path):
+    runs = tmp_path / "study"
+    for dx in (0.1, 0.05):
+        out = runs / f"tgv_dx{dx}"
+        res = run_psph("run", CASES / "taylor_green.toml", "--out", out, "--quiet", "--set", f"domain.dx={dx}",
+                       "--set", "time.t_end=0.05")
+        assert res.returncode == 0 and res.stdout == "", res.stdout + res.stderr
+        log = (out / "psph.log").read_text()
+        assert "psph: running scene 'taylor_green'" in log and "results in" in log
+    res = run_psph("plot", runs / "tgv_dx0.05")
+    assert res.returncode == 0, res.stderr
+    for name in ("history.png", "fields.png"):
+        assert (runs / "tgv_dx0.05" / "figures" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    res = run_psph("plot", runs, "--figures", tmp_path / "figs")
+    assert res.returncode == 0, res.stderr
+    assert (tmp_path / "figs" / "convergence.png").read_bytes()[:4] == b"\x89PNG"
+    res = run_psph("plot", tmp_path / "figs")
+    assert res.returncode == 2 and "holds neither a run" in res.stderr

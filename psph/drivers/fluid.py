@@ -59,12 +59,12 @@ class FluidDriver:
             lines.append("diagnostics against the analytic Taylor-Green vortex: L2|v_x - v_xA| (eq. 3.8), E_k")
         return lines
 
-    def __init__(self, scene, comm, out_dir, log=None, restart=None):
+    def __init__(self, scene, comm, out_dir, log=None, restart=None, progress=False):
         """restart: io.checkpoint.read_checkpoint's (state, particles, decomposition), to continue a run."""
         self.scene = scene
         self.scheme = make_scheme(scene)
         self.sim = Simulation(scene, comm, out_dir, specs=self.scheme.field_specs(),
-                              halo_fields=self.scheme.halo_fields(), log=log, restart=restart)
+                              halo_fields=self.scheme.halo_fields(), log=log, restart=restart, progress=progress)
         self.system = self.sim.system
         self.resumed = restart[0]["driver"] if restart else None
         self.scheme.initialize(self.system, t=self.resumed["time"] if restart else 0.0, fresh=restart is None)
@@ -194,6 +194,7 @@ class FluidDriver:
             sim.history.append({"time": 0.0, "step": 0, "dt": 0.0, **self.diagnostics(0.0), **totals})
             sim.snapshots.write(system.particles, step=0, time=0.0)
         last_checkpoint = time.monotonic()
+        progress = sim.progress(state["time"], t_end)
         with sim.diagnose_failures(lambda: (state["step"], state["time"])):
             while state["time"] < t_end * (1.0 - 1e-12):
                 start = time.perf_counter()
@@ -238,6 +239,9 @@ class FluidDriver:
                 if t < t_end * (1.0 - 1e-12) and self.checkpoint_due(step, last_checkpoint):
                     self.checkpoint(step, t, totals, next_output)
                     last_checkpoint = time.monotonic()
+                progress.update(step, t, dt, **({"newton": totals["iips_newton"], "ksp": totals["iips_linear"]}
+                                                if self.iips is not None else {}))
+            progress.close()
         step, t = state["step"], state["time"]
         if not sim.snapshots.entries or sim.snapshots.entries[-1][2] != step:
             sim.snapshots.write(system.particles, step=step, time=t)

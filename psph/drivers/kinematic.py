@@ -28,9 +28,9 @@ class KinematicDriver:
                 f"t = {t.t_end:g}",
                 f"diagnostics: Linf/L2(grad C), L2(d f/dx) (wavelength {scene.diagnostics.test_wavelength:g})"]
 
-    def __init__(self, scene, comm, out_dir, log=None):
+    def __init__(self, scene, comm, out_dir, log=None, progress=False):
         self.scene = scene
-        self.sim = Simulation(scene, comm, out_dir, log=log)
+        self.sim = Simulation(scene, comm, out_dir, log=log, progress=progress)
         self.shifting = make_shifting(scene, self.sim.comm)
         d, p = scene.domain, scene.physics
         self.dt = scene.time.cfl * d.dx / p.sound_speed
@@ -77,6 +77,7 @@ class KinematicDriver:
             sim.snapshots.write(system.particles, step=0, time=0.0, extra={"grad_c": grad_c(system)})
             every = scene.output.every
             next_output = every if every > 0 else math.inf
+            progress = sim.progress(0.0, self.n_steps * self.dt)
             for step in range(1, self.n_steps + 1):
                 state["step"] = step
                 start = time.perf_counter()
@@ -100,10 +101,13 @@ class KinematicDriver:
                 if record:
                     sim.history.append({"time": t, "step": step, **report, "newton": shift.iterations,
                                         "ksp_iterations": shift.linear_iterations, **totals})
+                progress.update(step, t, self.dt, newton=totals["newton_iterations"],
+                                ksp=totals["linear_iterations"])
                 if t >= next_output - 1e-12 * self.dt:
                     sim.history.flush()
                     sim.snapshots.write(system.particles, step=step, time=t)
                     next_output += every
+            progress.close()
         step, t = state["step"], state["time"]
         sim.history.flush()
         if not sim.snapshots.entries or sim.snapshots.entries[-1][2] != step:

@@ -23,7 +23,7 @@ class StaticDriver:
             lines.append(f"stop when L2(d f/dx) <= {d.stop_at_cartesian:g} x its Cartesian-lattice value")
         return lines
 
-    def __init__(self, scene, comm, out_dir, log=None):
+    def __init__(self, scene, comm, out_dir, log=None, progress=False):  # progress: one line per iteration
         self.scene = scene
         self.sim = Simulation(scene, comm, out_dir, log=log)
         self.shifting = make_shifting(scene, self.sim.comm)

@@ -1,0 +1,177 @@
+"""`psph plot OUT_DIR`: PNG figures of a run (particle fields of the last snapshot, diagnostics history) or
+of a study (a directory of runs: error against resolution and against wall time).
+
+A run directory holds summary.json / history.csv / snapshots; a study directory holds run directories.
+|grad C| is recomputed from the snapshot (positions and volumes) with the run's kernel on one rank.
+"""
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from psph.errors import UsageError
+
+HISTORY_COLUMNS = ("kinetic_energy", "L2_vx_error", "kinetic_energy_error", "max_density_variation", "volume_error",
+                   "L2_grad_c", "Linf_grad_c", "L2_dfdx", "max_speed", "dt", "iips_newton", "cd_pressure")
+ERROR_KEYS = ("L2_vx_error", "L2_dfdx", "L2_grad_c")
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _summary(run_dir: Path) -> dict:
+    return json.loads((run_dir / "summary.json").read_text())
+
+
+def plot(out_dir, fig_dir=None) -> list:
+    """Write the figures for a run or a study directory; returns the PNG paths."""
+    out_dir = Path(out_dir)
+    if not out_dir.is_dir():
+        raise UsageError(f"{str(out_dir)!r} is not a directory")
+    fig_dir = Path(fig_dir) if fig_dir else out_dir / "figures"
+    runs = sorted(d for d in out_dir.iterdir() if (d / "summary.json").is_file())
+    if (out_dir / "history.csv").is_file():
+        fig_dir.mkdir(parents=True, exist_ok=True)
+        return [p for p in (plot_history(out_dir, fig_dir), plot_fields(out_dir, fig_dir)) if p]
+    if runs:
+        fig_dir.mkdir(parents=True, exist_ok=True)
+        return plot_study(runs, fig_dir)
+    raise UsageError(f"{str(out_dir)!r} holds neither a run (history.csv) nor runs (*/summary.json)")
+
+
+def plot_history(run_dir: Path, fig_dir: Path):
+    from psph.io.history import read_history
+
+    rows = read_history(run_dir / "history.csv")
+    columns = [c for c in HISTORY_COLUMNS if rows and c in rows[0] and any(r[c] is not None for r in rows)]
+    if not columns:
+        return None
+    plt = _pyplot()
+    n = len(columns)
+    ncol = min(n, 3)
+    fig, axes = plt.subplots((n + ncol - 1) // ncol, ncol, figsize=(4.2 * ncol, 3.0 * ((n + ncol - 1) // ncol)),
+                             squeeze=False)
+    t = [r["time"] for r in rows]
+    for ax, c in zip(axes.flat, columns):
+        y = np.array([np.nan if r[c] is None else r[c] for r in rows])
+        positive = np.nanmin(y) > 0 and np.nanmax(y) / max(np.nanmin(y), 1e-300) > 100
+        (ax.semilogy if positive else ax.plot)(t, y)
+        ax.set_title(c, fontsize=9)
+        ax.set_xlabel("time (iteration for static runs)", fontsize=8)
+    for ax in list(axes.flat)[n:]:
+        ax.axis("off")
+    fig.suptitle(f"{run_dir.name}: diagnostics history")
+    fig.tight_layout()
+    path = fig_dir / "history.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _grad_c_magnitude(run_dir: Path, data: dict):
+    """|grad C| h of the snapshot's particles (serial system with the run's kernel), or None."""
+    from mpi4py import MPI
+
+    from psph.compute.smoothing import make_kernel
+    from psph.diagnostics import grad_c
+    from psph.particles import ParticleSet
+    from psph.scene.load import scene_from_table
+    from psph.simulation import make_domain
+    from psph.system import ParticleSystem
+
+    if not (run_dir / "summary.json").is_file():
+        return None
+    scene = scene_from_table(_summary(run_dir)["scene"])
+    d = scene.domain
+    particles = ParticleSet(d.dimension)
+    n = len(data["gid"])
+    particles.set_owned({"position": data["position"], "gid": data["gid"], "kind": data["kind"],
+                         "volume": data.get("volume", np.full(n, d.dx ** d.dimension))})
+    system = ParticleSystem(MPI.COMM_SELF, make_domain(scene), make_kernel(d.kernel, d.dimension, d.h), particles,
+                            skin=scene.neighbours.skin)
+    g = np.linalg.norm(grad_c(system), axis=1) * d.h
+    order = np.argsort(system.particles.owned("gid"))
+    out = np.empty(n)
+    out[np.searchsorted(data["gid"], system.particles.owned("gid")[order])] = g[order]
+    return out
+
+
+def plot_fields(run_dir: Path, fig_dir: Path):
+    from psph.studies import last_snapshot
+
+    snaps = sorted(run_dir.glob("snapshot_*.h5"))
+    if not snaps:
+        return None
+    data, t = last_snapshot(run_dir)
+    pos = data["position"]
+    if pos.shape[1] == 3:
+        return None  # 3-D: ParaView (OUT/psph.xdmf)
+    fields = {}
+    if "velocity" in data:
+        fields["|velocity|"] = np.linalg.norm(data["velocity"], axis=1)
+    if "pressure" in data:
+        fields["pressure"] = data["pressure"]
+    gc = data["grad_c"] if "grad_c" in data else None
+    fields["|grad C| h"] = np.linalg.norm(gc, axis=1) if gc is not None else _grad_c_magnitude(run_dir, data)
+    if "volume0" in data:
+        fields["V / V0 - 1"] = data["volume"] / data["volume0"] - 1.0
+    fields = {k: v for k, v in fields.items() if v is not None}
+    plt = _pyplot()
+    n = len(fields)
+    fig, axes = plt.subplots(1, n, figsize=(4.6 * n, 4.2), squeeze=False)
+    for ax, (name, values) in zip(axes.flat, fields.items()):
+        if pos.shape[1] == 1:
+            ax.plot(pos[:, 0], values, ".", ms=2)
+        else:
+            sc = ax.scatter(pos[:, 0], pos[:, 1], c=values, s=max(0.5, 4000.0 / len(pos)), cmap="viridis",
+                            linewidths=0)
+            fig.colorbar(sc, ax=ax, shrink=0.8)
+            ax.set_aspect("equal")
+        ax.set_title(name, fontsize=10)
+    fig.suptitle(f"{run_dir.name}: last snapshot, t = {t:.4g}")
+    fig.tight_layout()
+    path = fig_dir / "fields.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_study(runs, fig_dir: Path) -> list:
+    """Error against dx and against wall time, one line per method (run name without its _dx... part)."""
+    groups = {}
+    for run in runs:
+        s = _summary(run)
+        final = s.get("final", {})
+        key = next((k for k in ERROR_KEYS if final.get(k) is not None), None)
+        if key is None or "scene" not in s:
+            continue
+        method = re.sub(r"_?dx[0-9.e-]+", "", run.name) or run.name
+        groups.setdefault((method, key), []).append((s["scene"]["domain"]["dx"], final[key], s["wall_time_s"]))
+    if not groups:
+        raise UsageError("no run in this directory reports an error (final L2_vx_error, L2_dfdx or L2_grad_c)")
+    plt = _pyplot()
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for (method, key), points in sorted(groups.items()):
+        points.sort()
+        dx, err, wall = (np.array(v) for v in zip(*points))
+        a.loglog(dx, err, "o-", label=f"{method} ({key})")
+        b.loglog(wall, err, "o-", label=method)
+    a.set_xlabel("dx")
+    a.set_ylabel("error at the end")
+    a.set_title("error against resolution")
+    b.set_xlabel("wall time [s]")
+    b.set_title("error against wall time")
+    a.legend(fontsize=7)
+    fig.tight_layout()
+    path = fig_dir / "convergence.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return [path]
