@@ -24,7 +24,9 @@ class UsageError(PsphError):
 
 
 class NumericalError(PsphError):
-    """The computation broke down (NaN, escaped particle, stalled iteration): stop and diagnose."""
+    """The computation broke down (NaN, escaped particle, stalled iteration): stop and diagnose (exit 3)."""
+
+    exit_code = 3
 
     def __init__(self, message: str, *, step=None, time=None, gid=None, position=None):
         self.step, self.time, self.gid, self.position = step, time, gid, position

@@ -7,7 +7,7 @@ start-up keeps that cost out of the time loops (it stays in the run's total wall
 
 import numpy as np
 
-from psph.compute import fluid, iips, neighbours, random, sums
+from psph.compute import csr, fluid, iips, neighbours, random, sums
 from psph.compute.smoothing import make_kernel
 
 
@@ -36,8 +36,15 @@ def warm_up(dim: int, kernel_name: str) -> None:
     sums.renormalisation_matrix(pos, vol, ptr, idx, kp, tensor)
     sums.smallest_eigenvalue(tensor, scalar)
     row = gid.copy()
-    _, _, slot = iips.iips_structure(row, ptr, idx, dim)
-    iips.iips_values(pos, vol, row, ptr, idx, kp, np.zeros(len(slot)))
+    indptr, indices, slot = iips.iips_structure(row, ptr, idx, dim)
+    values = np.zeros(len(slot))
+    iips.iips_values(pos, vol, row, ptr, idx, kp, values)
+    half = (len(indptr) - 1) // 2  # the matrix split over two ranks: its diagonal and off-diagonal blocks
+    di, dj, oi, oj = csr.split_csr(indptr, indices, 0, half)
+    target, offset = np.zeros(len(slot), dtype=np.int8), np.zeros(len(slot), dtype=np.int64)
+    csr.split_positions(indptr, indices, 0, half, di, oi, slot, target, offset)
+    csr.write_split(values, target, offset, np.zeros(len(dj)), np.zeros(len(oj)))
+    csr.scatter(values, slot, np.zeros(len(indices)))
     kind = np.zeros(n, dtype=np.int8)
     fluid.renormalised_gradient(pos, vol, field, ptr, idx, kp, kind, False, vector)
     fluid.delta_ale_rhs(pos, vol, field, field, vector, vector, field, vector, ptr, idx, kp, 1.0, 0.1, 0.1, 0.01,

@@ -65,7 +65,7 @@ def test_failure_stops_with_step_and_saves_state(tmp_path):
     out = tmp_path / "out"
     res = run_psph("run", CASES / "kinematic_tgv.toml", "--out", out, *KINEMATIC, "--set", "iips.beta=1.0001",
                    "--set", "iips.max_newton=1", "--set", "iips.on_stall=stop")
-    assert res.returncode == 1
+    assert res.returncode == 3
     assert "psph: error: IIPS Newton stalled" in res.stderr and "[step " in res.stderr
     assert "Traceback" not in res.stderr
     snaps = sorted(out.glob("snapshot_*.h5"))

@@ -66,7 +66,7 @@ def test_extremes_run_stably_or_stop_with_a_diagnosis(tmp_path, sets):
     res, out = tgv(tmp_path, "x", *sets, t_end=0.3)
     if res.returncode != 0:  # a diagnosis: one line naming step and time, and the state saved
         lines = res.stderr.strip().splitlines()
-        assert res.returncode == 1 and len(lines) == 1 and "[step " in lines[0], res.stderr
+        assert res.returncode == 3 and len(lines) == 1 and "[step " in lines[0], res.stderr
         assert "Traceback" not in res.stderr and list(out.glob("snapshot_*.h5"))
         return
     rows = read_history(out / "history.csv")
