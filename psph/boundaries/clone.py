@@ -38,6 +38,24 @@ class WallTerms:
                        "particles with local mirroring (seed 004 eq. 5-9)")
         return out
 
+    def trespassers(self, pos, t, margin):
+        """(row, body name) of the first of `pos` (fluid positions) that lies more than `margin` inside an
+        immersed body or outside a box at time t, or None."""
+        from psph.boundaries.geometry import inside
+
+        for b in self.bodies:
+            center, rot = b.rigid(t)[:2]
+            angle = b.spec.angle + np.degrees(np.arctan2(rot[1, 0], rot[0, 0]))
+            shape = "ellipse" if b.spec.shape == "ellipse" else "rectangle"
+            if b.spec.shape == "box":
+                bad = ~inside((shape, center, [s + 2.0 * margin for s in b.spec.size], angle), pos)
+            else:
+                size = [max(s - (margin if shape == "ellipse" else 2.0 * margin), 0.0) for s in b.spec.size]
+                bad = inside((shape, center, size, angle), pos)
+            if bad.any():
+                return int(np.flatnonzero(bad)[0]), b.name
+        return None
+
     # ------------------------------------------------------------ kinematics
     def place(self, system, t, positions=True):
         """Move the solid particles to time t (positions, normals, velocities, accelerations). Owned rows."""

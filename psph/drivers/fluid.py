@@ -156,6 +156,11 @@ class FluidDriver:
             k = int(np.flatnonzero(bad)[0])
             error = NumericalError("non-finite field (NaN/Inf)", gid=int(p.owned("gid")[k]),
                                    position=p.owned("position")[k], **where)
+        elif self.scheme.walls is not None and (hit := self.scheme.walls.trespassers(
+                p.owned("position")[fluid_mask(self.system)], t, 0.5 * self.scene.domain.dx)) is not None:
+            k = int(np.flatnonzero(fluid_mask(self.system))[hit[0]])
+            error = NumericalError(f"a fluid particle crossed the wall of body {hit[1]!r}",
+                                   gid=int(p.owned("gid")[k]), position=p.owned("position")[k], **where)
         else:
             dev = np.abs(p.owned("density") / self.scheme.rho0 - 1.0)
             limit = self.scene.physics.max_density_variation

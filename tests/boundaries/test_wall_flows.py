@@ -146,3 +146,28 @@ def test_moving_square_accelerates_against_a_positive_drag(tmp_path):
     shift = snap["position"][square] - snap["ref_position"][square]
     expected = MotionLaw(MotionSpec(law="spheric6", velocity=(1.0, 0.0)))(t)[0]
     assert np.allclose(shift, [expected, 0.0], atol=1e-12)
+
+
+def test_fluid_particle_inside_a_body_is_diagnosed(tmp_path):
+    """A fluid particle that crossed a wall (here put by hand into the moving square at t = 0.5) stops
+    the run naming the body, the particle and its position; the undisturbed state passes the check."""
+    from mpi4py import MPI
+
+    from psph.drivers.fluid import FluidDriver
+    from psph.errors import NumericalError
+    from psph.scene.load import load_scene
+
+    scene = load_scene(CASES / "moving_square.toml", ["domain.dx=0.1", "shifting.method=delta_plus",
+                                                      "iips.update=none"])
+    driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path)
+    driver.first_dt = 1.0
+    driver.check(0, 0.0, 1.0)
+    p = driver.system.particles
+    k = int(np.flatnonzero(p.owned("kind") == Kind.FLUID)[0])
+    center = driver.scheme.walls.bodies[1].rigid(0.5)[0]
+    p.owned("position")[k] = center + 0.3
+    with pytest.raises(NumericalError, match=r"crossed the wall of body 'square' \[step 7, t = 0.5, particle gid"):
+        driver.check(7, 0.5, 1.0)
+    p.owned("position")[k] = [-1.0, 2.0]  # outside the tank
+    with pytest.raises(NumericalError, match="crossed the wall of body 'tank'"):
+        driver.check(7, 0.5, 1.0)
