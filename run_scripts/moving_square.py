@@ -32,6 +32,8 @@ def main():
     parser.add_argument("--dx", type=float, default=0.05)
     parser.add_argument("--t-end", type=float, default=5.0)
     parser.add_argument("--ranks", type=int, nargs="+", default=[1])
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="scene override for every run (e.g. physics.max_density_variation=0.2)")
     args = parser.parse_args()
     table, runs = [], {}
     for ranks in args.ranks:
@@ -40,7 +42,7 @@ def main():
             try:
                 run = run_scene(CASES / "moving_square.toml", args.out / f"{tag}_dx{args.dx}_n{ranks}",
                                 sets=[f"domain.dx={args.dx}", f"time.t_end={args.t_end}", "output.every=1.0",
-                                      "output.history_every=10", *sets], ranks=ranks)
+                                      "output.history_every=10", *sets, *args.set], ranks=ranks)
             except RuntimeError as err:
                 print(f"{name} on {ranks} rank(s): stopped: {str(err).splitlines()[-1]}", flush=True)
                 table.append([name, ranks, "stopped", "-", "-", "-", "-"])
@@ -60,7 +62,7 @@ def main():
                                           "max Linf(grad C)", "IIPS stalls"], table,
                       title=f"Moving square, D/dx = {1 / args.dx:g}, t = {args.t_end}",
                       note=f"Command: run_scripts/moving_square.py --dx {args.dx} --t-end {args.t_end} "
-                           f"--ranks {' '.join(map(str, args.ranks))}"))
+                           f"--ranks {' '.join(map(str, args.ranks))}" + "".join(f" --set {s}" for s in args.set)))
     fig, (ax_p, ax_v) = plt.subplots(1, 2, figsize=(11, 4))
     fig2, ax_g = plt.subplots(figsize=(6, 4))
     for (name, ranks), run in runs.items():
