@@ -41,15 +41,24 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None) ->
     stamp = out / "study_command.json"
     if reuse is None:
         reuse = bool(os.environ.get("PSPH_STUDY_REUSE"))
-    if reuse and stamp.exists() and json.loads(stamp.read_text()) == cmd[cmd.index("-m"):] \
+    if reuse and stamp.exists() and _same_command(json.loads(stamp.read_text()), cmd[cmd.index("-m"):]) \
             and (out / "summary.json").exists():
         return Run(out, json.loads((out / "summary.json").read_text()), read_history(out / "history.csv"))
+    stamp.unlink(missing_ok=True)  # a run killed half-way must not pass for the old complete one
     env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_COMM", "PMIX"))}
     res = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if res.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed:\n{res.stderr[-2000:]}")
     stamp.write_text(json.dumps(cmd[cmd.index("-m"):]))
     return Run(out, json.loads((out / "summary.json").read_text()), read_history(out / "history.csv"))
+
+
+def _same_command(a, b) -> bool:
+    """Two study commands are the same run if they differ at most in where the scene file lies (a study
+    resumed from another checkout of psph)."""
+    def key(cmd):
+        return [Path(c).name if c.endswith(".toml") else c for c in cmd]
+    return key(a) == key(b)
 
 
 def rate(e_coarse, e_fine, ratio=2.0) -> float:
