@@ -146,7 +146,7 @@ RESTART_KEYS = ("time.", "output.")
 
 def _scene_and_restart(args, comm):
     """The scene to run and, for --restart, the checkpoint's contents (read collectively)."""
-    from psph.drivers import FluidDriver, driver_for
+    from psph.drivers import StaticDriver, driver_for
     from psph.scene.load import apply_overrides, load_scene, scene_from_table
 
     sets = list(args.set)
@@ -170,10 +170,10 @@ def _scene_and_restart(args, comm):
     else:
         raise UsageError("run needs a scene file (or --restart CHECKPOINT)")
     out = scene.output
-    if (out.checkpoint_every or out.checkpoint_minutes) and driver_for(scene) is not FluidDriver:
+    if (out.checkpoint_every or out.checkpoint_minutes) and driver_for(scene) is StaticDriver:
         key = "output.checkpoint_every" if out.checkpoint_every else "output.checkpoint_minutes"
-        raise SceneError(key, f"checkpoints are written by flow runs only, not physics.scheme = "
-                              f"{scene.physics.scheme!r}")
+        raise SceneError(key, "checkpoints are written by time-dependent runs (flow, kinematic), not static "
+                              "ones (physics.scheme = 'none')")
     return scene, restart
 
 
@@ -200,7 +200,7 @@ def cmd_run(args, petsc_options, comm) -> int:
     log = _say(comm, args.quiet)
     log(f"psph: running scene {scene.name!r} on {comm.size} rank(s)"
         + (f", continuing {args.restart}" if restart else "") + f" ({' '.join(sys.argv[1:]) or 'run'})")
-    kwargs = {"restart": restart} if restart else {}  # only flow runs write checkpoints
+    kwargs = {"restart": restart} if restart else {}  # static runs write no checkpoints
     summary = driver_for(scene)(scene, comm, out, log=log, progress=not args.quiet, **kwargs).run()
     log(f"psph: {summary['n_particles']} particles, {summary['steps']} steps, "
         f"{summary['wall_time_s']:.2f} s; results in {out}")

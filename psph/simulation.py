@@ -68,6 +68,29 @@ class Simulation:
             self.history.restore(state["history"])
             self.snapshots.restore(state["snapshots"])
 
+    # ------------------------------------------------------------ checkpoints
+    def checkpoint_due(self, step, last_wall) -> bool:
+        """Every output.checkpoint_every steps, or output.checkpoint_minutes of wall time (rank 0's clock
+        decides, so all ranks agree). Collective."""
+        out = self.scene.output
+        if out.checkpoint_every and step % out.checkpoint_every == 0:
+            return True
+        if out.checkpoint_minutes:
+            return bool(self.comm.bcast(time.monotonic() - last_wall >= 60.0 * out.checkpoint_minutes, root=0))
+        return False
+
+    def checkpoint(self, step, t, driver: dict) -> None:
+        """Rebuild the lists (a restart must rebuild them, so the continued run stays bit for bit) and write
+        OUT/checkpoint_NNNNNN.h5 with the particles, history, snapshot index, scene and the driver's
+        state `driver` (JSON-able). Collective."""
+        from psph.io.checkpoint import write_checkpoint
+
+        self.system.rebuild(rebalance=False)
+        path = write_checkpoint(self.comm, self.out_dir, self.system, step, t, {
+            "scene": to_table(self.scene), "driver": driver, "history": self.history.rows,
+            "snapshots": self.snapshots.checkpoint_state()})
+        self.log(f"step {step}, t = {t:.4g}: checkpoint {path.name}")
+
     def progress(self, t_start, t_end):
         """A Progress display for a time loop (rank 0, if the run shows progress)."""
         from psph.progress import Progress

@@ -86,31 +86,11 @@ class FluidDriver:
             if self.iips is not None:
                 self.iips.restore(self.resumed["iips"])
 
-    # ------------------------------------------------------------ checkpoints
     def checkpoint(self, step, t, totals, next_output) -> None:
-        """Rebuild the lists (so that a restart, which must rebuild, continues bit for bit) and write
-        OUT/checkpoint_NNNNNN.h5. Collective."""
-        from psph.io.checkpoint import write_checkpoint
-        from psph.scene.validate import to_table
-
-        self.system.rebuild(rebalance=False)
-        driver = {"step": step, "time": t, "totals": totals, "next_output": next_output, "first_dt": self.first_dt,
-                  "initial_volume": self.initial_volume,
-                  "iips": self.iips.checkpoint_state() if self.iips is not None else None}
-        path = write_checkpoint(self.sim.comm, self.sim.out_dir, self.system, step, t, {
-            "scene": to_table(self.scene), "driver": driver, "history": self.sim.history.rows,
-            "snapshots": self.sim.snapshots.checkpoint_state()})
-        self.sim.log(f"step {step}, t = {t:.4g}: checkpoint {path.name}")
-
-    def checkpoint_due(self, step, last_wall) -> bool:
-        """Every output.checkpoint_every steps, or output.checkpoint_minutes of wall time (rank 0's clock
-        decides, so all ranks agree). Collective."""
-        out = self.scene.output
-        if out.checkpoint_every and step % out.checkpoint_every == 0:
-            return True
-        if out.checkpoint_minutes:
-            return bool(self.sim.comm.bcast(time.monotonic() - last_wall >= 60.0 * out.checkpoint_minutes, root=0))
-        return False
+        self.sim.checkpoint(step, t, {
+            "step": step, "time": t, "totals": totals, "next_output": next_output, "first_dt": self.first_dt,
+            "initial_volume": self.initial_volume,
+            "iips": self.iips.checkpoint_state() if self.iips is not None else None})
 
     # ---------------------------------------------------------------- pieces
     def time_step(self) -> float:
@@ -241,7 +221,7 @@ class FluidDriver:
                     sim.snapshots.write(system.particles, step=step, time=t)
                     sim.log(f"t = {t:.4g}, step {step}, dt = {dt:.3g}")
                     next_output += every
-                if t < t_end * (1.0 - 1e-12) and self.checkpoint_due(step, last_checkpoint):
+                if t < t_end * (1.0 - 1e-12) and sim.checkpoint_due(step, last_checkpoint):
                     self.checkpoint(step, t, totals, next_output)
                     last_checkpoint = time.monotonic()
                 progress.update(step, t, dt, **({"newton": totals["iips_newton"], "ksp": totals["iips_linear"]}

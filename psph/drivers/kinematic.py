@@ -28,10 +28,14 @@ class KinematicDriver:
                 f"t = {t.t_end:g}",
                 f"diagnostics: Linf/L2(grad C), L2(d f/dx) (wavelength {scene.diagnostics.test_wavelength:g})"]
 
-    def __init__(self, scene, comm, out_dir, log=None, progress=False):
+    def __init__(self, scene, comm, out_dir, log=None, progress=False, restart=None):
+        """restart: io.checkpoint.read_checkpoint's (state, particles, decomposition), to continue a run."""
         self.scene = scene
-        self.sim = Simulation(scene, comm, out_dir, log=log, progress=progress)
+        self.sim = Simulation(scene, comm, out_dir, log=log, progress=progress, restart=restart)
         self.shifting = make_shifting(scene, self.sim.comm)
+        self.resumed = restart[0]["driver"] if restart else None
+        if self.resumed and self.resumed["shifting"] is not None:
+            self.shifting.restore(self.resumed["shifting"])
         d, p = scene.domain, scene.physics
         self.dt = scene.time.cfl * d.dx / p.sound_speed
         self.n_steps = math.ceil(scene.time.t_end / self.dt - 1e-9)
@@ -57,6 +61,21 @@ class KinematicDriver:
         pos += self.dt * vel
         system.update()
 
+    def start(self, totals) -> dict:
+        """Pre-procedure, the history's first row and the first snapshot; returns the distribution report."""
+        sim, system = self.sim, self.sim.system
+        t0 = time.perf_counter()
+        init_linf = self.pre_procedure(system)
+        self.pre = {"time_s": time.perf_counter() - t0, "linf": init_linf}
+        if init_linf is not None:
+            threshold = getattr(self.shifting, "threshold", None)
+            sim.log(f"pre-procedure: Linf(grad C) = {init_linf:.4e}"
+                    + (f", threshold {threshold:.4e}" if threshold else ""))
+        report = distribution_report(system, self.scene.diagnostics.test_wavelength)
+        sim.history.append({"time": 0.0, "step": 0, **report, "newton": 0, "ksp_iterations": 0, **totals})
+        sim.snapshots.write(system.particles, step=0, time=0.0, extra={"grad_c": grad_c(system)})
+        return report
+
     def run(self) -> dict:
         sim, scene = self.sim, self.scene
         system = sim.system
@@ -65,20 +84,20 @@ class KinematicDriver:
                   "failed_calls": 0, "rejected_calls": 0}
         state = {"step": 0, "time": 0.0}
         with sim.diagnose_failures(lambda: (state["step"], state["time"])):
-            t0 = time.perf_counter()
-            init_linf = self.pre_procedure(system)
-            pre_time = time.perf_counter() - t0
-            if init_linf is not None:
-                threshold = getattr(self.shifting, "threshold", None)
-                sim.log(f"pre-procedure: Linf(grad C) = {init_linf:.4e}"
-                        + (f", threshold {threshold:.4e}" if threshold else ""))
-            report = distribution_report(system, wavelength)
-            sim.history.append({"time": 0.0, "step": 0, **report, "newton": 0, "ksp_iterations": 0, **totals})
-            sim.snapshots.write(system.particles, step=0, time=0.0, extra={"grad_c": grad_c(system)})
             every = scene.output.every
             next_output = every if every > 0 else math.inf
-            progress = sim.progress(0.0, self.n_steps * self.dt)
-            for step in range(1, self.n_steps + 1):
+            if self.resumed:
+                state = {"step": self.resumed["step"], "time": self.resumed["time"]}
+                totals.update(self.resumed["totals"])
+                next_output = self.resumed["next_output"]
+                report = self.resumed["report"]
+                self.pre = self.resumed["pre"]
+                sim.log(f"psph: continuing from step {state['step']}, t = {state['time']:.6g}")
+            else:
+                report = self.start(totals)
+            progress = sim.progress(state["time"], self.n_steps * self.dt)
+            last_checkpoint = time.monotonic()
+            for step in range(state["step"] + 1, self.n_steps + 1):
                 state["step"] = step
                 start = time.perf_counter()
                 with phase("shifting"):
@@ -107,6 +126,12 @@ class KinematicDriver:
                     sim.history.flush()
                     sim.snapshots.write(system.particles, step=step, time=t)
                     next_output += every
+                if step < self.n_steps and sim.checkpoint_due(step, last_checkpoint):
+                    shifting = getattr(self.shifting, "checkpoint_state", None)
+                    sim.checkpoint(step, t, {"step": step, "time": t, "totals": totals, "next_output": next_output,
+                                             "report": report, "pre": self.pre,
+                                             "shifting": shifting() if shifting else None})
+                    last_checkpoint = time.monotonic()
             progress.close()
         step, t = state["step"], state["time"]
         sim.history.flush()
@@ -114,6 +139,6 @@ class KinematicDriver:
             sim.snapshots.write(system.particles, step=step, time=t, extra={"grad_c": grad_c(system)})
         sim.log(f"t = {t:.4g} after {step} steps: Linf(grad C) = {report['Linf_grad_c']:.4e}, "
                 f"L2(df/dx) = {report['L2_dfdx']:.4e}")
-        return sim.summary(steps=step, final={**report, "time": t}, pre_procedure_time_s=pre_time,
-                           pre_procedure_linf=init_linf, threshold=getattr(self.shifting, "threshold", None),
+        return sim.summary(steps=step, final={**report, "time": t}, pre_procedure_time_s=self.pre["time_s"],
+                           pre_procedure_linf=self.pre["linf"], threshold=getattr(self.shifting, "threshold", None),
                            dt=self.dt, **totals)

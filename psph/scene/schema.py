@@ -204,10 +204,11 @@ class TimeSpec:
 class OutputSpec:
     every: float = option(0.0, doc="simulated time between snapshots (0: initial and final only)", ge=0.0)
     history_every: int = option(1, doc="time steps between history.csv rows", ge=1)
-    checkpoint_every: int = option(0, doc="flow runs: time steps between checkpoints OUT/checkpoint_NNNNNN.h5 "
-                                   "(0: none); `psph run --restart FILE` continues a run", ge=0)
-    checkpoint_minutes: float = option(0.0, doc="flow runs: wall-clock minutes between checkpoints (0: none)",
-                                       ge=0.0)
+    checkpoint_every: int = option(0, doc="flow and kinematic runs: steps between checkpoints "
+                                   "OUT/checkpoint_NNNNNN.h5 (0: none); `psph run --restart FILE` continues a run",
+                                   ge=0)
+    checkpoint_minutes: float = option(0.0, doc="flow and kinematic runs: wall-clock minutes between checkpoints "
+                                       "(0: none)", ge=0.0)
 
 
 @dataclass(frozen=True)
