@@ -92,6 +92,48 @@ class FluidDriver:
             "initial_volume": self.initial_volume,
             "iips": self.iips.checkpoint_state() if self.iips is not None else None})
 
+    def advance(self, state, dt, vmax, totals) -> None:
+        """One time step of size dt from state (step, time): integrate, shift, check. Collective."""
+        sim, system = self.sim, self.system
+        t = state["time"]
+        with phase("fluid_step"):
+            system.prepare_step(self.reach * dt * vmax)
+            self.integrate(self.scheme, system, t, dt)
+            self.scheme.end_step(system, dt)
+            if self.scheme.walls is not None:  # solids exactly where their bodies are at t + dt
+                self.scheme.walls.place(system, t + dt)
+            # V = m / rho changed: IIPS and diagnostics read halo volumes (and positions)
+            system.refresh(["position", "volume"])
+        state["step"] += 1
+        state["time"] = t = t + dt
+        step = state["step"]
+        if self.iips is not None:
+            t0 = time.perf_counter()
+            with phase("iips"):
+                self.update.before(system, self.scheme)
+                report = self.iips.correct(system, step=step, time=t)
+                if report.iterations:
+                    self.update.after(system, self.scheme)
+            totals["iips_time_s"] += time.perf_counter() - t0
+            totals["iips_newton"] += report.iterations
+            totals["iips_linear"] += report.linear_iterations
+            totals["iips_calls"] += int(report.iterations > 0)
+            if report.failed:
+                totals["iips_failures"] += 1
+                sim.log(f"step {step}, t = {t:.4g}: {report.message}")
+        system.check_escaped()
+        self.check(step, t, dt)
+
+    def restore(self, arrays, t) -> None:
+        """Put back the owned particles saved before a failed step (time.retries); fields the step
+        added start from zero. Collective."""
+        p = self.system.particles
+        p.set_owned({name: arrays[name] if name in arrays else
+                     np.zeros(spec.array_shape(len(arrays["gid"]), p.dim), dtype=spec.dtype)
+                     for name, spec in p.specs.items()})
+        self.system.rebuild(rebalance=False)
+        self.scheme.initialize(self.system, t=t, fresh=False)
+
     # ---------------------------------------------------------------- pieces
     def time_step(self) -> float:
         s, scheme = self.scene, self.scheme
@@ -168,7 +210,7 @@ class FluidDriver:
         every = scene.output.every
         next_output = every if every > 0 else math.inf
         totals = {"iips_time_s": 0.0, "iips_newton": 0, "iips_linear": 0, "iips_calls": 0, "iips_failures": 0,
-                  "step_time_s": 0.0}
+                  "retries": 0, "step_time_s": 0.0}
         state = {"step": 0, "time": 0.0}
         if self.resumed:
             state = {"step": self.resumed["step"], "time": self.resumed["time"]}
@@ -180,40 +222,29 @@ class FluidDriver:
             sim.snapshots.write(system.particles, step=0, time=0.0)
         last_checkpoint = time.monotonic()
         progress = sim.progress(state["time"], t_end)
+        tries, scale = 0, 1.0
         with sim.diagnose_failures(lambda: (state["step"], state["time"])):
             while state["time"] < t_end * (1.0 - 1e-12):
                 start = time.perf_counter()
                 dt, vmax = self.time_step()
                 self.first_dt = self.first_dt or dt
-                dt = min(dt, t_end - state["time"])
-                t = state["time"]
-                with phase("fluid_step"):
-                    system.prepare_step(self.reach * dt * vmax)
-                    self.integrate(self.scheme, system, t, dt)
-                    self.scheme.end_step(system, dt)
-                    if self.scheme.walls is not None:  # solids exactly where their bodies are at t + dt
-                        self.scheme.walls.place(system, t + dt)
-                    # V = m / rho changed: IIPS and diagnostics read halo volumes (and positions)
-                    system.refresh(["position", "volume"])
-                state["step"] += 1
-                state["time"] = t = t + dt
-                step = state["step"]
-                if self.iips is not None:
-                    t0 = time.perf_counter()
-                    with phase("iips"):
-                        self.update.before(system, self.scheme)
-                        report = self.iips.correct(system, step=step, time=t)
-                        if report.iterations:
-                            self.update.after(system, self.scheme)
-                    totals["iips_time_s"] += time.perf_counter() - t0
-                    totals["iips_newton"] += report.iterations
-                    totals["iips_linear"] += report.linear_iterations
-                    totals["iips_calls"] += int(report.iterations > 0)
-                    if report.failed:
-                        totals["iips_failures"] += 1
-                        sim.log(f"step {step}, t = {t:.4g}: {report.message}")
-                system.check_escaped()
-                self.check(step, t, dt)
+                dt = min(dt * scale, t_end - state["time"])
+                saved = (dict(state), system.particles.owned_arrays()) if scene.time.retries else None
+                try:
+                    self.advance(state, dt, vmax, totals)
+                except NumericalError as err:
+                    if saved is None or tries == scene.time.retries:
+                        raise
+                    tries += 1
+                    scale *= 0.5
+                    sim.log(f"step {saved[0]['step'] + 1}, t = {saved[0]['time']:.6g}: {err}; retrying with "
+                            f"dt x {scale:g} (time.retries: {tries} of {scene.time.retries})")
+                    state.update(saved[0])
+                    self.restore(saved[1], state["time"])
+                    totals["retries"] += 1
+                    continue
+                tries, scale = 0, 1.0
+                step, t = state["step"], state["time"]
                 totals["step_time_s"] += time.perf_counter() - start
                 if step % scene.output.history_every == 0 or t >= t_end * (1.0 - 1e-12):
                     sim.history.append({"time": t, "step": step, "dt": dt, **self.diagnostics(t), **totals})

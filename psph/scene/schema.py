@@ -198,6 +198,9 @@ class TimeSpec:
                         gt=0.0, le=2.0)
     integrator: str = option("rk3", doc="fluid time integrator: rk3 (Kutta, thesis eq. 5.51) or rk4",
                              choices=("rk3", "rk4"))
+    retries: int = option(0, doc="fluid runs: on a numerical failure in a step, restore the state before it and "
+                          "retry with half the time step, at most this many times in a row (0: stop; costs a copy "
+                          "of the particles every step)", ge=0, le=20)
 
 
 @dataclass(frozen=True)

@@ -73,3 +73,37 @@ def test_extremes_run_stably_or_stop_with_a_diagnosis(tmp_path, sets):
     last = rows[-1]
     assert all(np.isfinite(v) for v in last.values() if v is not None)
     assert last["max_density_variation"] < 0.1 and last["kinetic_energy"] <= rows[0]["kinetic_energy"] * 1.01
+
+
+@pytest.mark.parametrize("retries", [0, 1])
+def test_failed_step_is_retried_with_half_the_time_step_when_the_scene_allows(tmp_path, retries):
+    """A failure injected once at step 5: with time.retries = 1 the step is redone from the saved state with
+    dt / 2 and the run finishes (the retry logged and counted); with 0 the run stops there."""
+    from mpi4py import MPI
+
+    from psph.drivers.fluid import FluidDriver
+    from psph.errors import NumericalError
+    from tests.conftest import periodic_scene
+
+    scene = periodic_scene(n=16, initial={"velocity": "taylor_green"}, physics={"scheme": "delta_ale"},
+                           time={"t_end": 0.02, "retries": retries}, shifting={"method": "delta_plus"})
+    messages = []
+    driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path, log=messages.append)
+    original, failed = driver.check, []
+
+    def check(step, t, dt):
+        if step == 5 and not failed:
+            failed.append(dt)
+            raise NumericalError("injected", step=step, time=t)
+        if step == 5:
+            assert dt == pytest.approx(failed[0] / 2, rel=0.05)
+        return original(step, t, dt)
+
+    driver.check = check
+    if retries == 0:
+        with pytest.raises(NumericalError, match="injected"):
+            driver.run()
+        return
+    summary = driver.run()
+    assert summary["retries"] == 1 and summary["final"]["time"] == pytest.approx(0.02)
+    assert any("injected" in m and "retrying with dt x 0.5" in m for m in messages)
