@@ -15,6 +15,7 @@ import numpy as np
 
 from psph.compute.fluid import delta_ale_rhs, renormalised_gradient
 from psph.particles import FieldSpec
+from psph.profiling import phase
 from psph.schemes.eos import make_eos
 from psph.shifting.velocity import make_velocity_shift
 
@@ -154,8 +155,9 @@ class DeltaALE:
         p = system.particles
         walls = self.walls is not None
         if walls:  # solid velocities, normals and accelerations at the stage time
-            self.walls.place(system, t, positions=False)
-            system.refresh(["normal", "wall_accel", "wall_velocity"])
+            with phase("walls"):
+                self.walls.place(system, t, positions=False)
+                system.refresh(["normal", "wall_accel", "wall_velocity"])
         system.refresh(["density", "mass", "velocity", "volume", "pressure"])
         if self.shift.active:
             self.shift.velocity(system, self, dt)
@@ -176,7 +178,8 @@ class DeltaALE:
                       self.mu, self.gravity, self.variant, self.shift.active, self.tensile, p["kind"], walls,
                       d_rho, d_mass, d_mom)
         if walls:
-            self.walls.add(system, self, t, d_rho, d_mom)
+            with phase("walls"):
+                self.walls.add(system, self, t, d_rho, d_mom)
         transport = p.owned("velocity") + (p.owned("shift_velocity") if self.shift.active else 0.0)
         out = {"position": transport, "density": d_rho}
         if self.variant == 0:

@@ -1,0 +1,54 @@
+"""Cost of the clone-particle walls as a fraction of the flow step (issue: walls and bodies, "Speed").
+
+    .venv/bin/python run_scripts/bench_walls.py [--steps 200] [--cases lid_driven_cavity moving_square]
+    mpiexec -n 2 .venv/bin/python run_scripts/bench_walls.py      # per rank on 2 ranks
+
+Runs each wall scene for a number of steps after a warm-up and prints the wall time of the `walls` phase
+(solid placement and velocities per stage, their halo refresh, the nearest-node search and the clone
+right-hand side of seed 004 eq. 5-9) against the whole `fluid_step` phase, from psph's phase timers
+(the PETSc log events `psph:walls` and `psph:fluid_step` under -log_view).
+"""
+
+import argparse
+import tempfile
+
+from mpi4py import MPI
+
+from psph import profiling
+from psph.drivers.fluid import FluidDriver
+from psph.scene.load import load_scene
+from psph.studies import CASES
+
+SETTINGS = {"lid_driven_cavity": ["domain.dx=0.02"], "moving_square": ["domain.dx=0.05"]}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=200)
+    parser.add_argument("--cases", nargs="+", default=list(SETTINGS))
+    parser.add_argument("--shifting", default="delta_plus", help="shifting.method (iips adds its own cost)")
+    args = parser.parse_args()
+    comm = MPI.COMM_WORLD
+    for case in args.cases:
+        sets = SETTINGS.get(case, []) + [f"shifting.method={args.shifting}", "output.every=0", "iips.update=none"]
+        with tempfile.TemporaryDirectory() as out:
+            out = comm.bcast(out, root=0)
+            scene = load_scene(CASES / f"{case}.toml", sets + ["time.t_end=1e9"])
+            driver = FluidDriver(scene, comm, out)
+            dt, _ = driver.time_step()
+            short = load_scene(CASES / f"{case}.toml", sets + [f"time.t_end={10 * dt}"])
+            FluidDriver(short, comm, out).run()  # warm-up
+            profiling.reset()
+            timed = load_scene(CASES / f"{case}.toml", sets + [f"time.t_end={args.steps * dt}"])
+            run = FluidDriver(timed, comm, out)
+            run.run()
+            totals = profiling.totals()
+            walls, step = totals.get("walls", (0.0, 0))[0], totals["fluid_step"][0]
+            share = comm.allreduce(walls / step, op=MPI.MAX)
+            if comm.rank == 0:
+                print(f"{case}: {run.sim.n_particles} particles, {comm.size} rank(s), {args.steps} steps: walls "
+                      f"{walls:.2f} s of the step's {step:.2f} s = {100 * share:.1f}% (max over ranks)", flush=True)
+
+
+if __name__ == "__main__":
+    main()
