@@ -57,8 +57,9 @@ def main():
             rate = comm.allreduce(system.n_owned * count / elapsed, op=MPI.MIN) / 1e6
             parts = profiling.totals()
             split = ", ".join(f"{k} {100 * v[0] / elapsed:.0f}%" for k, v in sorted(parts.items()))
+            n_global = system.n_global  # collective
             if comm.rank == 0:
-                print(f"{system.n_global:>10} {method:>11} {rate:>19.3f}  {split}")
+                print(f"{n_global:>10} {method:>11} {rate:>19.3f}  {split}")
 
 
 if __name__ == "__main__":

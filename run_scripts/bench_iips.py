@@ -52,6 +52,7 @@ def main():
     from psph.scene.load import scene_from_table
     from psph.shifting.iips import ImplicitShifting
     from psph.simulation import build_system
+    from psph.solvers.petsc import petsc
 
     comm = MPI.COMM_WORLD
     bandwidth = stream_bandwidth()
@@ -78,7 +79,7 @@ def main():
         t = profiling.totals()
         split = {k: t.get(k, (0.0, 0))[0] / args.iterations for k in parts}
         split["ksp_solve"] = t.get("ksp_solve", (0.0, 0))[0] / args.iterations
-        nnz = shifting.mat.getInfo()["nz_used"]  # local
+        nnz = shifting.mat.getInfo(petsc().Mat.InfoType.LOCAL)["nz_used"]  # this rank's (the default sums)
         rows = shifting.mat.getLocalSize()[0]
         ksp_its = its / args.iterations
         per_its = split["ksp_solve"] / max(ksp_its, 1)
