@@ -1,4 +1,4 @@
-"""Checkpoints: everything a flow run needs to continue, written collectively and atomically.
+"""Checkpoints: everything a flow or kinematic run needs to continue, written collectively and atomically.
 
     OUT/checkpoint_NNNNNN.h5   (NNNNNN = step)
         /particles/<field>     every owned field (internal ones too), rank after rank in each rank's
