@@ -28,6 +28,9 @@ class DomainSpec:
                                  f"got {self.upper[a]}")
             length = self.upper[a] - self.lower[a]
             cells = length / self.dx
+            if not math.isfinite(cells) or cells > 1e12:
+                raise SceneError(f"{path}.dx", f"{self.dx:g} gives {cells:.3g} particle spacings along axis {a}, "
+                                 "more than any machine holds")
             if self.periodic[a] and abs(cells - round(cells)) > 1e-8 * max(1.0, cells):
                 raise SceneError(f"{path}.dx", f"must divide the periodic length {length:g} of axis {a} "
                                  f"(got {length:g}/{self.dx:g} = {cells:.6g} spacings)")
@@ -300,6 +303,9 @@ class Scene:
         for a in range(min(self.domain.dimension, 2)):
             if self.domain.periodic[a]:
                 waves = (self.domain.upper[a] - self.domain.lower[a]) / wavelength
+                if not math.isfinite(waves) or waves > 1e12:
+                    raise SceneError("diagnostics.test_wavelength", f"{wavelength:g} is too short for axis {a} "
+                                     f"({waves:.3g} waves)")
                 if abs(waves - round(waves)) > 1e-8 * max(1.0, waves):
                     raise SceneError("diagnostics.test_wavelength",
                                      f"must divide the periodic length of axis {a} (got {waves:.6g} waves)")

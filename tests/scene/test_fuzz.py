@@ -20,7 +20,8 @@ BASES = [read_table(CASES / name) for name in ("static_perturbed.toml", "taylor_
 
 text = st.text(alphabet=st.characters(min_codepoint=32, max_codepoint=126), max_size=12)
 scalars = st.one_of(st.integers(min_value=-10**30, max_value=10**30), st.floats(), st.booleans(), text,
-                    st.sampled_from([0, -1, 1e300, -1e-300, 1e-12, 2**63, "rk3", "iips", "wendland_c6"]))
+                    st.sampled_from([0, -1, 1e300, -1e-300, 1e-12, 5e-324, 1e308, 2**63, "rk3", "iips",
+                                     "wendland_c6"]))
 values = st.one_of(scalars, st.lists(scalars, max_size=4), st.dictionaries(text, scalars, max_size=3))
 
 
@@ -132,6 +133,10 @@ def test_invalid_scene_files_end_with_one_line_and_exit_2(tmp_path, capsys, tabl
     ('name = "x"\n' + "a = " + "[" * 5000 + "]" * 5000 + "\n", "nested too deeply"),
     ("name = \"x\"\n[domain]\ndx = nan\n", "domain"),
     ("name = \"x\"\n[domain]\ndx = 1e-9\n", "domain"),
+    ((CASES / "static_perturbed.toml").read_text().replace("dx = 0.025", "dx = 5e-324"),
+     "gives inf particle spacings along axis 0"),  # found by hypothesis: an overflow, not a SceneError
+    ((CASES / "static_perturbed.toml").read_text().replace("test_wavelength = 0.5", "test_wavelength = 1e-320"),
+     "is too short for axis 0"),
     ("this is not toml", "not valid TOML"),
     ('name = "x"\n__import__ = "os"\n', "__import__: unknown key"),
 ])
