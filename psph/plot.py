@@ -27,6 +27,15 @@ def _pyplot():
     return plt
 
 
+def _save(plt, fig, path: Path, title=None) -> Path:
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def _summary(run_dir: Path) -> dict:
     return json.loads((run_dir / "summary.json").read_text())
 
@@ -68,12 +77,7 @@ def plot_history(run_dir: Path, fig_dir: Path):
         ax.set_xlabel("time (iteration for static runs)", fontsize=8)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
-    fig.suptitle(f"{run_dir.name}: diagnostics history")
-    fig.tight_layout()
-    path = fig_dir / "history.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, fig_dir / "history.png", f"{run_dir.name}: diagnostics history")
 
 
 def _grad_c_magnitude(run_dir: Path, data: dict):
@@ -136,12 +140,7 @@ def plot_fields(run_dir: Path, fig_dir: Path):
             fig.colorbar(sc, ax=ax, shrink=0.8)
             ax.set_aspect("equal")
         ax.set_title(name, fontsize=10)
-    fig.suptitle(f"{run_dir.name}: last snapshot, t = {t:.4g}")
-    fig.tight_layout()
-    path = fig_dir / "fields.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, fig_dir / "fields.png", f"{run_dir.name}: last snapshot, t = {t:.4g}")
 
 
 def plot_study(runs, fig_dir: Path) -> list:
@@ -170,8 +169,4 @@ def plot_study(runs, fig_dir: Path) -> list:
     b.set_xlabel("wall time [s]")
     b.set_title("error against wall time")
     a.legend(fontsize=7)
-    fig.tight_layout()
-    path = fig_dir / "convergence.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return [path]
+    return [_save(plt, fig, fig_dir / "convergence.png")]

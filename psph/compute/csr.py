@@ -5,10 +5,32 @@ from numba import njit
 
 
 @njit(cache=True)
+def block_positions(indptr, indices, col_start, col_end, d_start, o_start, block, where):
+    """For each CSR position (global, sorted columns): its block (0 diagonal: col_start <= col < col_end,
+    1 off-diagonal) and its position in that block's values, rows starting at d_start[r] / o_start[r]
+    (within a row PETSc keeps both blocks' columns sorted, so positions follow from counting). Returns
+    False if the rows' lengths disagree with d_start / o_start."""
+    for r in range(indptr.size - 1):
+        pd = d_start[r]
+        po = o_start[r]
+        for k in range(indptr[r], indptr[r + 1]):
+            if col_start <= indices[k] < col_end:
+                block[k] = 0
+                where[k] = pd
+                pd += 1
+            else:
+                block[k] = 1
+                where[k] = po
+                po += 1
+        if pd != d_start[r + 1] or po != o_start[r + 1]:
+            return False
+    return True
+
+
+@njit(cache=True)
 def split_csr(indptr, indices, col_start, col_end):
     """Split a CSR (global, sorted columns) into PETSc's MPIAIJ blocks: the diagonal block's row pointers
-    and local columns (col - col_start for col_start <= col < col_end), and the off-diagonal block's row
-    pointers and global columns."""
+    and local columns (col - col_start), and the off-diagonal block's row pointers and global columns."""
     n = indptr.size - 1
     di = np.zeros(n + 1, dtype=np.int64)
     oi = np.zeros(n + 1, dtype=np.int64)
@@ -19,47 +41,28 @@ def split_csr(indptr, indices, col_start, col_end):
                 inside += 1
         di[r + 1] = di[r] + inside
         oi[r + 1] = oi[r] + indptr[r + 1] - indptr[r] - inside
+    block = np.empty(indices.size, dtype=np.int8)
+    where = np.empty(indices.size, dtype=np.int64)
+    block_positions(indptr, indices, col_start, col_end, di, oi, block, where)
     dj = np.empty(di[n], dtype=np.int64)
     oj = np.empty(oi[n], dtype=np.int64)
-    for r in range(n):
-        pd = di[r]
-        po = oi[r]
-        for k in range(indptr[r], indptr[r + 1]):
-            c = indices[k]
-            if col_start <= c < col_end:
-                dj[pd] = c - col_start
-                pd += 1
-            else:
-                oj[po] = c
-                po += 1
+    for k in range(indices.size):
+        if block[k] == 0:
+            dj[where[k]] = indices[k] - col_start
+        else:
+            oj[where[k]] = indices[k]
     return di, dj, oi, oj
 
 
 @njit(cache=True)
 def split_positions(indptr, indices, col_start, col_end, ia_d, ia_o, slot, target, offset):
-    """For each natural value (via slot -> CSR position): block (0 diagonal, 1 off-diagonal) and position.
-
-    Within a row PETSc keeps the columns sorted in both blocks (the off-diagonal block's compressed
-    columns follow the global order), so positions follow from counting. Returns False if the blocks'
-    row lengths disagree with the CSR (then the caller uses the generic path)."""
-    n = indptr.size - 1
-    where = np.empty(indices.size, dtype=np.int64)
+    """For each natural value (via slot -> CSR position): block (0 diagonal, 1 off-diagonal) and position
+    in the blocks whose row pointers PETSc reports (ia_d, ia_o). Returns False if they disagree with the
+    CSR (then the caller uses the generic path)."""
     block = np.empty(indices.size, dtype=np.int8)
-    for r in range(n):
-        pd = ia_d[r]
-        po = ia_o[r]
-        for k in range(indptr[r], indptr[r + 1]):
-            c = indices[k]
-            if col_start <= c < col_end:
-                block[k] = 0
-                where[k] = pd
-                pd += 1
-            else:
-                block[k] = 1
-                where[k] = po
-                po += 1
-        if pd != ia_d[r + 1] or po != ia_o[r + 1]:
-            return False
+    where = np.empty(indices.size, dtype=np.int64)
+    if not block_positions(indptr, indices, col_start, col_end, ia_d, ia_o, block, where):
+        return False
     for e in range(slot.size):
         target[e] = block[slot[e]]
         offset[e] = where[slot[e]]
