@@ -10,7 +10,7 @@ import numpy as np
 from numba import njit
 
 from psph.compute.smoothing import kernel_f, kernel_w
-from psph.compute.sums import pair, store
+from psph.compute.sums import pair, pair2, store
 
 
 @njit(cache=True, inline="always")
@@ -24,26 +24,37 @@ def _power(x, n):
     return x ** n
 
 
-@njit(cache=True)
+def _compile_grad_c(d):
+    """corrected_grad_c for dimension d, a compile-time constant (as in compute.fluid)."""
+
+    @njit(cache=True)
+    def grad_c(pos, vol, ptr, idx, kp, coeff, power, w_ref, out):
+        for i in range(ptr.size - 1):
+            g0 = g1 = g2 = 0.0
+            for k in range(ptr[i], ptr[i + 1]):
+                j = idx[k]
+                x0, x1, x2, rr = pair2(pos, i, j, d)
+                r = np.sqrt(rr)
+                s = kernel_f(r, kp) * vol[j]  # zero beyond the support: no branch
+                if coeff != 0.0:
+                    s *= 1.0 + coeff * _power(kernel_w(r, kp) / w_ref, power)
+                g0 += s * x0
+                if d > 1:
+                    g1 += s * x1
+                if d > 2:
+                    g2 += s * x2
+            store(out, i, d, g0, g1, g2)
+
+    return grad_c
+
+
+_GRAD_C = {d: _compile_grad_c(d) for d in (1, 2, 3)}
+
+
 def corrected_grad_c(pos, vol, ptr, idx, kp, coeff, power, w_ref, out):
     """grad C^_i = sum_j [1 + coeff (W_ij / W(dx))^power] grad_i W_ij V_j (thesis eq. 6.15; seed 001
     eq. 17 with R = coeff, n = power). coeff = 0 gives the plain grad C."""
-    d = pos.shape[1]
-    support = 2.0 * kp[1]
-    for i in range(ptr.size - 1):
-        g0 = g1 = g2 = 0.0
-        for k in range(ptr[i], ptr[i + 1]):
-            j = idx[k]
-            x0, x1, x2, r = pair(pos, i, j, d)
-            if r >= support:
-                continue
-            s = kernel_f(r, kp) * vol[j]
-            if coeff != 0.0:
-                s *= 1.0 + coeff * _power(kernel_w(r, kp) / w_ref, power)
-            g0 += s * x0
-            g1 += s * x1
-            g2 += s * x2
-        store(out, i, d, g0, g1, g2)
+    _GRAD_C[pos.shape[1]](pos, vol, ptr, idx, kp, coeff, power, w_ref, out)
 
 
 @njit(cache=True)

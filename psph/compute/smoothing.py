@@ -42,56 +42,52 @@ KERNEL_NAMES = tuple(_NORMALISATION)
 
 
 # Leaf functions of q: f(q), f'(q)/q and f''(q) of each kernel's polynomial (zero beyond the support).
+# The Wendland leaves clip 1 - q at zero instead of branching on q >= 1: the loops over neighbour lists then
+# carry no unpredictable branch (a skin pair costs a few flops and adds exactly zero).
+@njit(cache=True, inline="always")
+def _clip(t):
+    """max(t, 0), NaN kept (a NaN distance must not turn into a zero weight)."""
+    return 0.0 if t < 0.0 else t
+
+
 # ---------------------------------------------------------------- Wendland C2
 @njit(cache=True, inline="always")
 def _c2_w(q):
-    if q >= 1.0:
-        return 0.0
-    t = 1.0 - q
+    t = _clip(1.0 - q)
     t2 = t * t
     return t2 * t2 * (4.0 * q + 1.0)
 
 
 @njit(cache=True, inline="always")
 def _c2_fq(q):  # f'(q)/q = -20 (1-q)^3
-    if q >= 1.0:
-        return 0.0
-    t = 1.0 - q
+    t = _clip(1.0 - q)
     return -20.0 * t * t * t
 
 
 @njit(cache=True, inline="always")
 def _c2_d2(q):  # f''(q) = 20 (1-q)^2 (4q - 1)
-    if q >= 1.0:
-        return 0.0
-    t = 1.0 - q
+    t = _clip(1.0 - q)
     return 20.0 * t * t * (4.0 * q - 1.0)
 
 
 # ---------------------------------------------------------------- Wendland C4
 @njit(cache=True, inline="always")
 def _c4_w(q):
-    if q >= 1.0:
-        return 0.0
-    t = 1.0 - q
+    t = _clip(1.0 - q)
     t2 = t * t
     return t2 * t2 * t2 * (35.0 * q * q + 18.0 * q + 3.0)
 
 
 @njit(cache=True, inline="always")
 def _c4_fq(q):  # f'(q)/q = -56 (1-q)^5 (5q + 1)
-    if q >= 1.0:
-        return 0.0
-    t = 1.0 - q
+    t = _clip(1.0 - q)
     t2 = t * t
     return -56.0 * t2 * t2 * t * (5.0 * q + 1.0)
 
 
 @njit(cache=True, inline="always")
 def _c4_d2(q):  # f''(q) = 56 (1-q)^4 (35q^2 - 4q - 1)
-    if q >= 1.0:
-        return 0.0
-    t = 1.0 - q
+    t = _clip(1.0 - q)
     t2 = t * t
     return 56.0 * t2 * t2 * (35.0 * q * q - 4.0 * q - 1.0)
 
@@ -99,9 +95,7 @@ def _c4_d2(q):  # f''(q) = 56 (1-q)^4 (35q^2 - 4q - 1)
 # ---------------------------------------------------------------- Wendland C6
 @njit(cache=True, inline="always")
 def _c6_w(q):
-    if q >= 1.0:
-        return 0.0
-    t = 1.0 - q
+    t = _clip(1.0 - q)
     t2 = t * t
     t4 = t2 * t2
     return t4 * t4 * (((32.0 * q + 25.0) * q + 8.0) * q + 1.0)
@@ -109,9 +103,7 @@ def _c6_w(q):
 
 @njit(cache=True, inline="always")
 def _c6_fq(q):  # f'(q)/q = -22 (1-q)^7 (16q^2 + 7q + 1)
-    if q >= 1.0:
-        return 0.0
-    t = 1.0 - q
+    t = _clip(1.0 - q)
     t2 = t * t
     t4 = t2 * t2
     return -22.0 * t4 * t2 * t * ((16.0 * q + 7.0) * q + 1.0)
@@ -119,9 +111,7 @@ def _c6_fq(q):  # f'(q)/q = -22 (1-q)^7 (16q^2 + 7q + 1)
 
 @njit(cache=True, inline="always")
 def _c6_d2(q):  # f''(q) = 22 (1-q)^6 (160q^3 + 15q^2 - 6q - 1)
-    if q >= 1.0:
-        return 0.0
-    t = 1.0 - q
+    t = _clip(1.0 - q)
     t2 = t * t
     t4 = t2 * t2
     return 22.0 * t4 * t2 * (((160.0 * q + 15.0) * q - 6.0) * q - 1.0)

@@ -46,6 +46,7 @@ def warm_up(dim: int, kernel_name: str) -> None:
     csr.write_split(values, target, offset, np.zeros(len(dj)), np.zeros(len(oj)))
     csr.scatter(values, slot, np.zeros(len(indices)))
     kind = np.zeros(n, dtype=np.int8)
-    fluid.renormalised_gradient(pos, vol, field, ptr, idx, kp, kind, False, vector)
-    fluid.delta_ale_rhs(pos, vol, field, field, vector, vector, field, vector, ptr, idx, kp, 1.0, 0.1, 0.1, 0.01,
+    pairs = fluid.PairCache()
+    fluid.renormalised_gradient(pos, vol, field, ptr, idx, kp, kind, False, vector, pairs)
+    fluid.delta_ale_rhs(pos, vol, field, field, vector, vector, field, vector, pairs, kp, 1.0, 0.1, 0.1, 0.01,
                         np.zeros(dim), 0, True, True, kind, False, scalar, scalar.copy(), vector.copy())

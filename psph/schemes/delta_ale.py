@@ -13,7 +13,7 @@ The kernels are in psph.compute.fluid.
 
 import numpy as np
 
-from psph.compute.fluid import delta_ale_rhs, renormalised_gradient
+from psph.compute.fluid import PairCache, delta_ale_rhs, renormalised_gradient
 from psph.particles import FieldSpec
 from psph.profiling import phase
 from psph.schemes.eos import make_eos
@@ -36,6 +36,7 @@ class DeltaALE:
         self.tensile = phys.tensile_switch
         self.eos = make_eos(phys)
         self.shift = make_velocity_shift(scene)
+        self.pairs = PairCache()  # the support's pairs, from renormalised_gradient to delta_ale_rhs
         self.state_names = (("position", "density", "mass", "momentum") if self.variant == 0
                             else ("position", "density", "velocity"))
         self.walls = None
@@ -167,14 +168,14 @@ class DeltaALE:
             du = p["velocity"]  # not read
         kp = system.kernel.params
         renormalised_gradient(p["position"], p["volume"], p["density"], system.nbr_ptr, system.nbr_idx, kp,
-                              p["kind"], walls, p["grad_rho"])
+                              p["kind"], walls, p["grad_rho"], self.pairs)
         system.refresh(["grad_rho"])
         n, d = p.n_owned, p.dim
         d_rho = np.zeros(n)
         d_mass = np.zeros(n)
         d_mom = np.zeros((n, d))
         delta_ale_rhs(p["position"], p["volume"], p["density"], p["mass"], p["velocity"], du, p["pressure"],
-                      p["grad_rho"], system.nbr_ptr, system.nbr_idx, kp, self.c0, self.delta, self.delta_m,
+                      p["grad_rho"], self.pairs, kp, self.c0, self.delta, self.delta_m,
                       self.mu, self.gravity, self.variant, self.shift.active, self.tensile, p["kind"], walls,
                       d_rho, d_mass, d_mom)
         if walls:
