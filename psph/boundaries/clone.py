@@ -107,8 +107,8 @@ class WallTerms:
                   p["body"], p["normal"], p["wall_distance"], p["wall_accel"], p["wall_velocity"], rows, n_i, s_i,
                   self.no_slip,
                   system.nbr_ptr, system.nbr_idx, system.kernel.params, scheme.c0, scheme.rho0, eos_b, 7.0,
-                  scheme.mu, self.gravity, self.ds, scheme.variant, scheme.shift.active, self.centers, d_rho,
-                  d_mom, self.force, self.torque)
+                  scheme.mu, self.gravity, self.ds, scheme.variant, scheme.shift.active, scheme.tensile,
+                  self.centers, d_rho, d_mom, self.force, self.torque)
 
     def body_forces(self, comm) -> dict:
         """Drag and lift coefficients 2 F / (rho0 U^2 D) of every immersed body, pressure and viscous parts,

@@ -17,6 +17,13 @@ to i, and n_j, s_j the solid particle's normal and distance to the profile:
                      keeps only the normal part, (g - a_j) . n (x_j - x_i) . n, which leaves a hydrostatic
                      column unbalanced along vertical walls (the clones would carry p_i at every height);
                      the two agree when g - a_j is normal to the wall
+  pressure force     -sum_j (p_j + p_i) grad_i W_ij V_j, or (p_j - p_i) where p_i < 0 with the tensile
+                     switch (seed 004 eq. 3: S_i sums over every neighbour, the clones included). With
+                     the switch on the fluid pairs only, uniform suction p_j = p_i < 0 left the clones'
+                     -2 p_i sum_j grad_i W_ij V_j, a pull of 2 |p_i| / rho_i per unit |sum| towards the wall
+                     that dragged the moving square's wake particles through its rear corner. The force on
+                     the body keeps the plus form (minus the plus-form force on the particle): the
+                     physical pressure integral, suction included
   shifting           du_j = (du_i . t) t - (du_i . n) n   (du . n = 0 on the wall, seed 001 section 6.2)
 with ds = dx / 4 (the body-node spacing). These pairs enter the continuity equation (divergence velocity,
 shifting terms), the pressure and the viscous forces (Laplacian velocity); the diffusive terms D^rho and
@@ -48,13 +55,14 @@ def near_wall_rows(kind, ptr, idx):
 @njit(cache=True)
 def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel, wall_vel, rows, n_i_all, s_i_all,
               no_slip, ptr, idx, kp, c0, rho0, eos_b, eos_gamma, mu, gravity, ds_min, variant, with_shift,
-              centers, d_rho, d_mom, force, torque):
+              tensile_switch, centers, d_rho, d_mom, force, torque):
     """Add the solid neighbours' contributions to the owned fluid `rows` (2-D).
 
     n_i_all, s_i_all: the closest body node's normal and distance, per entry of rows; wall_vel: the velocity
     of each solid particle's own closest node (u_b of eq. 6-7; the same as the fluid particle's closest
     node's on a smooth rigid wall, and the consistent choice at the corners of a lid).
     no_slip: per body; eos_b > 0 selects Tait (p = eos_b ((rho/rho0)^gamma - 1)), else linear.
+    tensile_switch: p_j - p_i instead of p_j + p_i in the particle's pressure force where p_i < 0 (eq. 3).
     force: (n_bodies, 2, 2) pressure and viscous force of the fluid on each body; torque: (n_bodies, 2).
     """
     support = 2.0 * kp[1]
@@ -67,6 +75,7 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
         xi0, xi1 = pos[i, 0], pos[i, 1]
         ui0, ui1 = vel[i, 0], vel[i, 1]
         rho_i, p_i, v_i = rho[i], prs[i], vol[i]
+        switch = tensile_switch and p_i < 0.0
         di0 = du[i, 0] if with_shift else 0.0
         di1 = du[i, 1] if with_shift else 0.0
         # eq. 5 (sign corrected): is the particle behind some solid particle's wall?
@@ -120,8 +129,9 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
             w0, w1 = f * x0 * vj, f * x1 * vj
             cont += (ud0 - ui0) * w0 + (ud1 - ui1) * w1
             pp = p_j + p_i
-            gp0 += pp * w0
-            gp1 += pp * w1
+            pp_i = p_j - p_i if switch else pp
+            gp0 += pp_i * w0
+            gp1 += pp_i * w1
             pi = -kk * ((ul0 - ui0) * x0 + (ul1 - ui1) * x1) / (rr * rr)
             vs0 += pi * w0
             vs1 += pi * w1

@@ -100,3 +100,24 @@ def test_laplacian_mirror_is_the_linear_extension_of_a_shear(tmp_path, side, vel
     viscous_pi(pos, p["volume"], system.nbr_ptr, system.nbr_idx, system.kernel.params, u_all, continued)
     wall_part = d_mom[i] / p["volume"][i] / mu
     assert np.allclose(fluid_only[i] + wall_part, continued[i], atol=1e-9 * gamma / DX)
+
+
+@pytest.mark.parametrize("where", ["wall", "corner"])
+def test_negative_pressure_is_not_pulled_into_the_wall(tmp_path, where):
+    """Tensile switch (seed 004 eq. 3): where p_i < 0 the pressure force is -sum_j (p_j - p_i) grad_i W_ij V_j
+    over every neighbour, the clones included. Applied to the fluid pairs only, a particle in uniform
+    suction (p_j = p_i < 0 on both sides) kept 2 |p_i| |sum_clones grad_i W_ij V_j| of attraction to the
+    wall: the moving square's wake particles were pulled through its rear corner (t = 0.94 at D/dx = 10).
+    With the switch on the clones too, uniform suction exerts no force on the particle; without the switch
+    the plus form pulls it to the wall; the force on the body stays the plus form's (suction drags it)."""
+    driver, system, p = cavity(tmp_path, **{"physics.reynolds": 1e12})
+    i = particle_at(p, 0.5 + DX / 2 if where == "wall" else DX / 2, DX / 2)
+    _, push = wall_rates(driver, system, i, pressure=1.0)
+    body_push = driver.scheme.walls.force[0, 0].copy()
+    _, pull = wall_rates(driver, system, i, pressure=-1.0)
+    body_pull = driver.scheme.walls.force[0, 0].copy()
+    assert push[1] > 0 and np.abs(pull).max() < 1e-12 * push[1]
+    assert body_push[1] < 0 and np.allclose(body_pull, -body_push, rtol=1e-12)
+    driver.scheme.tensile = False
+    _, plus = wall_rates(driver, system, i, pressure=-1.0)
+    assert np.allclose(plus, -push, rtol=1e-12)
