@@ -6,6 +6,12 @@ distributed PETSc AIJ matrix with block size d, preallocated once per neighbour-
 A dx = grad C with the KSP of prefix `iips_` (default BCGS + Jacobi, rtol 1e-2, thesis section 8.3.1;
 any `-iips_ksp_*` / `-iips_pc_*` option overrides them) and moves the free particles by dx.
 
+Initial guess: the first Newton iteration of a call starts from each particle's first step of the
+previous call (field `iips_first_step`, which follows the particle through rebuilds, migrations and
+checkpoints); later iterations start from zero. From one time step to the next the corrections are
+alike; within a call the steps shrink and a previous step is a worse guess than zero.
+`-iips_ksp_initial_guess_nonzero 0` starts every solve from zero (the thesis).
+
 Triggering and stopping (thesis Algorithms 1-3, eq. 8.34-8.35):
 - threshold on Linf(grad C) = h max_i |grad C_i| (thesis eq. 3.5): absolute (`iips.threshold`) or
   beta times the value after a static pre-procedure of `iips.pre_newton` iterations (`iips.beta`);
@@ -36,6 +42,8 @@ from psph.solvers.linear import LinearSolver, petsc_errors
 SHIFT_FIELD = FieldSpec("iips_shift", ("d",))
 # the call's displacement at its iterate of lowest Linf(grad C) (a field: it migrates with the particles)
 BEST_FIELD = FieldSpec("iips_best_shift", ("d",))
+# each particle's first Newton step of the last call: the next call's initial guess
+GUESS_FIELD = FieldSpec("iips_first_step", ("d",))
 # particles closer than COINCIDENT h count as coincident and are first nudged NUDGE h apart
 COINCIDENT = 1e-6
 NUDGE = 1e-3
@@ -48,7 +56,8 @@ class ImplicitShifting:
 
     def __init__(self, spec, comm):
         self.spec = spec
-        self.solver = LinearSolver(comm, "iips_", ksp_type="bcgs", pc_type="jacobi", rtol=1e-2)
+        self.solver = LinearSolver(comm, "iips_", ksp_type="bcgs", pc_type="jacobi", rtol=1e-2,
+                                   initial_guess_nonzero=True)
         self.threshold = spec.threshold if spec.threshold > 0.0 else None
         self.initial_linf = None  # Linf(grad C) after the pre-procedure (thesis: Linf(grad C)_Init)
         self._structure_of = None
@@ -99,15 +108,22 @@ class ImplicitShifting:
         return self.mat
 
     # -------------------------------------------------------------- iterate
-    def newton_iteration(self, system, grad) -> int:
-        """One Newton iteration from the current grad C: assemble, solve, move. Returns KSP iterations."""
+    def newton_iteration(self, system, grad, first=False) -> int:
+        """One Newton iteration from the current grad C: assemble, solve, move. Returns KSP iterations.
+        first: the call's first iteration (starts from, and records, the guess of GUESS_FIELD)."""
         self.assemble(system)
         d = system.particles.dim
+        p = system.particles
         self.rhs.setArray(grad[self.free].ravel())
-        self.dx.set(0.0)
+        guess = first and self.solver.ksp.getInitialGuessNonzero()
+        if guess:
+            self.dx.setArray(p.owned(GUESS_FIELD.name)[self.free].ravel())
+        else:
+            self.dx.set(0.0)
         its = self.solver.solve(self.rhs, self.dx)
         step = self.dx.getArray(readonly=True).reshape(-1, d)
-        p = system.particles
+        if guess:
+            p.owned(GUESS_FIELD.name)[self.free] = step
         p.owned("position")[self.free] += step
         p.owned(SHIFT_FIELD.name)[self.free] += step
         self.newton_iterations += 1
@@ -117,6 +133,7 @@ class ImplicitShifting:
     def prepare(self, system, on_iteration=None):
         """Static pre-procedure (`iips.pre_newton` iterations) and the beta threshold (eq. 8.34)."""
         system.particles.add_field(SHIFT_FIELD)
+        system.particles.add_field(GUESS_FIELD)
         if self.spec.pre_newton > 0:
             report = self._iterate(system, self.spec.pre_newton, None, False, on_iteration, {})
             self.initial_linf = report.Linf_grad_c
@@ -131,6 +148,7 @@ class ImplicitShifting:
         `iterations` is accepted for symmetry with the explicit method; IIPS uses iips.max_newton.
         """
         system.particles.add_field(SHIFT_FIELD)
+        system.particles.add_field(GUESS_FIELD)
         self.calls += 1
         return self._iterate(system, self.spec.max_newton, self.threshold, self.spec.procedure == "A",
                              on_iteration, where)
@@ -155,7 +173,7 @@ class ImplicitShifting:
                 break
             t0 = time.perf_counter()
             try:
-                its = self.newton_iteration(system, grad)
+                its = self.newton_iteration(system, grad, first=report.iterations == 0)
             except SolverError as err:
                 failure = err
                 break

@@ -46,10 +46,11 @@ class LinearSolver:
     """A KSP with prefix `prefix` (e.g. 'iips_') and code defaults the command line can override."""
 
     def __init__(self, comm, prefix: str, *, ksp_type="bcgs", pc_type="jacobi", rtol=1e-2, atol=1e-50,
-                 max_it=10000):
+                 max_it=10000, initial_guess_nonzero=False):
         self.comm = comm
         self.prefix = prefix
-        self.defaults = dict(ksp_type=ksp_type, pc_type=pc_type, rtol=rtol, atol=atol, max_it=max_it)
+        self.defaults = dict(ksp_type=ksp_type, pc_type=pc_type, rtol=rtol, atol=atol, max_it=max_it,
+                             initial_guess_nonzero=initial_guess_nonzero)
         self.ksp = self._create()
         self.operator = None
         self.iterations = 0
@@ -64,6 +65,7 @@ class LinearSolver:
             ksp.setType(d["ksp_type"])
             ksp.getPC().setType(d["pc_type"])
             ksp.setTolerances(rtol=d["rtol"], atol=d["atol"], max_it=d["max_it"])
+            ksp.setInitialGuessNonzero(d["initial_guess_nonzero"])
             ksp.setFromOptions()
         return ksp
 
@@ -77,7 +79,7 @@ class LinearSolver:
         if self.comm.allreduce(changed, op=MPI.LOR):
             rtol, atol, _, max_it = self.ksp.getTolerances()
             settings = dict(ksp_type=self.ksp.getType(), pc_type=self.ksp.getPC().getType(), rtol=rtol,
-                            atol=atol, max_it=max_it)
+                            atol=atol, max_it=max_it, initial_guess_nonzero=self.ksp.getInitialGuessNonzero())
             self.ksp.destroy()
             self.ksp = self._create(settings)
         with petsc_errors(f"setting up the -{self.prefix} solver"):
