@@ -15,12 +15,14 @@ from psph.parallel.comm import allreduce_max, allreduce_sum
 from psph.particles import Kind
 
 
-def grad_c(system) -> np.ndarray:
-    """grad C of the owned particles (the halo positions and volumes must be current)."""
+def grad_c(system, volume="volume") -> np.ndarray:
+    """grad C of the owned particles, C_i = sum_j W_ij V_j with V the field `volume` (the particle volumes,
+    or the reference volumes "volume0" that IIPS + NFTS levels; the halo positions and volumes must be
+    current)."""
     p = system.particles
     k = system.kernel
     out = np.zeros((p.n_owned, p.dim))
-    sums.grad_concentration(p["position"], p["volume"], system.nbr_ptr, system.nbr_idx, k.params, out)
+    sums.grad_concentration(p["position"], p[volume], system.nbr_ptr, system.nbr_idx, k.params, out)
     return out
 
 

@@ -71,11 +71,15 @@ class FluidDriver:
         self.integrate = INTEGRATORS[scene.time.integrator]
         self.reach = STAGE_REACH[scene.time.integrator]
         self.iips = None
+        self.update = make_field_update(scene)
+        # the volumes weighting C: IIPS levels it, the history reports its L2/Linf(grad C)
+        self.concentration_volume = "volume"
         if scene.shifting.method == "iips":
             from psph.shifting.iips import ImplicitShifting
 
-            self.iips = ImplicitShifting(scene.iips, self.sim.comm)
-        self.update = make_field_update(scene)
+            self.concentration_volume = self.update.concentration_volume
+            self.system.refresh([self.concentration_volume])  # V0 too travels with the halo from now on
+            self.iips = ImplicitShifting(scene.iips, self.sim.comm, volume=self.concentration_volume)
         self.reference = TaylorGreenReference(scene) if scene.initial.velocity == "taylor_green" else None
         self.initial_volume = allreduce_sum(self.sim.comm, float(
             self.system.particles.owned("volume")[fluid_mask(self.system)].sum()))
@@ -152,7 +156,7 @@ class FluidDriver:
             [0.5 * float((m * (u * u).sum(axis=1))[mask].sum()), float(m[mask].sum()), float(vol[mask].sum())],
             (m[:, None] * u)[mask].sum(axis=0)]))
         drho = allreduce_max(comm, float(np.abs(rho[mask] / self.scheme.rho0 - 1.0).max()) if mask.any() else 0.0)
-        l2, linf = norms(comm, grad_c(self.system), mask, self.system.kernel.h)
+        l2, linf = norms(comm, grad_c(self.system, self.concentration_volume), mask, self.system.kernel.h)
         dvol = allreduce_max(comm, float(np.abs(vol / p.owned("volume0") - 1.0).max()) if p.n_owned else 0.0)
         speed = np.sqrt((u * u).sum(axis=1))[mask]
         vmax = allreduce_max(comm, float(speed.max()) if len(speed) else 0.0)

@@ -22,10 +22,11 @@ class ShiftReport:
     history: list = field(default_factory=list)
 
 
-def measure(system):
-    """(grad C of the owned particles, L2(grad C), Linf(grad C)) over the free (fluid) particles."""
+def measure(system, volume="volume"):
+    """(grad C of the owned particles, L2(grad C), Linf(grad C)) over the free (fluid) particles; C is
+    weighted by the field `volume` (diagnostics.grad_c)."""
     with phase("grad_c"):
-        grad = grad_c(system)
+        grad = grad_c(system, volume)
         l2, linf = norms(system.comm, grad, fluid_mask(system), system.kernel.h)
     return grad, l2, linf
 

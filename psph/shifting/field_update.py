@@ -3,7 +3,7 @@
     none   positions change, fields do not (the thesis' "implicit iterative shifting")
     nfts   fictitious time step (eq. 9.7): the displacements are swept in N = ceil(max|dx| / (CFL dx))
            sub-steps whose ALE fluxes update volume, mass and momentum (delta_ale only: the variants fix
-           masses or volumes)
+           masses or volumes); IIPS then levels the concentration of the reference volumes V0
     mls1   first-order MLS re-interpolation (eq. 9.8) of volume, density and velocity from the pre-shift
            positions; mass = rho V (delta_ale), or V = m / rho (constant mass), or m = V0 rho
     mls2   second-order MLS re-interpolation (eq. 9.9), same fields
@@ -25,6 +25,8 @@ from psph.shifting.iips import SHIFT_FIELD
 
 class NoFieldUpdate:
     name = "none"
+    # the volumes weighting the concentration C = sum_j W_ij V_j that IIPS levels (ImplicitShifting.volume)
+    concentration_volume = "volume"
 
     def specs(self, dim):
         return ()
@@ -44,7 +46,19 @@ def _max_shift(system):
 
 
 class FictitiousTimeStep(NoFieldUpdate):
+    """NFTS (thesis eq. 9.7). Its volume line gives a particle the room its neighbours vacate, V_i += V_i
+    <div dx>_i, so the volumes follow the displacements. IIPS therefore levels the concentration of the
+    constant reference volumes V0 (concentration_volume), not of these volumes: IIPS linearises C with the
+    omega_j fixed (thesis eq. 8.7), and were the omega_j the NFTS volumes, a particle whose volume exceeds
+    the room it has (a suction peak, a wall corner) would make IIPS push its neighbours away by the excess,
+    NFTS would add that room to its volume and mass, the excess would survive and every later IIPS call
+    would grow the particle again (the moving square at D/dx = 10 stopped at t = 1.07 with V = 1.5 V0 and
+    m = 1.5 m0 above the square's front corner; tests/shifting/test_field_update.py). With V0 the
+    displacements do not depend on the volumes and NFTS moves each volume by the ALE flux of a purely
+    geometric correction, as seed 001 section 5 evaluates its shifting law with V0."""
+
     name = "nfts"
+    concentration_volume = "volume0"
 
     def specs(self, dim):
         return (FieldSpec("nfts_step", ("d",)),)

@@ -55,8 +55,13 @@ DIVERGENCE_FLOOR = 1e-6
 class ImplicitShifting:
     name = "iips"
 
-    def __init__(self, spec, comm):
+    def __init__(self, spec, comm, volume="volume"):
+        """volume: the field whose values weight the concentration C = sum_j W_ij V_j that IIPS levels and
+        its operator (thesis eq. 6.12, 8.6, 8.11: omega_j): the particle volumes, or "volume0", the constant
+        reference volumes, under a field update that makes the volumes follow the displacements (NFTS: see
+        psph.shifting.field_update.FictitiousTimeStep)."""
         self.spec = spec
+        self.volume = volume
         self.solver = LinearSolver(comm, "iips_", ksp_type="bcgs", pc_type="jacobi", rtol=1e-2,
                                    initial_guess_nonzero=True)
         self.threshold = spec.threshold if spec.threshold > 0.0 else None
@@ -103,7 +108,7 @@ class ImplicitShifting:
             self._structure(system)
         p = system.particles
         with phase("iips_assemble"):
-            iips_values(p["position"], p["volume"], p["row"], system.nbr_ptr, system.nbr_idx,
+            iips_values(p["position"], p[self.volume], p["row"], system.nbr_ptr, system.nbr_idx,
                         system.kernel.params, self.values)
             self.matrix.set_values(self.values)
         return self.mat
@@ -169,7 +174,7 @@ class ImplicitShifting:
         p.owned(SHIFT_FIELD.name)[:] = 0.0
         h = system.kernel.h
         separated = system.separate_coincident(COINCIDENT * h, NUDGE * h)
-        grad, l2, linf = measure(system)
+        grad, l2, linf = measure(system, self.volume)
         start_linf = linf
         report = ShiftReport(L2_grad_c=l2, Linf_grad_c=linf)
         if separated:
@@ -188,7 +193,7 @@ class ImplicitShifting:
             except SolverError as err:
                 failure = err
                 break
-            grad, l2, linf = measure(system)
+            grad, l2, linf = measure(system, self.volume)
             report.iterations += 1
             report.linear_iterations += its
             report.L2_grad_c, report.Linf_grad_c = l2, linf
@@ -224,7 +229,7 @@ class ImplicitShifting:
         p.owned("position")[:] -= current if shift is None else current - shift
         current[:] = 0.0 if shift is None else shift
         system.update()
-        _, report.L2_grad_c, report.Linf_grad_c = measure(system)
+        _, report.L2_grad_c, report.Linf_grad_c = measure(system, self.volume)
 
     def _fail(self, system, report, failure, where, mode):
         """Stop (raise on all ranks), or reject (undo this call's displacements), warn (keep them) or best
