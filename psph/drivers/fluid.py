@@ -78,7 +78,6 @@ class FluidDriver:
             from psph.shifting.iips import ImplicitShifting
 
             self.concentration_volume = self.update.concentration_volume
-            self.system.refresh([self.concentration_volume])  # V0 too travels with the halo from now on
             self.iips = ImplicitShifting(scene.iips, self.sim.comm, volume=self.concentration_volume)
         self.reference = TaylorGreenReference(scene) if scene.initial.velocity == "taylor_green" else None
         self.initial_volume = allreduce_sum(self.sim.comm, float(

@@ -78,7 +78,10 @@ class DeltaALE:
         return specs
 
     def halo_fields(self):
-        names = ["position", "gid", "kind", "volume", "density", "mass", "velocity", "pressure", "grad_rho"]
+        # volume0: read at neighbours by the fictitious pressure (eq. 7.3) and by IIPS + NFTS (copied at
+        # rebuilds only: it never changes)
+        names = ["position", "gid", "kind", "volume", "volume0", "density", "mass", "velocity", "pressure",
+                 "grad_rho"]
         if self.walls is not None:
             from psph.boundaries import SOLID_HALO_FIELDS
 

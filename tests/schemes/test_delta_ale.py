@@ -62,6 +62,20 @@ def test_fluid_at_rest_stays_at_rest():
         assert np.abs(rates[k]).max() < 1e-12
 
 
+@pytest.mark.parametrize("shifting", [{"method": "neuhauser"}, {"method": "neuhauser", "fictitious_pressure": True},
+                                      {"method": "delta_plus"}, {"method": "lind"}])
+def test_shifting_velocity_vanishes_on_a_lattice(shifting):
+    """A lattice at rest has grad C = 0 and a uniform velocity: no law may shift it. The fictitious pressure
+    (thesis eq. 7.3) reads V0 / V of the neighbours, halo copies (periodic images) included: V0 was not
+    carried in the halo, so its zero gave the particles next to the periodic boundaries a spurious push."""
+    scene = periodic_scene(n=12, physics={"scheme": "delta_ale"}, time={"t_end": 1.0}, shifting=shifting)
+    s = DeltaALE(scene)
+    system = build_system(scene, MPI.COMM_SELF, specs=s.field_specs(), halo_fields=s.halo_fields())
+    s.initialize(system)
+    s.rhs(system, 0.0, 1e-3)
+    assert np.abs(system.particles.owned("shift_velocity")).max() < 1e-12
+
+
 def test_equations_of_state_invert():
     rho = np.array([0.95, 1.0, 1.03])
     for eos in (LinearEOS(10.0, 1.0), TaitEOS(10.0, 1.0)):
