@@ -10,7 +10,7 @@ import numpy as np
 from numba import njit
 
 from psph.compute.smoothing import kernel_f, kernel_w
-from psph.compute.sums import pair, pair2, store
+from psph.compute.sums import dot, load, pair2, store
 
 
 @njit(cache=True, inline="always")
@@ -69,7 +69,39 @@ def limit_magnitude(vec, limit, out):
             out[i, a] = vec[i, a] * scale
 
 
-@njit(cache=True)
+def _compile_neuhauser(d):
+    """neuhauser_acceleration for dimension d, a compile-time constant (as in compute.fluid)."""
+
+    @njit(cache=True)
+    def acceleration(pos, vol, v0, pref, ptr, idx, kp, c0, alpha, out):
+        smooth_scale = alpha * c0 / kp[1]
+        for i in range(ptr.size - 1):
+            a0 = a1 = a2 = 0.0
+            vi0, vi1, vi2 = load(v0, i, d)
+            for k in range(ptr[i], ptr[i + 1]):
+                j = idx[k]
+                x0, x1, x2, rr = pair2(pos, i, j, d)
+                if rr == 0.0:
+                    continue
+                r = np.sqrt(rr)  # beyond the support both kernel factors below are zero: no branch
+                vj0, vj1, vj2 = load(v0, j, d)
+                dv0, dv1, dv2 = vi0 - vj0, vi1 - vj1, vi2 - vj2
+                approach = -dot(dv0, dv1, dv2, x0, x1, x2, d) / r  # (v0_i - v0_j) . e_ij, e_ij = -x_ij / r
+                s = (0.5 * (pref[i] + pref[j]) + 0.5 * c0 * approach) * kernel_f(r, kp) * vol[j]
+                smooth = smooth_scale * kernel_w(r, kp) * vol[j]
+                a0 -= s * x0 + smooth * dv0
+                if d > 1:
+                    a1 -= s * x1 + smooth * dv1
+                if d > 2:
+                    a2 -= s * x2 + smooth * dv2
+            store(out, i, d, a0, a1, a2)
+
+    return acceleration
+
+
+_NEUHAUSER = {d: _compile_neuhauser(d) for d in (1, 2, 3)}
+
+
 def neuhauser_acceleration(pos, vol, v0, pref, ptr, idx, kp, c0, alpha, out):
     """Smoothed transport-velocity correction of Neuhauser (thesis eq. 6.33-6.34, with P_S eq. 7.1 or the
     fictitious pressure eq. 7.4 through pref):
@@ -80,23 +112,4 @@ def neuhauser_acceleration(pos, vol, v0, pref, ptr, idx, kp, c0, alpha, out):
     pref is the reference pressure over rho0 per particle (P_S p_ref / rho0, or P^F / rho0). The first
     sum pushes particles down the concentration gradient and, through the upwind term, resists their
     approach; the second smooths the transport velocity. (Solid-boundary terms: walls issue.)"""
-    d = pos.shape[1]
-    h = kp[1]
-    support = 2.0 * h
-    for i in range(ptr.size - 1):
-        a0 = a1 = a2 = 0.0
-        for k in range(ptr[i], ptr[i + 1]):
-            j = idx[k]
-            x0, x1, x2, r = pair(pos, i, j, d)
-            if r >= support or r == 0.0:
-                continue
-            dv0 = v0[i, 0] - v0[j, 0]
-            dv1 = (v0[i, 1] - v0[j, 1]) if d > 1 else 0.0
-            dv2 = (v0[i, 2] - v0[j, 2]) if d > 2 else 0.0
-            approach = -(dv0 * x0 + dv1 * x1 + dv2 * x2) / r  # (v0_i - v0_j) . e_ij, e_ij = -x_ij / r
-            s = (0.5 * (pref[i] + pref[j]) + 0.5 * c0 * approach) * kernel_f(r, kp) * vol[j]
-            smooth = alpha * c0 / h * kernel_w(r, kp) * vol[j]
-            a0 -= s * x0 + smooth * dv0
-            a1 -= s * x1 + smooth * dv1
-            a2 -= s * x2 + smooth * dv2
-        store(out, i, d, a0, a1, a2)
+    _NEUHAUSER[pos.shape[1]](pos, vol, v0, pref, ptr, idx, kp, c0, alpha, out)
