@@ -9,7 +9,7 @@ to i, and n_j, s_j the solid particle's normal and distance to the profile:
                      else n = n_j; t = (-n_y, n_x). Eq. 5 prints n_j . (r_j - r_i), which, with normals
                      pointing out of the fluid as the paper orients them, holds for every ordinary wall
                      particle: all normals would be replaced and a corner's second wall would stop
-                     repelling (tests/compute/test_walls.py)
+                     repelling (tests/boundaries/test_clone.py)
   divergence (eq. 6) u_j.t = u_i.t,   u_j.n = [(u_b - u_i) s_j / max(s_i, ds) + u_b] . n
   Laplacian (eq. 7)  no slip:   u_j.t = [(u_b - u_i) s_j / max(s_i, ds) + u_b] . t,  u_j.n = u_i.n
                      free slip: u_j = u_i
