@@ -13,15 +13,6 @@ from numba import njit
 from psph.compute.smoothing import kernel_f, kernel_w
 
 
-@njit(cache=True)
-def pair(pos, i, j, d):
-    """(x_ij components padded to 3, r) for particles i, j."""
-    r0 = pos[i, 0] - pos[j, 0]
-    r1 = pos[i, 1] - pos[j, 1] if d > 1 else 0.0
-    r2 = pos[i, 2] - pos[j, 2] if d > 2 else 0.0
-    return r0, r1, r2, np.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-
-
 @njit(cache=True, inline="always")
 def pair2(pos, i, j, d):
     """(x_ij components padded to 3, r^2); with a compile-time d only the d components are computed."""
@@ -46,6 +37,13 @@ def dot(a0, a1, a2, b0, b1, b2, d):
 def load(arr, i, d):
     """Row i of an (n, d) array, padded to 3 components."""
     return arr[i, 0], arr[i, 1] if d > 1 else 0.0, arr[i, 2] if d > 2 else 0.0
+
+
+@njit(cache=True)
+def pair(pos, i, j, d):
+    """(x_ij components padded to 3, r) for particles i, j."""
+    r0, r1, r2, rr = pair2(pos, i, j, d)
+    return r0, r1, r2, np.sqrt(rr)
 
 
 @njit(cache=True)
