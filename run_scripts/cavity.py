@@ -2,11 +2,13 @@
 the global volume error eps_V(t) (seed 001 eq. 27, fig. 15).
 
     .venv/bin/python run_scripts/cavity.py [--re 100 1000] [--resolutions 50 100] [--t-end 20] [--ranks 2]
+                                           [--walls clone ghost]
 
 For each Reynolds number and L/dx it runs cases/lid_driven_cavity.toml to t_end (steady state), samples
 u(y) on x = 0.5 and v(x) on y = 0.5 by kernel interpolation of the fluid particles at Ghia's points, and
 writes results/cavity/{deviation.md,csv}, centrelines_Re*.png and volume_error.png. The reference data is
-run_scripts/reference/ghia1982_Re100_Re1000.csv (provenance in its README).
+run_scripts/reference/ghia1982_Re100_Re1000.csv (provenance in its README). --walls ghost runs the fixed
+ghost-particle baseline (model = "ghost", the walls seed 001 used) besides the clone particles.
 """
 
 import argparse
@@ -50,35 +52,44 @@ def main():
     parser.add_argument("--re", type=int, nargs="+", default=[100])
     parser.add_argument("--resolutions", type=int, nargs="+", default=[50, 100], help="L/dx")
     parser.add_argument("--h-over-dx", type=float, default=2.0)
+    parser.add_argument("--walls", nargs="+", default=["clone"], choices=["clone", "ghost"])
     args = parser.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    scenes = {"clone": CASES / "lid_driven_cavity.toml", "ghost": args.out / "lid_driven_cavity_ghost.toml"}
+    if "ghost" in args.walls:
+        scenes["ghost"].write_text(scenes["clone"].read_text().replace(
+            'wall = "no_slip"', 'wall = "no_slip"\nmodel = "ghost"'))
     table, histories = [], {}
     for re in args.re:
         gy, gu, gx, gv = ghia(re)
         fig, (ax_u, ax_v) = plt.subplots(1, 2, figsize=(10, 4.5))
         ax_u.plot(gu, gy, "ko", label="Ghia et al. 1982")
         ax_v.plot(gx, gv, "ko", label="Ghia et al. 1982")
-        for n in args.resolutions:
-            dx = 1.0 / n
-            run = run_scene(CASES / "lid_driven_cavity.toml", args.out / f"Re{re}_L{n}",
-                            sets=[f"domain.dx={dx}", f"domain.h_over_dx={args.h_over_dx}",
-                                  f"physics.reynolds={re}", f"time.t_end={args.t_end}",
-                                  f"output.every={args.t_end}", "output.history_every=50"], ranks=args.ranks)
-            sample, _, _ = centrelines(run, args.h_over_dx, dx)
-            inner_y, inner_x = (gy > 0) & (gy < 1), (gx > 0) & (gx < 1)  # the walls' values are boundary data
-            u = sample(np.stack([np.full(inner_y.sum(), 0.5), gy[inner_y]], 1))[:, 0]
-            v = sample(np.stack([gx[inner_x], np.full(inner_x.sum(), 0.5)], 1))[:, 1]
-            dev_u, dev_v = np.abs(u - gu[inner_y]).max(), np.abs(v - gv[inner_x]).max()
-            rows = run.history
-            eps = [r["volume_error"] for r in rows]
-            mass = np.array([r["total_mass"] for r in rows])
-            table.append([re, n, dev_u, dev_v, max(dev_u, dev_v), eps[-1], float(np.abs(mass / mass[0] - 1).max()),
-                          run.summary["wall_time_s"] if "wall_time_s" in run.summary else "-"])
-            print(f"Re={re} L/dx={n}: max|u - u_Ghia| = {dev_u:.4f}, max|v - v_Ghia| = {dev_v:.4f}, "
-                  f"eps_V(t_end) = {eps[-1]:.3e}", flush=True)
-            line = np.linspace(0.0, 1.0, 201)
-            ax_u.plot(sample(np.stack([np.full_like(line, 0.5), line], 1))[:, 0], line, label=f"psph L/dx = {n}")
-            ax_v.plot(line, sample(np.stack([line, np.full_like(line, 0.5)], 1))[:, 1], label=f"psph L/dx = {n}")
-            histories[(re, n)] = ([r["time"] for r in rows], eps)
+        for walls in args.walls:
+            for n in args.resolutions:
+                dx = 1.0 / n
+                name = f"Re{re}_L{n}" + ("" if walls == "clone" else f"_{walls}")
+                run = run_scene(scenes[walls], args.out / name,
+                                sets=[f"domain.dx={dx}", f"domain.h_over_dx={args.h_over_dx}",
+                                      f"physics.reynolds={re}", f"time.t_end={args.t_end}",
+                                      f"output.every={args.t_end}", "output.history_every=50"], ranks=args.ranks)
+                sample, _, _ = centrelines(run, args.h_over_dx, dx)
+                inner_y, inner_x = (gy > 0) & (gy < 1), (gx > 0) & (gx < 1)  # the walls' values are boundary data
+                u = sample(np.stack([np.full(inner_y.sum(), 0.5), gy[inner_y]], 1))[:, 0]
+                v = sample(np.stack([gx[inner_x], np.full(inner_x.sum(), 0.5)], 1))[:, 1]
+                dev_u, dev_v = np.abs(u - gu[inner_y]).max(), np.abs(v - gv[inner_x]).max()
+                rows = run.history
+                eps = [r["volume_error"] for r in rows]
+                mass = np.array([r["total_mass"] for r in rows])
+                table.append([re, walls, n, dev_u, dev_v, max(dev_u, dev_v), eps[-1],
+                              float(np.abs(mass / mass[0] - 1).max()), run.summary["wall_time_s"]])
+                print(f"Re={re} {walls} L/dx={n}: max|u - u_Ghia| = {dev_u:.4f}, max|v - v_Ghia| = {dev_v:.4f}, "
+                      f"eps_V(t_end) = {eps[-1]:.3e}", flush=True)
+                line = np.linspace(0.0, 1.0, 201)
+                label = f"psph {walls}, L/dx = {n}"
+                ax_u.plot(sample(np.stack([np.full_like(line, 0.5), line], 1))[:, 0], line, label=label)
+                ax_v.plot(line, sample(np.stack([line, np.full_like(line, 0.5)], 1))[:, 1], label=label)
+                histories[(re, walls, n)] = ([r["time"] for r in rows], eps)
         ax_u.set(xlabel="u / U", ylabel="y / L", title=f"u on x = 0.5, Re = {re}")
         ax_v.set(xlabel="x / L", ylabel="v / U", title=f"v on y = 0.5, Re = {re}")
         ax_u.legend()
@@ -86,19 +97,19 @@ def main():
         fig.savefig(args.out / f"centrelines_Re{re}.png", dpi=120)
         plt.close(fig)
     fig, ax = plt.subplots(figsize=(6, 4))
-    for (re, n), (t, eps) in histories.items():
-        ax.plot(t, eps, label=f"Re = {re}, L/dx = {n}")
+    for (re, walls, n), (t, eps) in histories.items():
+        ax.plot(t, eps, label=f"Re = {re}, {walls}, L/dx = {n}")
     ax.set(xlabel="t U / L", ylabel="eps_V", title="global volume error (seed 001 eq. 27)")
     ax.legend()
     fig.tight_layout()
     fig.savefig(args.out / "volume_error.png", dpi=120)
     print(write_table(args.out / "deviation",
-                      ["Re", "L/dx", "max dev. u", "max dev. v", "max dev.", "eps_V(t_end)", "max mass drift",
+                      ["Re", "walls", "L/dx", "max dev. u", "max dev. v", "max dev.", "eps_V(t_end)", "max mass drift",
                        "wall s"], table,
                       title=f"Lid-driven cavity at t = {args.t_end}: deviation from Ghia et al. (1982), in U",
                       note="Command: " + " ".join(["run_scripts/cavity.py", "--re", *map(str, args.re),
                                                    "--resolutions", *map(str, args.resolutions),
-                                                   "--t-end", str(args.t_end)])))
+                                                   "--t-end", str(args.t_end), "--walls", *args.walls])))
 
 
 if __name__ == "__main__":

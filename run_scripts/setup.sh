@@ -20,6 +20,8 @@ if [ ${#missing[@]} -gt 0 ]; then
     [ "$(id -u)" = 0 ] || sudo="sudo"
     $sudo apt-get update -qq
     DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+    # PETSC_DIR is found from the installed layout: look again now that PETSc is there
+    source "$PSPH_ROOT/run_scripts/env.sh"
 fi
 
 if [ ! -x .venv/bin/python ]; then

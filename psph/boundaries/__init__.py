@@ -51,6 +51,8 @@ def solid_arrays(scene, rank, size, first_gid):
     lattice = extended_lattice(scene)
     parts = []
     for body in bodies:
+        if body.spec.model == "ghost":  # images of the fluid, made at every stage (psph.compute.walls)
+            continue
         pos, normal, dist, node = body.solid_particles(lattice, thickness(scene))
         parts.append((body, pos, normal, dist, node))
     total = sum(len(p[1]) for p in parts)

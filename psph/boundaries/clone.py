@@ -1,15 +1,18 @@
-"""The walls' part of a fluid scheme: body motion, per-stage geometry and the clone-particle terms.
+"""The walls' part of a fluid scheme: body motion, per-stage geometry, the clone-particle terms and the
+fixed-ghost baseline.
 
 Solid particles are ordinary rows of the particle set (kinds WALL and BODY) whose positions follow their
 body's rigid motion, whose velocity is the body's and whose other fields are never integrated; every
 fluid-solid interaction is computed pair by pair from mirrored values (psph.compute.walls.clone_rhs).
-The body forces of the last right-hand side evaluation are kept for the history.
+The body forces of the last right-hand side evaluation are kept for the history. A box with model =
+"ghost" has no solid particles: the fluid near its sides sees mirror images of the fluid instead
+(psph.compute.walls.ghost_rhs; the box's forces are not accumulated).
 """
 
 import numpy as np
 
 from psph.boundaries.bodies import make_bodies
-from psph.compute.walls import clone_rhs, near_wall_rows
+from psph.compute.walls import clone_rhs, ghost_grad_c, ghost_images, ghost_rhs, near_wall_rows
 from psph.parallel.comm import allreduce_sum
 from psph.particles import Kind
 
@@ -27,6 +30,8 @@ class WallTerms:
             self.gravity[:] = scene.physics.gravity
         self.u_ref = scene.physics.reference_velocity
         self.rho0 = scene.physics.density
+        self.clones = [b for b in self.bodies if b.spec.model == "clone"]
+        self.ghost = _ghost_walls(scene, [b for b in self.bodies if b.spec.model == "ghost"])
 
     def describe(self) -> list:
         out = []
@@ -34,8 +39,9 @@ class WallTerms:
             how = {"fixed": "fixed", "constant": "constant velocity", "ramp": "ramped velocity",
                    "spheric6": "SPHERIC 6 acceleration law"}[b.spec.motion.law]
             lid = f", lid velocity {tuple(b.lid_velocity)}" if b.lid.any() else ""
-            out.append(f"body {b.name!r}: {b.spec.shape}, {b.spec.wall.replace('_', '-')}, {how}{lid}; clone "
-                       "particles with local mirroring (seed 004 eq. 5-9)")
+            model = ("clone particles with local mirroring (seed 004 eq. 5-9)" if b.spec.model == "clone" else
+                     "fixed ghost particles, mirror images of the fluid (seed 001 section 6.2)")
+            out.append(f"body {b.name!r}: {b.spec.shape}, {b.spec.wall.replace('_', '-')}, {how}{lid}; {model}")
         return out
 
     def trespassers(self, pos, t, margin):
@@ -81,7 +87,7 @@ class WallTerms:
         from scipy.spatial import cKDTree
 
         pos_all, nrm_all, vel_all = [], [], []
-        for b in self.bodies:
+        for b in self.clones:
             pos, nrm, vel = b.nodes(t)
             pos_all.append(pos)
             nrm_all.append(nrm)
@@ -96,19 +102,48 @@ class WallTerms:
         """Add the clone-particle terms to the owned fluid rows' rates; keep the body forces. Collective
         only in that the forces are reduced when asked (body_forces)."""
         p = system.particles
-        rows = near_wall_rows(p["kind"], system.nbr_ptr, system.nbr_idx)
-        n_i, s_i, _ = self.nearest_node_data(system, rows, t)
-        eos = scheme.eos
-        eos_b = getattr(eos, "b", 0.0)
+        eos_b = getattr(scheme.eos, "b", 0.0)
         self.force[:] = 0.0
         self.torque[:] = 0.0
         du = p["shift_velocity"] if scheme.shift.active else p["velocity"]
+        if self.clones:
+            self._add_clones(system, scheme, t, du, eos_b, d_rho, d_mom)
+        if self.ghost is not None:
+            rows, images = self._ghost_images(system)
+            w = self.ghost
+            ghost_rhs(p["position"], p["volume"], p["density"], p["velocity"], du, p["pressure"], rows, *images,
+                      w["axis"], w["coord"], w["velocity"], w["no_slip"], system.kernel.params, scheme.c0,
+                      scheme.rho0, eos_b, 7.0, scheme.mu, self.gravity, scheme.variant, scheme.shift.active,
+                      scheme.tensile, d_rho, d_mom)
+
+    def _add_clones(self, system, scheme, t, du, eos_b, d_rho, d_mom):
+        p = system.particles
+        rows = near_wall_rows(p["kind"], system.nbr_ptr, system.nbr_idx)
+        n_i, s_i, _ = self.nearest_node_data(system, rows, t)
         clone_rhs(p["position"], p["volume"], p["density"], p["velocity"], du, p["pressure"], p["kind"],
                   p["body"], p["normal"], p["wall_distance"], p["wall_accel"], p["wall_velocity"], rows, n_i, s_i,
                   self.no_slip,
                   system.nbr_ptr, system.nbr_idx, system.kernel.params, scheme.c0, scheme.rho0, eos_b, 7.0,
                   scheme.mu, self.gravity, self.ds, scheme.variant, scheme.shift.active, scheme.tensile,
                   self.centers, d_rho, d_mom, self.force, self.torque)
+
+    def _ghost_images(self, system):
+        """Owned fluid rows within a support of a ghost wall and the images they see."""
+        p, w = system.particles, self.ghost
+        support = system.kernel.support
+        pos = p.owned("position")
+        dist = w["sign"][None, :] * (pos[:, w["axis"]] - w["coord"][None, :])
+        rows = np.flatnonzero((p.owned("kind") == Kind.FLUID) & (dist < support).any(axis=1))
+        return rows, ghost_images(p["position"], p["kind"], rows, w, system.nbr_ptr, system.nbr_idx, support)
+
+    def add_ghost_grad_c(self, system, coeff, power, w_ref, out):
+        """Add the ghost images' part of grad C^ (psph.compute.walls.ghost_grad_c) to the owned rows of out."""
+        if self.ghost is None:
+            return
+        p, w = system.particles, self.ghost
+        rows, images = self._ghost_images(system)
+        ghost_grad_c(p["position"], p["volume"], rows, *images, w["axis"], w["coord"], system.kernel.params,
+                     coeff, power, w_ref, out)
 
     def body_forces(self, comm) -> dict:
         """Drag and lift coefficients 2 F / (rho0 U^2 D) of every immersed body, pressure and viscous parts,
@@ -126,3 +161,23 @@ class WallTerms:
                 out[f"cd_{part}{suffix}"] = scale * float(force[b.index, k] @ drag)
                 out[f"cl_{part}{suffix}"] = scale * float(force[b.index, k] @ lift)
         return out
+
+
+def _ghost_walls(scene, boxes):
+    """The ghost box's sides on non-periodic axes: axis, coordinate, inward sign, velocity (the lid's on the
+    top side), and whether the walls are no-slip; None without a ghost box."""
+    if not boxes:
+        return None
+    box = boxes[0]
+    axis, coord, sign, vel = [], [], [], []
+    for a in range(2):
+        if scene.domain.periodic[a]:
+            continue
+        for side in (-1.0, 1.0):
+            axis.append(a)
+            coord.append(box.spec.center[a] + side * box.spec.size[a] / 2.0)
+            sign.append(-side)
+            top = a == 1 and side > 0
+            vel.append(box.lid_velocity if top else np.zeros(2))
+    return {"axis": np.array(axis, dtype=np.int64), "coord": np.array(coord), "sign": np.array(sign),
+            "velocity": np.array(vel, dtype=np.float64).reshape(-1, 2), "no_slip": box.no_slip}

@@ -14,7 +14,7 @@ from psph.compute.sums import dot, load, pair2, store
 
 
 @njit(cache=True, inline="always")
-def _power(x, n):
+def fast_power(x, n):
     """x^n, by multiplication when n is a small whole number (pow() is slow in the pair loop)."""
     if n == 4.0:
         x2 = x * x
@@ -37,7 +37,7 @@ def _compile_grad_c(d):
                 r = np.sqrt(rr)
                 s = kernel_f(r, kp) * vol[j]  # zero beyond the support: no branch
                 if coeff != 0.0:
-                    s *= 1.0 + coeff * _power(kernel_w(r, kp) / w_ref, power)
+                    s *= 1.0 + coeff * fast_power(kernel_w(r, kp) / w_ref, power)
                 g0 += s * x0
                 if d > 1:
                     g1 += s * x1

@@ -34,8 +34,56 @@ body (pressure and viscous parts) for the body forces; the torque about the body
 import numpy as np
 from numba import njit
 
-from psph.compute.smoothing import kernel_f
+from psph.compute.shift_velocity import fast_power
+from psph.compute.smoothing import kernel_f, kernel_w
 from psph.compute.sums import pair
+
+
+@njit(cache=True)
+def _eos_density(p, rho0, c0, eos_b, eos_gamma):
+    """rho from p: Tait (p = eos_b ((rho/rho0)^gamma - 1)) where eos_b > 0, else linear."""
+    if eos_b > 0.0:
+        base = 1.0 + p / eos_b
+        return rho0 * (base if base > 0.0 else 0.0) ** (1.0 / eos_gamma)
+    return rho0 + p / (c0 * c0)
+
+
+@njit(cache=True)
+def _wall_pair(x0, x1, rr, fv, rho_i, p_i, ui0, ui1, di0, di1, rho_j, p_j, ud0, ud1, ul0, ul1, dj0, dj1,
+               with_shift, switch, variant):
+    """One mirrored neighbour j of fluid particle i (2-D): x = x_i - x_j, rr = |x|, fv = F(r) V_j; j's
+    divergence velocity ud, Laplacian velocity ul, shifting velocity dj, pressure and density. Returns the
+    continuity sum's term, the pressure term (tensile switch applied), the pi_ij viscous term, the du-term
+    of the momentum and the plus-form pressure term (for the force on the wall)."""
+    w0, w1 = fv * x0, fv * x1
+    cont = (ud0 - ui0) * w0 + (ud1 - ui1) * w1
+    pp = p_j + p_i
+    pq = p_j - p_i if switch else pp
+    pi = -8.0 * ((ul0 - ui0) * x0 + (ul1 - ui1) * x1) / (rr * rr)  # K = 2 (d + 2), d = 2
+    h0 = h1 = 0.0
+    if with_shift:
+        ddj = dj0 * w0 + dj1 * w1
+        ddi = di0 * w0 + di1 * w1
+        cont += (dj0 - di0) * w0 + (dj1 - di1) * w1 - (rho_j * ddj + rho_i * ddi) / rho_i
+        if variant == 0:  # div(rho u x du)
+            h0 = rho_j * ud0 * ddj + rho_i * ui0 * ddi
+            h1 = rho_j * ud1 * ddj + rho_i * ui1 * ddi
+        else:  # div(u x du) - u_i div(du), as the fluid pairs (psph.compute.fluid)
+            div_du = (dj0 - di0) * w0 + (dj1 - di1) * w1
+            h0 = ud0 * ddj + ui0 * ddi - ui0 * div_du
+            h1 = ud1 * ddj + ui1 * ddi - ui1 * div_du
+    return cont, pq * w0, pq * w1, pi * w0, pi * w1, h0, h1, pp * w0, pp * w1
+
+
+@njit(cache=True)
+def _add_rates(i, rho_i, v_i, mu, variant, cont, gp0, gp1, vs0, vs1, sh0, sh1, d_rho, d_mom):
+    d_rho[i] += -rho_i * cont
+    if variant == 0:
+        d_mom[i, 0] += v_i * (-gp0 + mu * vs0 + sh0)
+        d_mom[i, 1] += v_i * (-gp1 + mu * vs1 + sh1)
+    else:
+        d_mom[i, 0] += (-gp0 + mu * vs0) / rho_i + sh0
+        d_mom[i, 1] += (-gp1 + mu * vs1) / rho_i + sh1
 
 
 @njit(cache=True)
@@ -66,7 +114,6 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
     force: (n_bodies, 2, 2) pressure and viscous force of the fluid on each body; torque: (n_bodies, 2).
     """
     support = 2.0 * kp[1]
-    kk = 8.0  # K = 2 (d + 2), d = 2
     g0, g1 = gravity[0], gravity[1]
     for r in range(rows.size):
         i = rows[r]
@@ -117,37 +164,25 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
                 ul0, ul1 = lt * t0 + ln * n0, lt * t1 + ln * n1
             else:
                 ul0, ul1 = ui0, ui1
-            # pressure (eq. 8-9) and density from the equation of state
+            # pressure (eq. 8-9)
             p_j = p_i + rho_i * ((g0 - accel[j, 0]) * (pos[j, 0] - xi0) + (g1 - accel[j, 1]) * (pos[j, 1] - xi1))
-            if eos_b > 0.0:
-                base = 1.0 + p_j / eos_b
-                rho_j = rho0 * (base if base > 0.0 else 0.0) ** (1.0 / eos_gamma)
-            else:
-                rho_j = rho0 + p_j / (c0 * c0)
-            f = kernel_f(rr, kp)
-            vj = vol[j]
-            w0, w1 = f * x0 * vj, f * x1 * vj
-            cont += (ud0 - ui0) * w0 + (ud1 - ui1) * w1
-            pp = p_j + p_i
-            pp_i = p_j - p_i if switch else pp
-            gp0 += pp_i * w0
-            gp1 += pp_i * w1
-            pi = -kk * ((ul0 - ui0) * x0 + (ul1 - ui1) * x1) / (rr * rr)
-            vs0 += pi * w0
-            vs1 += pi * w1
-            if with_shift:
-                dn = di0 * n0 + di1 * n1
-                dt = di0 * t0 + di1 * t1
-                dj0, dj1 = dt * t0 - dn * n0, dt * t1 - dn * n1
-                ddj = dj0 * w0 + dj1 * w1
-                ddi = di0 * w0 + di1 * w1
-                cont += (dj0 - di0) * w0 + (dj1 - di1) * w1 - (rho_j * ddj + rho_i * ddi) / rho_i
-                if variant == 0:
-                    sh0 += rho_j * ud0 * ddj + rho_i * ui0 * ddi
-                    sh1 += rho_j * ud1 * ddj + rho_i * ui1 * ddi
+            # shifting velocity: du . n = 0 on the wall
+            dn = di0 * n0 + di1 * n1
+            dt = di0 * t0 + di1 * t1
+            c, q0, q1, v0, v1, h0, h1, f0, f1 = _wall_pair(
+                x0, x1, rr, kernel_f(rr, kp) * vol[j], rho_i, p_i, ui0, ui1, di0, di1,
+                _eos_density(p_j, rho0, c0, eos_b, eos_gamma), p_j, ud0, ud1, ul0, ul1,
+                dt * t0 - dn * n0, dt * t1 - dn * n1, with_shift, switch, variant)
+            cont += c
+            gp0 += q0
+            gp1 += q1
+            vs0 += v0
+            vs1 += v1
+            sh0 += h0
+            sh1 += h1
             # force of the fluid particle on the body: minus the wall's force on the particle
-            fp0, fp1 = v_i * pp * w0, v_i * pp * w1
-            fv0, fv1 = -v_i * mu * pi * w0, -v_i * mu * pi * w1
+            fp0, fp1 = v_i * f0, v_i * f1
+            fv0, fv1 = -v_i * mu * v0, -v_i * mu * v1
             force[b, 0, 0] += fp0
             force[b, 0, 1] += fp1
             force[b, 1, 0] += fv0
@@ -155,10 +190,146 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
             cx, cy = xi0 - centers[b, 0], xi1 - centers[b, 1]
             torque[b, 0] += cx * fp1 - cy * fp0
             torque[b, 1] += cx * fv1 - cy * fv0
-        d_rho[i] += -rho_i * cont
-        if variant == 0:
-            d_mom[i, 0] += v_i * (-gp0 + mu * vs0 + sh0)
-            d_mom[i, 1] += v_i * (-gp1 + mu * vs1 + sh1)
+        _add_rates(i, rho_i, v_i, mu, variant, cont, gp0, gp1, vs0, vs1, sh0, sh1, d_rho, d_mom)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Fixed ghost particles (the baseline; seed 001 section 6.2, Colagrossi & Landrini 2003): the fluid particles
+# within a support of an axis-aligned straight wall are mirrored across it, and those near a corner across both
+# walls; the image g of fluid particle j carries V_j, p_j + rho_j g . (x_g - x_j), and velocities mirrored
+# about the wall velocity u_b: for the divergence the normal part reversed (u_g.n = 2 u_b.n - u_j.n, u_g.t =
+# u_j.t), for the Laplacian the whole velocity (u_g = 2 u_b - u_j, no slip; as the divergence, free slip),
+# and the shifting velocity with its normal part reversed (du . n = 0 on the wall). A corner image applies
+# the two walls' mirrorings in turn. Walls: axis, coordinate c, inward sign (+1: fluid at x_axis > c) and
+# velocity u_b. Each image interacts through _wall_pair, as a clone does.
+
+
+@njit(cache=True)
+def _ghost_images(pos, kind, rows, w_axis, w_coord, w_sign, ptr, idx, support, fill, out_ptr, out_j, out_w):
+    """Enumerate the (row, j, walls) images: j a fluid neighbour of row i or i itself, mirrored across one
+    wall (out_w = [w, -1]) or a corner's two walls of different axes, when the image lies within the
+    support of i. fill=False counts them into out_ptr (cumulative per row); fill=True writes them."""
+    nw = w_axis.size
+    n = 0
+    for r in range(rows.size):
+        i = rows[r]
+        for k in range(ptr[i] - 1, ptr[i + 1]):
+            j = i if k < ptr[i] else idx[k]
+            if (k >= ptr[i] and j == i) or kind[j] != 0:
+                continue
+            for w1 in range(nw):
+                s1 = w_sign[w1] * (pos[j, w_axis[w1]] - w_coord[w1])
+                if s1 >= support:
+                    continue
+                for w2 in range(w1, nw):
+                    a2 = w_axis[w2]
+                    if w2 > w1:
+                        if a2 == w_axis[w1] or w_sign[w2] * (pos[j, a2] - w_coord[w2]) >= support:
+                            continue
+                    x0, x1 = _image_position(pos, j, w1, w2 if w2 > w1 else -1, w_axis, w_coord)
+                    if (pos[i, 0] - x0) ** 2 + (pos[i, 1] - x1) ** 2 >= support * support:
+                        continue
+                    if fill:
+                        out_j[n] = j
+                        out_w[n, 0] = w1
+                        out_w[n, 1] = w2 if w2 > w1 else -1
+                    n += 1
+        if not fill:
+            out_ptr[r + 1] = n
+
+
+def ghost_images(pos, kind, rows, walls, ptr, idx, support):
+    """(ptr over rows, j, walls) of the images every row in `rows` sees (see _ghost_images)."""
+    axis, coord, sign = walls["axis"], walls["coord"], walls["sign"]
+    out_ptr = np.zeros(rows.size + 1, dtype=np.int64)
+    dummy_j, dummy_w = np.zeros(0, dtype=np.int64), np.zeros((0, 2), dtype=np.int64)
+    _ghost_images(pos, kind, rows, axis, coord, sign, ptr, idx, support, False, out_ptr, dummy_j, dummy_w)
+    out_j = np.zeros(out_ptr[-1], dtype=np.int64)
+    out_w = np.zeros((out_ptr[-1], 2), dtype=np.int64)
+    _ghost_images(pos, kind, rows, axis, coord, sign, ptr, idx, support, True, out_ptr, out_j, out_w)
+    return out_ptr, out_j, out_w
+
+
+@njit(cache=True)
+def _image_position(pos, j, w1, w2, w_axis, w_coord):
+    """Position of fluid particle j mirrored across wall w1 (and w2 if >= 0)."""
+    x0, x1 = pos[j, 0], pos[j, 1]
+    for w in (w1, w2):
+        if w < 0:
+            break
+        if w_axis[w] == 0:
+            x0 = 2.0 * w_coord[w] - x0
         else:
-            d_mom[i, 0] += (-gp0 + mu * vs0) / rho_i
-            d_mom[i, 1] += (-gp1 + mu * vs1) / rho_i
+            x1 = 2.0 * w_coord[w] - x1
+    return x0, x1
+
+
+@njit(cache=True)
+def _mirror(vel, du, j, walls, w_axis, w_vel, no_slip):
+    """Velocities of the image of fluid particle j across walls[0] (and walls[1] if >= 0): divergence,
+    Laplacian and shifting velocity."""
+    ud = np.array([vel[j, 0], vel[j, 1]])
+    ul = ud.copy()
+    dd = np.array([du[j, 0], du[j, 1]])
+    for m in range(2):
+        w = walls[m]
+        if w < 0:
+            break
+        a = w_axis[w]
+        ud[a] = 2.0 * w_vel[w, a] - ud[a]
+        if no_slip:
+            ul[0] = 2.0 * w_vel[w, 0] - ul[0]
+            ul[1] = 2.0 * w_vel[w, 1] - ul[1]
+        else:
+            ul[a] = 2.0 * w_vel[w, a] - ul[a]
+        dd[a] = -dd[a]
+    return ud, ul, dd
+
+
+@njit(cache=True)
+def ghost_rhs(pos, vol, rho, vel, du, prs, rows, img_ptr, img_j, img_w, w_axis, w_coord, w_vel, no_slip, kp, c0,
+              rho0, eos_b, eos_gamma, mu, gravity, variant, with_shift, tensile_switch, d_rho, d_mom):
+    """Add the ghost images' contributions to the owned fluid `rows` (2-D; images from ghost_images)."""
+    for r in range(rows.size):
+        i = rows[r]
+        rho_i, p_i, v_i = rho[i], prs[i], vol[i]
+        ui0, ui1 = vel[i, 0], vel[i, 1]
+        di0 = du[i, 0] if with_shift else 0.0
+        di1 = du[i, 1] if with_shift else 0.0
+        switch = tensile_switch and p_i < 0.0
+        cont = gp0 = gp1 = vs0 = vs1 = sh0 = sh1 = 0.0
+        for k in range(img_ptr[r], img_ptr[r + 1]):
+            j = img_j[k]
+            g0, g1 = _image_position(pos, j, img_w[k, 0], img_w[k, 1], w_axis, w_coord)
+            ud, ul, dd = _mirror(vel, du, j, img_w[k], w_axis, w_vel, no_slip)
+            x0, x1 = pos[i, 0] - g0, pos[i, 1] - g1
+            rr = np.sqrt(x0 * x0 + x1 * x1)
+            p_g = prs[j] + rho[j] * (gravity[0] * (g0 - pos[j, 0]) + gravity[1] * (g1 - pos[j, 1]))
+            c, q0, q1, v0, v1, h0, h1, _, _ = _wall_pair(
+                x0, x1, rr, kernel_f(rr, kp) * vol[j], rho_i, p_i, ui0, ui1, di0, di1,
+                _eos_density(p_g, rho0, c0, eos_b, eos_gamma), p_g, ud[0], ud[1], ul[0], ul[1],
+                dd[0] if with_shift else 0.0, dd[1] if with_shift else 0.0, with_shift, switch, variant)
+            cont += c
+            gp0 += q0
+            gp1 += q1
+            vs0 += v0
+            vs1 += v1
+            sh0 += h0
+            sh1 += h1
+        _add_rates(i, rho_i, v_i, mu, variant, cont, gp0, gp1, vs0, vs1, sh0, sh1, d_rho, d_mom)
+
+
+@njit(cache=True)
+def ghost_grad_c(pos, vol, rows, img_ptr, img_j, img_w, w_axis, w_coord, kp, coeff, power, w_ref, out):
+    """Add the images' part of grad C^ = sum_g F(r_ig) V_g [1 + coeff (W_ig / w_ref)^power] x_ig to out."""
+    for r in range(rows.size):
+        i = rows[r]
+        for k in range(img_ptr[r], img_ptr[r + 1]):
+            g0, g1 = _image_position(pos, img_j[k], img_w[k, 0], img_w[k, 1], w_axis, w_coord)
+            x0, x1 = pos[i, 0] - g0, pos[i, 1] - g1
+            rr = np.sqrt(x0 * x0 + x1 * x1)
+            s = kernel_f(rr, kp) * vol[img_j[k]]
+            if coeff != 0.0:
+                s *= 1.0 + coeff * fast_power(kernel_w(rr, kp) / w_ref, power)
+            out[i, 0] += s * x0
+            out[i, 1] += s * x1

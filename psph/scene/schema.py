@@ -73,6 +73,9 @@ class BodySpec:
                                      length=2, gt=0.0)
     angle: float = option(0.0, doc="rotation of the shape [degrees]")
     wall: str = option("no_slip", doc="no_slip or free_slip", choices=("no_slip", "free_slip"))
+    model: str = option("clone", doc="clone: solid particles with local mirroring (seed 004); ghost: fixed ghost "
+                        "particles, mirror images of the fluid across a straight wall (seed 001 section 6.2; "
+                        "an axis-aligned box, the baseline)", choices=("clone", "ghost"))
     lid_velocity: tuple[float, ...] = option((), doc="box: tangential velocity of its top side (a cavity lid)")
     motion: MotionSpec = option(MotionSpec(), doc="prescribed rigid motion")
     reference_length: float = option(0.0, doc="length D of the force coefficients 2 F / (rho0 U^2 D) (0: the "
@@ -81,6 +84,9 @@ class BodySpec:
     def check(self, path):
         if self.lid_velocity and (self.shape != "box" or len(self.lid_velocity) != 2):
             raise SceneError(f"{path}.lid_velocity", "a lid is the top side of a box: give 2 entries")
+        if self.model == "ghost" and (self.shape != "box" or self.angle != 0.0):
+            raise SceneError(f"{path}.model", "ghost walls mirror across straight walls: an axis-aligned box "
+                             "(shape = box, angle = 0)")
         if self.motion.law != "fixed" and self.shape == "box":
             raise SceneError(f"{path}.motion.law", "boxes stay fixed (give the lid a velocity instead)")
         if self.motion.law not in ("fixed",) and len(self.motion.velocity) != 2 and not self.motion.angular_velocity:
@@ -127,6 +133,12 @@ class PhysicsSpec:
     delta: float = option(0.1, doc="coefficient of the density diffusion D^rho (seed 001 eq. 14)", ge=0.0, le=1.0)
     delta_m: float = option(0.1, doc="coefficient of the mass diffusion D^m (delta_ale; 0 switches it off)",
                             ge=0.0, le=1.0)
+    free_stream: tuple[float, ...] = option((), doc="drive the fluid's mean velocity to this vector with a "
+                                            "uniform body force, past fixed bodies in a periodic box (a wind "
+                                            "tunnel: the force also balances the bodies' drag); empty: none")
+    free_stream_ramp: float = option(1.0, doc="free_stream: time over which the mean velocity rises from rest, "
+                                     "U (t/T - sin(2 pi t/T)/(2 pi)), with no jump in acceleration at either end",
+                                     gt=0.0)
     tensile_switch: bool = option(True, doc="use p_j - p_i where p_i < 0 (tensile-instability control)")
     max_density_variation: float = option(0.1, doc="stop when |rho / rho0 - 1| exceeds this (weak "
                                           "compressibility violated)", gt=0.0)
@@ -249,6 +261,28 @@ class Scene:
     neighbours: NeighboursSpec = option(NeighboursSpec(), doc="neighbour lists and load balance")
     bodies: tuple[BodySpec, ...] = option((), doc="solid walls and bodies ([[bodies]] tables; clone particles)")
 
+    def _check_ghost_walls(self, fluid):
+        ghosts = [k for k, b in enumerate(self.bodies) if b.model == "ghost"]
+        if not ghosts:
+            return
+        key = f"bodies[{ghosts[0]}].model"
+        if len(ghosts) > 1:
+            raise SceneError(f"bodies[{ghosts[1]}].model", "at most one box of ghost walls")
+        if not fluid:
+            raise SceneError(key, "ghost walls mirror a fluid's fields: they need a fluid scheme")
+        if self.shifting.method in ("iips", "neuhauser"):
+            raise SceneError(key, f"ghost walls work with the delta_plus, lind, skillen and oger laws or none; "
+                             f"shifting.method = {self.shifting.method} needs clone walls")
+        box, d = self.bodies[ghosts[0]], self.domain
+        for a in range(2):
+            lo, hi = box.center[a] - box.size[a] / 2.0, box.center[a] + box.size[a] / 2.0
+            if d.periodic[a] and (lo > d.lower[a] or hi < d.upper[a]):
+                raise SceneError(key, f"along periodic axis {a} the box must span the domain (its sides there "
+                                 "are not mirrored)")
+            if not d.periodic[a] and hi - lo <= 2.0 * d.support:
+                raise SceneError(key, f"the box is too narrow along axis {a} for ghost images (needs more than "
+                                 f"two kernel supports, {2.0 * d.support:g})")
+
     def check(self, path):
         fluid = self.physics.scheme in FLUID_SCHEMES
         if self.bodies:
@@ -259,6 +293,7 @@ class Scene:
             names = [b.name for b in self.bodies]
             if len(set(names)) != len(names):
                 raise SceneError("bodies", f"body names must be unique, got {names}")
+            self._check_ghost_walls(fluid)
         for key in ("fill_lower", "fill_upper"):
             value = getattr(self.initial, key)
             if value and len(value) != self.domain.dimension:
@@ -287,6 +322,12 @@ class Scene:
             if not (d.dimension == 2 and all(d.periodic)
                     and math.isclose(d.upper[0] - d.lower[0], d.upper[1] - d.lower[1])):
                 raise SceneError("physics.velocity_field", "taylor_green needs a 2-D bi-periodic square domain")
+        if self.physics.free_stream:
+            if len(self.physics.free_stream) != self.domain.dimension:
+                raise SceneError("physics.free_stream", f"expected {self.domain.dimension} entries (domain.dimension)")
+            if not (fluid and all(self.domain.periodic) and self.initial.velocity == "zero"):
+                raise SceneError("physics.free_stream", "needs a fluid scheme starting from rest in a fully "
+                                 "periodic domain (walls would take the momentum the force puts in)")
         if self.initial.velocity == "taylor_green":
             d = self.domain
             square = d.dimension == 2 and all(d.periodic) and math.isclose(

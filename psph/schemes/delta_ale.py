@@ -14,6 +14,7 @@ The kernels are in psph.compute.fluid.
 import numpy as np
 
 from psph.compute.fluid import PairCache, delta_ale_rhs, renormalised_gradient
+from psph.parallel.comm import allreduce_sum
 from psph.particles import FieldSpec
 from psph.profiling import phase
 from psph.schemes.eos import make_eos
@@ -34,6 +35,8 @@ class DeltaALE:
         dim = scene.domain.dimension
         self.gravity = np.zeros(dim) if not phys.gravity else np.asarray(phys.gravity, dtype=np.float64)
         self.tensile = phys.tensile_switch
+        self.free_stream = np.asarray(phys.free_stream, dtype=np.float64) if phys.free_stream else None
+        self.free_stream_ramp = phys.free_stream_ramp
         self.eos = make_eos(phys)
         self.shift = make_velocity_shift(scene)
         self.pairs = PairCache()  # the support's pairs, from renormalised_gradient to delta_ale_rhs
@@ -57,6 +60,9 @@ class DeltaALE:
             lines.append(f"mass diffusion D^m, delta = {self.delta_m:g}" if self.delta_m else "mass diffusion off")
         if np.any(self.gravity):
             lines.append(f"gravity {tuple(self.gravity)}")
+        if self.free_stream is not None:
+            lines.append(f"free stream {tuple(self.free_stream)} reached at t = {self.free_stream_ramp:g}: a "
+                         "uniform force sets the fluid's total momentum (periodic wind tunnel)")
         if self.tensile:
             lines.append("tensile-instability switch (p_j - p_i where p_i < 0)")
         lines.append(self.shift.describe())
@@ -184,6 +190,8 @@ class DeltaALE:
         if walls:
             with phase("walls"):
                 self.walls.add(system, self, t, d_rho, d_mom)
+        if self.free_stream is not None:
+            self._drive_free_stream(system, t, d_mom)
         transport = p.owned("velocity") + (p.owned("shift_velocity") if self.shift.active else 0.0)
         out = {"position": transport, "density": d_rho}
         if self.variant == 0:
@@ -192,6 +200,26 @@ class DeltaALE:
         else:
             out["velocity"] = d_mom
         return out
+
+    def free_stream_velocity(self, t):
+        """The mean velocity U(t) = U (t/T - sin(2 pi t/T) / (2 pi)) up to T, then U, and its derivative."""
+        T = self.free_stream_ramp
+        if t >= T:
+            return self.free_stream.copy(), np.zeros_like(self.free_stream)
+        return (self.free_stream * (t / T - np.sin(2.0 * np.pi * t / T) / (2.0 * np.pi)),
+                self.free_stream * (1.0 - np.cos(2.0 * np.pi * t / T)) / T)
+
+    def _drive_free_stream(self, system, t, d_mom):
+        """Add the uniform acceleration g that makes the fluid's total momentum P follow M U(t):
+        M g = M dU/dt - sum_i d(m_i u_i)/dt, whatever the walls and bodies took (physics.free_stream).
+        Collective."""
+        p = system.particles
+        fluid = p.owned("kind") == 0
+        m = p.owned("mass")[fluid]
+        rate = d_mom[fluid].sum(axis=0) if self.variant == 0 else (m[:, None] * d_mom[fluid]).sum(axis=0)
+        total = allreduce_sum(system.comm, np.append(rate, m.sum()))
+        g = self.free_stream_velocity(t)[1] - total[:-1] / total[-1]
+        d_mom[fluid] += m[:, None] * g if self.variant == 0 else g
 
     def end_step(self, system, dt):
         self.shift.end_step(system, self, dt)

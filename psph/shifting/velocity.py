@@ -48,13 +48,16 @@ class NoVelocityShift(VelocityShift):
     pass
 
 
-def _grad_c_hat(system, coeff, power, dx):
-    """grad C corrected with [1 + coeff (W_ij / W(dx))^power] (coeff = 0: plain grad C)."""
+def _grad_c_hat(system, scheme, coeff, power, dx):
+    """grad C corrected with [1 + coeff (W_ij / W(dx))^power] (coeff = 0: plain grad C), the ghost walls'
+    images included."""
     p, k = system.particles, system.kernel
     w_ref = float(k.value(np.array([dx]))[0])
     out = np.zeros((p.n_owned, p.dim))
     corrected_grad_c(p["position"], p["volume"], system.nbr_ptr, system.nbr_idx, k.params, coeff, power,
                      w_ref, out)
+    if scheme.walls is not None:
+        scheme.walls.add_ghost_grad_c(system, coeff, power, w_ref, out)
     return out
 
 
@@ -72,7 +75,7 @@ class DeltaPlus(VelocityShift):
         self.u_max = scene.physics.reference_velocity
 
     def velocity(self, system, scheme, dt):
-        grad = _grad_c_hat(system, self.coeff, self.power, self.dx)
+        grad = _grad_c_hat(system, scheme, self.coeff, self.power, self.dx)
         raw = -self.u_max * 2.0 * system.kernel.h * grad  # Ma (2h) c0 = U_max 2h
         out = system.particles.owned("shift_velocity")
         limit_magnitude(raw, np.full(len(raw), 0.5 * self.u_max), out)
@@ -89,7 +92,7 @@ class Lind(VelocityShift):
 
     def velocity(self, system, scheme, dt):
         h = system.kernel.h
-        grad = _grad_c_hat(system, 0.2, 4.0, self.dx)
+        grad = _grad_c_hat(system, scheme, 0.2, 4.0, self.dx)
         raw = -0.5 * h * h * grad / dt
         out = system.particles.owned("shift_velocity")
         limit_magnitude(raw, np.full(len(raw), 0.2 * h / dt), out)
@@ -109,7 +112,7 @@ class Skillen(VelocityShift):
 
     def velocity(self, system, scheme, dt):
         p = system.particles
-        grad = _grad_c_hat(system, 0.0, 1.0, self.dx)
+        grad = _grad_c_hat(system, scheme, 0.0, 1.0, self.dx)
         speed = np.sqrt((p.owned("velocity") ** 2).sum(axis=1))[:, None]
         p.owned("shift_velocity")[:] = -self.a * system.kernel.h * speed * grad * _free(system)
 
@@ -127,7 +130,7 @@ class Oger(VelocityShift):
 
     def velocity(self, system, scheme, dt):
         p = system.particles
-        grad = _grad_c_hat(system, 0.0, 1.0, self.dx)
+        grad = _grad_c_hat(system, scheme, 0.0, 1.0, self.dx)
         raw = -self.u_char * 2.0 * self.dx * grad
         limit = 0.25 * np.sqrt((p.owned("velocity") ** 2).sum(axis=1))
         out = p.owned("shift_velocity")

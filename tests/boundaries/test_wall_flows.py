@@ -1,5 +1,6 @@
 """Flows with walls end to end: the start-up Couette flow against its analytic transient, a hydrostatic
-tank at rest, the lid-driven cavity conserving mass, and IIPS next to walls (solid particles fixed)."""
+tank at rest, the lid-driven cavity conserving mass, IIPS next to walls (solid particles fixed), and the
+free stream of a periodic wind tunnel past a fixed ellipse."""
 
 import glob
 import json
@@ -15,7 +16,17 @@ from psph.particles import Kind
 from tests.helpers import CASES, run_psph
 
 
+def with_walls(tmp_path, case, model):
+    """The case file, or a copy whose walls (every body) use `model` (clone or ghost)."""
+    if model == "clone":
+        return CASES / case
+    path = tmp_path / f"{model}_{case}"
+    path.write_text((CASES / case).read_text().replace('wall = "no_slip"', f'wall = "no_slip"\nmodel = "{model}"'))
+    return path
+
+
 def run(tmp_path, case, name, *sets):
+    """Run a case (a file name in cases/, or a path) into tmp_path / name; returns the output directory."""
     out = tmp_path / name
     args = ["run", CASES / case, "--out", out, "--quiet"]
     for s in sets:
@@ -67,10 +78,13 @@ def test_couette_with_iips_next_to_the_walls(tmp_path):
     assert rows[-1]["max_volume_variation"] < 0.05
 
 
-def test_hydrostatic_tank_stays_at_rest(tmp_path):
+@pytest.mark.parametrize("model", ["clone", "ghost"])
+def test_hydrostatic_tank_stays_at_rest(tmp_path, model):
     """Water at rest under gravity stays at rest: the spurious velocity after t sqrt(g/H) = 3 is below
-    1e-3 sqrt(gH) at dx = H/20, mass is conserved to round-off, and the bottom pressure is rho g H."""
-    out = run(tmp_path, "hydrostatic_tank.toml", "tank", "domain.dx=0.05", "time.t_end=3.0")
+    1e-3 sqrt(gH) at dx = H/20, mass is conserved to round-off, and the bottom pressure is rho g H; with
+    clone particles and with the fixed-ghost baseline (images carry p_j + rho_j g . (x_g - x_j))."""
+    out = run(tmp_path, with_walls(tmp_path, "hydrostatic_tank.toml", model), "tank", "domain.dx=0.05",
+              "time.t_end=3.0")
     rows = read_history(out / "history.csv")
     assert max(r["max_speed"] for r in rows[len(rows) // 2:]) < 1e-3
     mass = np.array([r["total_mass"] for r in rows])
@@ -82,11 +96,13 @@ def test_hydrostatic_tank_stays_at_rest(tmp_path):
     assert np.abs(p[deep] - (1.0 - y[deep])).max() < 0.03
 
 
-def test_lid_driven_cavity_conserves_mass_and_turns(tmp_path):
+@pytest.mark.parametrize("model", ["clone", "ghost"])
+def test_lid_driven_cavity_conserves_mass_and_turns(tmp_path, model):
     """A short Re = 100 cavity run: mass to round-off; the lid drags the top layer forward and the fluid
-    returns below (the primary vortex forms)."""
-    out = run(tmp_path, "lid_driven_cavity.toml", "cavity", "domain.dx=0.04", "time.t_end=1.0",
-              "output.every=1.0", "output.history_every=10")
+    returns below (the primary vortex forms); with clone particles and with ghost walls (seed 001 section
+    6.2: mass to machine precision thanks to the mirrored (u + du) . n)."""
+    out = run(tmp_path, with_walls(tmp_path, "lid_driven_cavity.toml", model), "cavity", "domain.dx=0.04",
+              "time.t_end=1.0", "output.every=1.0", "output.history_every=10")
     rows = read_history(out / "history.csv")
     mass = np.array([r["total_mass"] for r in rows])
     assert np.abs(mass / mass[0] - 1.0).max() < 1e-12
@@ -171,3 +187,40 @@ def test_fluid_particle_inside_a_body_is_diagnosed(tmp_path):
     p.owned("position")[k] = [-1.0, 2.0]  # outside the tank
     with pytest.raises(NumericalError, match="crossed the wall of body 'tank'"):
         driver.check(7, 0.5, 1.0)
+
+
+def ramp(t, U, T):
+    """The free stream's ramp (physics.free_stream_ramp), written independently of the scheme's."""
+    return np.asarray(U) * (t / T - np.sin(2.0 * np.pi * t / T) / (2.0 * np.pi) if t < T else 1.0)
+
+
+def test_free_stream_without_bodies_stays_uniform(tmp_path):
+    """The uniform force accelerates every particle alike: the flow stays uniform and follows the ramp to
+    the time integrator's error, then holds the free stream."""
+    out = run(tmp_path, "taylor_green.toml", "free", "initial.velocity=zero", "shifting.method=none",
+              "iips.update=none", "domain.dx=0.05", "physics.free_stream=[0.5, -0.25]", "physics.free_stream_ramp=0.2",
+              "time.t_end=0.3", "output.history_every=1")
+    snap, t = last_snapshot(out)
+    assert t == pytest.approx(0.3)
+    assert np.abs(snap["velocity"] - [0.5, -0.25]).max() < 1e-7
+    assert np.ptp(snap["velocity"], axis=0).max() < 1e-12
+    rows = read_history(out / "history.csv")
+    assert len(rows) > 20
+    for r in rows:
+        mean = np.array([r["momentum_x"], r["momentum_y"]]) / r["total_mass"]
+        assert np.abs(mean - ramp(r["time"], [0.5, -0.25], 0.2)).max() < 1e-7, r["time"]
+
+
+def test_free_stream_is_held_against_the_ellipse_drag(tmp_path):
+    """The inclined ellipse at a coarse dx: the force keeps the fluid's mean velocity on the ramp and then at
+    U although the ellipse takes momentum all along (positive drag)."""
+    common = ["domain.dx=0.2", "physics.free_stream_ramp=0.5", "time.t_end=1.5", "output.every=0",
+              "output.history_every=5"]
+    rows = read_history(run(tmp_path, "inclined_ellipse.toml", "held", *common) / "history.csv")
+    for r in rows:
+        assert abs(r["momentum_x"] / r["total_mass"] - ramp(r["time"], 1.0, 0.5)) < 1e-6, r["time"]
+        assert abs(r["momentum_y"]) < 1e-6 * r["total_mass"]
+    late = [r for r in rows if r["time"] > 1.0]  # the pressure drag still carries the start's sound waves
+    assert len(late) > 5 and all(r["cd_viscous"] > 0.0 for r in late)
+    assert np.mean([r["cd_pressure"] for r in late]) > 0.0
+    assert rows[-1]["total_mass"] == pytest.approx(rows[0]["total_mass"], rel=1e-13)

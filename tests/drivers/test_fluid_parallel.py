@@ -42,7 +42,8 @@ def test_fluid_run_matches_serial(comm, mpi_tmp_path, shifting, update, tol):
     ("lid_driven_cavity.toml", ["shifting.method=delta_plus"], 1e-11),
     ("lid_driven_cavity.toml", ["shifting.method=iips", "iips.threshold=0.02", "iips.update=nfts",
                                "initial.sigma_over_dx=0.05"], 1e-7),
-    ("hydrostatic_tank.toml", [], 1e-11)])
+    ("hydrostatic_tank.toml", [], 1e-11),
+    ("inclined_ellipse.toml", ["domain.dx=0.2", "physics.free_stream_ramp=0.05"], 1e-11)])
 def test_runs_with_walls_match_serial(comm, mpi_tmp_path, case, sets, tol):
     """Walls across ranks: solid particles in halos, the clones mirrored from each rank's own fluid rows."""
     from psph.scene.load import load_scene
@@ -50,3 +51,12 @@ def test_runs_with_walls_match_serial(comm, mpi_tmp_path, case, sets, tol):
 
     scene = load_scene(CASES / case, ["domain.dx=0.05", "time.t_end=0.05", "output.every=0", *sets])
     assert_matches_serial(scene, comm, mpi_tmp_path, tol)
+
+
+def test_ghost_walls_match_serial(comm, mpi_tmp_path):
+    """Ghost walls across ranks: each rank mirrors its owned and halo fluid rows."""
+    from psph.scene.load import apply_overrides, scene_from_table
+    from tests.scene.test_scene import ghost_cavity
+
+    table = apply_overrides(ghost_cavity(), ["domain.dx=0.05", "time.t_end=0.05", "output.every=0"])
+    assert_matches_serial(scene_from_table(table), comm, mpi_tmp_path, 1e-11)

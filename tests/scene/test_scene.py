@@ -59,6 +59,8 @@ def test_minimal_scene_gets_defaults():
     ("physics.scheme", {"deep": {"deeper": 1}}, "physics.scheme", "expected string"),
     ("diagnostics.test_wavelength", 0.3, "diagnostics.test_wavelength", "must divide"),
     ("extra", {}, "extra", "unknown key"),
+    ("physics.free_stream", [1.0, 0.0], "physics.free_stream", "needs a fluid scheme"),
+    ("physics.free_stream", [1.0], "physics.free_stream", "expected 2 entries"),
 ])
 def test_bad_values_name_their_key(path, value, key, words):
     with pytest.raises(SceneError) as info:
@@ -119,3 +121,34 @@ def test_every_key_is_documented():
     keys = {k for k, _, _, _ in rows}
     assert {"domain.dx", "time.t_end", "output.every", "shifting.method", "initial.sigma_over_dx",
             "initial.seed"} <= keys
+
+
+def ghost_cavity(**changes):
+    """The lid-driven cavity's table with ghost walls, and `changes` as key path -> value."""
+    from tests.helpers import CASES
+
+    table = read_table(CASES / "lid_driven_cavity.toml")
+    table["bodies"][0]["model"] = "ghost"
+    for path, value in changes.items():
+        node = table
+        *parents, last = path.split(".")
+        for part in parents:
+            node = node[int(part)] if isinstance(node, list) else node[part]
+        node[last] = value
+    return table
+
+
+@pytest.mark.parametrize("changes,key,words", [
+    ({"bodies.0.shape": "rectangle", "bodies.0.lid_velocity": []}, "bodies[0].model", "axis-aligned box"),
+    ({"bodies.0.angle": 10.0}, "bodies[0].model", "axis-aligned box"),
+    ({"shifting.method": "iips"}, "bodies[0].model", "needs clone walls"),
+    ({"shifting.method": "neuhauser"}, "bodies[0].model", "needs clone walls"),
+    ({"physics.scheme": "none"}, "bodies[0].model", "need a fluid scheme"),
+    ({"domain.periodic": [True, False], "bodies.0.size": [0.8, 1.0]}, "bodies[0].model", "must span the domain"),
+    ({"bodies.0.size": [1.0, 0.05], "bodies.0.center": [0.5, 0.95]}, "bodies[0].model", "too narrow"),
+])
+def test_ghost_walls_are_refused_where_they_do_not_apply(changes, key, words):
+    scene_from_table(ghost_cavity())  # the cavity itself is fine
+    with pytest.raises(SceneError) as info:
+        scene_from_table(ghost_cavity(**changes))
+    assert info.value.key == key and words in str(info.value)

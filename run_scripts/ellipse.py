@@ -1,0 +1,111 @@
+"""Flow past an inclined elliptical cylinder at Re = 500 (seed 001 section 6.1): viscous drag histories
+(fig. 3), particle volume and mass variation fields (fig. 4-5) and the global volume error (fig. 7).
+
+    .venv/bin/python run_scripts/ellipse.py [--resolutions 25 50] [--t-end 50] [--ranks 2]
+
+For each a/dx it runs cases/inclined_ellipse.toml to t_end and writes results/ellipse/{forces.md,csv},
+drag.png (cd_viscous, cd_pressure, cl against t U/a), variations_a{N}.png (eps_Vi = V_i/V0 - 1 and
+eps_mi = m_i/m0 - 1 around the ellipse at t_end) and volume_error.png. Seed 001 compares with the DVH
+solution of Rossi et al. (2015), which is not in ../shared/reference: the resolutions are compared with
+each other.
+"""
+
+import argparse
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from psph.particles import Kind  # noqa: E402
+from psph.studies import CASES, last_snapshot, run_scene, write_table  # noqa: E402
+
+
+def mean_after(rows, key, t0):
+    values = [r[key] for r in rows if r["time"] >= t0]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def plot_variations(run, n, rho0, path):
+    snap, t = last_snapshot(run.out)
+    fluid = snap["kind"] == Kind.FLUID
+    pos = snap["position"][fluid]
+    dx = 1.0 / n
+    eps_v = snap["volume"][fluid] / snap["volume0"][fluid] - 1.0  # V0 = dx^2 (a Cartesian lattice)
+    eps_m = snap["mass"][fluid] / (rho0 * dx ** 2) - 1.0  # m0 = rho0 dx^2 (seed 001 fig. 5)
+    fig, axes = plt.subplots(2, 1, figsize=(10, 7.5), sharex=True)
+    for ax, eps, name in ((axes[0], eps_v, "eps_V = V/V0 - 1"), (axes[1], eps_m, "eps_m = m/m0 - 1")):
+        lim = max(np.percentile(np.abs(eps), 99.5), 1e-12)
+        sc = ax.scatter(pos[:, 0], pos[:, 1], c=eps, s=2.0 * (25.0 / n) ** 2, cmap="RdBu_r", vmin=-lim, vmax=lim,
+                        rasterized=True)
+        fig.colorbar(sc, ax=ax, label=name)
+        ax.set(xlim=(2.0, 14.0), ylim=(2.0, 8.0), aspect="equal", ylabel="y / a",
+               title=f"{name} at t U/a = {t:.3g}, a/dx = {n}")
+    axes[1].set_xlabel("x / a")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return float(np.abs(eps_v).max()), float(np.abs(eps_m).max())
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("results/ellipse"))
+    parser.add_argument("--ranks", type=int, default=1)
+    parser.add_argument("--t-end", type=float, default=50.0)
+    parser.add_argument("--resolutions", type=int, nargs="+", default=[25, 50], help="a/dx")
+    args = parser.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    runs, table = {}, []
+    for n in args.resolutions:
+        run = run_scene(CASES / "inclined_ellipse.toml", args.out / f"a{n}",
+                        sets=[f"domain.dx={1.0 / n}", f"time.t_end={args.t_end}", f"output.every={args.t_end / 5}",
+                              "output.history_every=20", "output.checkpoint_minutes=15"], ranks=args.ranks)
+        runs[n] = run
+        rows = run.history
+        mass = np.array([r["total_mass"] for r in rows])
+        rho0 = run.summary["scene"]["physics"]["density"]
+        eps_vi, eps_mi = plot_variations(run, n, rho0, args.out / f"variations_a{n}.png")
+        t0 = 0.5 * args.t_end
+        table.append([n, run.summary["n_particles"], mean_after(rows, "cd_viscous", t0),
+                      mean_after(rows, "cd_pressure", t0), mean_after(rows, "cl_pressure", t0)
+                      + mean_after(rows, "cl_viscous", t0), rows[-1]["volume_error"], eps_vi, eps_mi,
+                      float(np.abs(mass / mass[0] - 1).max()), run.summary["wall_time_s"]])
+        print(f"a/dx={n}: mean cd_viscous(t >= {t0:g}) = {table[-1][2]:.4f}", flush=True)
+    fig, axes = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
+    for n, run in runs.items():
+        t = [r["time"] for r in run.history]
+        for ax, key in zip(axes, ("cd_viscous", "cd_pressure", "cl_pressure")):
+            values = [r[key] + (r["cl_viscous"] if key == "cl_pressure" else 0.0) for r in run.history]
+            ax.plot(t, values, label=f"a/dx = {n}")
+    for ax, name in zip(axes, ("viscous drag cd_viscous", "pressure drag cd_pressure", "lift cl")):
+        ax.set_ylabel(name)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylim(0.0, None)
+    axes[0].legend()
+    axes[0].set_title("Inclined ellipse, Re = 500, 20 degrees (seed 001 fig. 3): coefficients 2F/(rho0 U^2 a)")
+    axes[-1].set_xlabel("t U / a")
+    fig.tight_layout()
+    fig.savefig(args.out / "drag.png", dpi=120)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for n, run in runs.items():
+        ax.plot([r["time"] for r in run.history], [r["volume_error"] for r in run.history], label=f"a/dx = {n}")
+    ax.set(xlabel="t U / a", ylabel="eps_V", title="global volume error (seed 001 eq. 27, fig. 7)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(args.out / "volume_error.png", dpi=120)
+    plt.close(fig)
+    print(write_table(args.out / "forces",
+                      ["a/dx", "particles", f"mean cd_viscous (t >= {0.5 * args.t_end:g})", "mean cd_pressure",
+                       "mean cl", "eps_V(t_end)", "max |eps_Vi|", "max |eps_mi|", "max mass drift", "wall s"],
+                      table, title=f"Inclined ellipse, Re = 500, to t U/a = {args.t_end:g}",
+                      note="Command: " + " ".join(["run_scripts/ellipse.py", "--resolutions",
+                                                   *map(str, args.resolutions), "--t-end", str(args.t_end),
+                                                   "--ranks", str(args.ranks)])))
+
+
+if __name__ == "__main__":
+    main()

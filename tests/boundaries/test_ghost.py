@@ -1,0 +1,130 @@
+"""Fixed ghost walls (the baseline of seed 001 section 6.2): the images the kernels enumerate and mirror on
+the fly equal explicit mirror particles added to the fluid and summed by the fluid kernel (the flows with
+ghost walls are in test_wall_flows.py)."""
+
+import numpy as np
+import pytest
+
+from psph.compute import fluid
+from psph.compute.neighbours import build_neighbour_lists
+from psph.compute.shift_velocity import corrected_grad_c
+from psph.compute.smoothing import make_kernel
+from psph.compute.walls import ghost_grad_c, ghost_images, ghost_rhs
+
+C0, RHO0, MU = 10.0, 1.0, 0.01
+LID = np.array([0.7, 0.0])
+
+
+def box_walls(lo=0.0, hi=1.0):
+    """The four sides of [lo, hi]^2: axis, coordinate, inward sign, velocity (a lid on top)."""
+    return {"axis": np.array([0, 0, 1, 1]), "coord": np.array([lo, hi, lo, hi]),
+            "sign": np.array([1.0, -1.0, 1.0, -1.0]),
+            "velocity": np.array([[0.0, 0.0], [0.0, 0.0], [0.0, 0.0], LID])}
+
+
+def fluid_in_box(rng, n_side=12):
+    dx = 1.0 / n_side
+    grid = (np.stack(np.meshgrid(np.arange(n_side), np.arange(n_side), indexing="ij"), -1).reshape(-1, 2) + 0.5) * dx
+    pos = np.clip(grid + 0.15 * dx * rng.standard_normal(grid.shape), 0.02 * dx, 1.0 - 0.02 * dx)
+    n = len(pos)
+    rho = RHO0 * (1.0 + 0.01 * rng.standard_normal(n))
+    return dict(pos=np.ascontiguousarray(pos), vol=dx * dx * (1.0 + 0.1 * rng.random(n)), rho=rho,
+                prs=C0 * C0 * (rho - RHO0),  # the linear equation of state, as the images' densities assume
+                vel=rng.standard_normal((n, 2)), du=0.1 * rng.standard_normal((n, 2))), dx
+
+
+def explicit_images(f, walls, support, no_slip):
+    """Every fluid particle mirrored across each side it lies within a support of, and across both sides of
+    a corner it is near, written out independently of the kernels: fields of the images."""
+    out = {k: [] for k in f}
+    near = [walls["sign"][w] * (f["pos"][:, walls["axis"][w]] - walls["coord"][w]) < support for w in range(4)]
+    sets = [(w,) for w in range(4)] + [(a, b) for a in (0, 1) for b in (2, 3)]
+    for ws in sets:
+        mask = np.logical_and.reduce([near[w] for w in ws])
+        pos, vel, du = f["pos"][mask].copy(), f["vel"][mask].copy(), f["du"][mask].copy()
+        for w in ws:
+            a, ub = walls["axis"][w], walls["velocity"][w]
+            pos[:, a] = 2.0 * walls["coord"][w] - pos[:, a]
+            if no_slip:  # the Laplacian's mirror: the velocity reversed about the wall's
+                vel = 2.0 * ub - vel
+            else:  # the divergence's: the normal part reversed, the tangential kept
+                vel[:, a] = 2.0 * ub[a] - vel[:, a]
+            du[:, a] = -du[:, a]
+        for k, v in (("pos", pos), ("vel", vel), ("du", du), ("vol", f["vol"][mask]), ("rho", f["rho"][mask]),
+                     ("prs", f["prs"][mask])):
+            out[k].append(v)
+    return {k: np.concatenate([f[k]] + v) for k, v in out.items()}
+
+
+def fluid_rates(f, n, kern, variant, with_shift):
+    """d_rho, d_mom of the first n rows from the fluid kernel over all rows (no diffusion, no gravity)."""
+    ptr, idx = build_neighbour_lists(f["pos"], n, 1.1 * kern.support)
+    kind = np.zeros(len(f["pos"]), dtype=np.int8)
+    pairs, grad_rho = fluid.PairCache(), np.zeros((len(kind), 2))
+    fluid.renormalised_gradient(f["pos"], f["vol"], f["rho"], ptr, idx, kern.params, kind, False, grad_rho, pairs)
+    d_rho, d_mass, d_mom = np.zeros(n), np.zeros(n), np.zeros((n, 2))
+    fluid.delta_ale_rhs(f["pos"], f["vol"], f["rho"], f["rho"] * f["vol"], f["vel"], f["du"], f["prs"], grad_rho,
+                        pairs, kern.params, C0, 0.0, 0.0, MU, np.zeros(2), variant, with_shift, True, kind, False,
+                        d_rho, d_mass, d_mom)
+    return d_rho, d_mom
+
+
+def ghost_rates(f, kern, variant, with_shift, no_slip):
+    n = len(f["pos"])
+    walls = box_walls()
+    ptr, idx = build_neighbour_lists(f["pos"], n, 1.1 * kern.support)
+    kind = np.zeros(n, dtype=np.int8)
+    rows = np.arange(n)
+    images = ghost_images(f["pos"], kind, rows, walls, ptr, idx, kern.support)
+    d_rho, d_mom = fluid_rates(f, n, kern, variant, with_shift)
+    ghost_rhs(f["pos"], f["vol"], f["rho"], f["vel"], f["du"], f["prs"], rows, *images, walls["axis"],
+              walls["coord"], walls["velocity"], no_slip, kern.params, C0, RHO0, 0.0, 7.0, MU, np.zeros(2), variant,
+              with_shift, True, d_rho, d_mom)
+    return d_rho, d_mom, images
+
+
+@pytest.mark.parametrize("variant", [0, 1])
+def test_images_equal_explicit_mirror_particles(variant):
+    """Free slip with shifting: the images' divergence velocity is also their Laplacian velocity, so the
+    ghost terms plus the fluid's equal the fluid kernel over the fluid and its explicit mirror images
+    (continuity with the du-terms, pressure, viscosity, the du-terms of the momentum)."""
+    f, dx = fluid_in_box(np.random.default_rng(3 + variant))
+    kern = make_kernel("wendland_c6", 2, 2.0 * dx)
+    n = len(f["pos"])
+    d_rho, d_mom, images = ghost_rates(f, kern, variant, True, False)
+    assert images[0][-1] > 0 and (images[2][:, 1] >= 0).any()  # single and corner images
+    want_rho, want_mom = fluid_rates(explicit_images(f, box_walls(), kern.support, False), n, kern, variant, True)
+    assert np.abs(d_rho - want_rho).max() < 1e-10 * np.abs(want_rho).max()
+    assert np.abs(d_mom - want_mom).max() < 1e-10 * np.abs(want_mom).max()
+
+
+def test_no_slip_images_reverse_the_velocity_about_the_lid():
+    """No slip without shifting: the momentum equals the fluid kernel's over images carrying 2 u_b - u_j
+    (the continuity uses the other mirroring, so only the momentum is compared)."""
+    f, dx = fluid_in_box(np.random.default_rng(11))
+    kern = make_kernel("wendland_c6", 2, 2.0 * dx)
+    _, d_mom, _ = ghost_rates(f, kern, 1, False, True)
+    _, want = fluid_rates(explicit_images(f, box_walls(), kern.support, True), len(f["pos"]), kern, 1, False)
+    assert np.abs(d_mom - want).max() < 1e-10 * np.abs(want).max()
+    _, free_slip, _ = ghost_rates(f, kern, 1, False, False)
+    assert np.abs(free_slip - want).max() > 1e-3 * np.abs(want).max()  # the two mirrorings differ
+
+
+def test_images_complete_the_concentration_gradient():
+    """On a lattice filling the box, grad C with the images vanishes to round-off at the walls and corners
+    (without them it points out of the fluid there)."""
+    n_side = 12
+    dx = 1.0 / n_side
+    g = (np.stack(np.meshgrid(np.arange(n_side), np.arange(n_side), indexing="ij"), -1).reshape(-1, 2) + 0.5) * dx
+    pos, vol = np.ascontiguousarray(g), np.full(len(g), dx * dx)
+    kern = make_kernel("wendland_c6", 2, 2.0 * dx)
+    ptr, idx = build_neighbour_lists(pos, len(pos), 1.1 * kern.support)
+    grad = np.zeros_like(pos)
+    corrected_grad_c(pos, vol, ptr, idx, kern.params, 0.0, 1.0, 1.0, grad)
+    truncated = np.abs(grad).max()
+    rows = np.arange(len(pos))
+    images = ghost_images(pos, np.zeros(len(pos), np.int8), rows, box_walls(), ptr, idx, kern.support)
+    ghost_grad_c(pos, vol, rows, *images, box_walls()["axis"], box_walls()["coord"], kern.params, 0.0, 1.0, 1.0,
+                 grad)
+    assert truncated > 1.0 and np.abs(grad).max() < 1e-10 * truncated
+
