@@ -2,7 +2,7 @@
 the global volume error eps_V(t) (seed 001 eq. 27, fig. 15).
 
     .venv/bin/python run_scripts/cavity.py [--re 100 1000] [--resolutions 50 100] [--t-end 20] [--ranks 2]
-                                           [--walls clone ghost]
+                                           [--walls clone ghost] [--ghost-resolutions 50]
 
 For each Reynolds number and L/dx it runs cases/lid_driven_cavity.toml to t_end (steady state), samples
 u(y) on x = 0.5 and v(x) on y = 0.5 by kernel interpolation of the fluid particles at Ghia's points, and
@@ -53,6 +53,7 @@ def main():
     parser.add_argument("--resolutions", type=int, nargs="+", default=[50, 100], help="L/dx")
     parser.add_argument("--h-over-dx", type=float, default=2.0)
     parser.add_argument("--walls", nargs="+", default=["clone"], choices=["clone", "ghost"])
+    parser.add_argument("--ghost-resolutions", type=int, nargs="+", help="L/dx of the ghost runs (default: all)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     scenes = {"clone": CASES / "lid_driven_cavity.toml", "ghost": args.out / "lid_driven_cavity_ghost.toml"}
@@ -66,7 +67,7 @@ def main():
         ax_u.plot(gu, gy, "ko", label="Ghia et al. 1982")
         ax_v.plot(gx, gv, "ko", label="Ghia et al. 1982")
         for walls in args.walls:
-            for n in args.resolutions:
+            for n in (args.ghost_resolutions or args.resolutions) if walls == "ghost" else args.resolutions:
                 dx = 1.0 / n
                 name = f"Re{re}_L{n}" + ("" if walls == "clone" else f"_{walls}")
                 run = run_scene(scenes[walls], args.out / name,
@@ -109,7 +110,9 @@ def main():
                       title=f"Lid-driven cavity at t = {args.t_end}: deviation from Ghia et al. (1982), in U",
                       note="Command: " + " ".join(["run_scripts/cavity.py", "--re", *map(str, args.re),
                                                    "--resolutions", *map(str, args.resolutions),
-                                                   "--t-end", str(args.t_end), "--walls", *args.walls])))
+                                                   "--t-end", str(args.t_end), "--walls", *args.walls,
+                                                   *(["--ghost-resolutions", *map(str, args.ghost_resolutions)]
+                                                     if args.ghost_resolutions else [])])))
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ from psph.boundaries.bodies import make_bodies
 from psph.compute.walls import clone_rhs, ghost_grad_c, ghost_images, ghost_rhs, near_wall_rows
 from psph.parallel.comm import allreduce_sum
 from psph.particles import Kind
+from psph.schemes.eos import GAMMA
 
 
 class WallTerms:
@@ -99,8 +100,8 @@ class WallTerms:
 
     # ----------------------------------------------------------------- rhs
     def add(self, system, scheme, t, d_rho, d_mom):
-        """Add the clone-particle terms to the owned fluid rows' rates; keep the body forces. Collective
-        only in that the forces are reduced when asked (body_forces)."""
+        """Add the walls' terms (clone particles, ghost images) to the owned fluid rows' rates; keep the body
+        forces. Not collective (the forces are reduced when asked, body_forces)."""
         p = system.particles
         eos_b = getattr(scheme.eos, "b", 0.0)
         self.force[:] = 0.0
@@ -113,7 +114,7 @@ class WallTerms:
             w = self.ghost
             ghost_rhs(p["position"], p["volume"], p["density"], p["velocity"], du, p["pressure"], rows, *images,
                       w["axis"], w["coord"], w["velocity"], w["no_slip"], system.kernel.params, scheme.c0,
-                      scheme.rho0, eos_b, 7.0, scheme.mu, self.gravity, scheme.variant, scheme.shift.active,
+                      scheme.rho0, eos_b, GAMMA, scheme.mu, self.gravity, scheme.variant, scheme.shift.active,
                       scheme.tensile, d_rho, d_mom)
 
     def _add_clones(self, system, scheme, t, du, eos_b, d_rho, d_mom):
@@ -123,7 +124,7 @@ class WallTerms:
         clone_rhs(p["position"], p["volume"], p["density"], p["velocity"], du, p["pressure"], p["kind"],
                   p["body"], p["normal"], p["wall_distance"], p["wall_accel"], p["wall_velocity"], rows, n_i, s_i,
                   self.no_slip,
-                  system.nbr_ptr, system.nbr_idx, system.kernel.params, scheme.c0, scheme.rho0, eos_b, 7.0,
+                  system.nbr_ptr, system.nbr_idx, system.kernel.params, scheme.c0, scheme.rho0, eos_b, GAMMA,
                   scheme.mu, self.gravity, self.ds, scheme.variant, scheme.shift.active, scheme.tensile,
                   self.centers, d_rho, d_mom, self.force, self.torque)
 

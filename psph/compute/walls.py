@@ -1,4 +1,5 @@
-"""Clone particles: the fluid-solid part of the delta-ALE-SPH right-hand side (seed 004 section III; numba).
+"""The fluid-solid part of the delta-ALE-SPH right-hand side (numba): clone particles (seed 004 section III)
+and, at the end of this module, the fixed-ghost baseline (seed 001 section 6.2).
 
 For a fluid particle i and each solid particle j in its support, j takes values mirrored from i alone
 (local mirroring). With n_i, s_i and u_b the normal, distance and body velocity of the body node closest
@@ -26,7 +27,9 @@ to i, and n_j, s_j the solid particle's normal and distance to the profile:
                      physical pressure integral, suction included
   shifting           du_j = (du_i . t) t - (du_i . n) n   (du . n = 0 on the wall, seed 001 section 6.2)
 with ds = dx / 4 (the body-node spacing). These pairs enter the continuity equation (divergence velocity,
-shifting terms), the pressure and the viscous forces (Laplacian velocity); the diffusive terms D^rho and
+shifting terms), the pressure and the viscous forces (Laplacian velocity) and the momentum's shifting
+term (div(rho u du) for delta_ale, div(u du) - u_i div(du) for the other variants, as the fluid pairs);
+the diffusive terms D^rho and
 D^m act between fluid particles only. The force of the walls on each fluid particle is accumulated per
 body (pressure and viscous parts) for the body forces; the torque about the body centre too.
 """
@@ -267,7 +270,10 @@ def _image_position(pos, j, w1, w2, w_axis, w_coord):
 @njit(cache=True)
 def _mirror(vel, du, j, walls, w_axis, w_vel, no_slip):
     """Velocities of the image of fluid particle j across walls[0] (and walls[1] if >= 0): divergence,
-    Laplacian and shifting velocity."""
+    Laplacian and shifting velocity. A corner image is mirrored across the x-wall (walls[0], the lower
+    index) first, so a no-slip corner image below a moving lid gets 2 u_lid - (2 u_side - u) = u + 2 u_lid:
+    the lid's velocity is discontinuous at its corners, and this choice lets the lid drag its corners'
+    fluid as it drags the rest of the top layer."""
     ud = np.array([vel[j, 0], vel[j, 1]])
     ul = ud.copy()
     dd = np.array([du[j, 0], du[j, 1]])
@@ -304,6 +310,8 @@ def ghost_rhs(pos, vol, rho, vel, du, prs, rows, img_ptr, img_j, img_w, w_axis, 
             ud, ul, dd = _mirror(vel, du, j, img_w[k], w_axis, w_vel, no_slip)
             x0, x1 = pos[i, 0] - g0, pos[i, 1] - g1
             rr = np.sqrt(x0 * x0 + x1 * x1)
+            if rr == 0.0:  # a particle on the wall meets its own image: no direction, no force
+                continue
             p_g = prs[j] + rho[j] * (gravity[0] * (g0 - pos[j, 0]) + gravity[1] * (g1 - pos[j, 1]))
             c, q0, q1, v0, v1, h0, h1, _, _ = _wall_pair(
                 x0, x1, rr, kernel_f(rr, kp) * vol[j], rho_i, p_i, ui0, ui1, di0, di1,
@@ -328,6 +336,8 @@ def ghost_grad_c(pos, vol, rows, img_ptr, img_j, img_w, w_axis, w_coord, kp, coe
             g0, g1 = _image_position(pos, img_j[k], img_w[k, 0], img_w[k, 1], w_axis, w_coord)
             x0, x1 = pos[i, 0] - g0, pos[i, 1] - g1
             rr = np.sqrt(x0 * x0 + x1 * x1)
+            if rr == 0.0:
+                continue
             s = kernel_f(rr, kp) * vol[img_j[k]]
             if coeff != 0.0:
                 s *= 1.0 + coeff * fast_power(kernel_w(rr, kp) / w_ref, power)

@@ -259,7 +259,8 @@ class Scene:
     output: OutputSpec = option(OutputSpec(), doc="what is written and when")
     diagnostics: DiagnosticsSpec = option(DiagnosticsSpec(), doc="diagnostics")
     neighbours: NeighboursSpec = option(NeighboursSpec(), doc="neighbour lists and load balance")
-    bodies: tuple[BodySpec, ...] = option((), doc="solid walls and bodies ([[bodies]] tables; clone particles)")
+    bodies: tuple[BodySpec, ...] = option((), doc="solid walls and bodies ([[bodies]] tables; clone particles or "
+                                          "ghost walls)")
 
     def _check_ghost_walls(self, fluid):
         ghosts = [k for k, b in enumerate(self.bodies) if b.model == "ghost"]
@@ -282,6 +283,12 @@ class Scene:
             if not d.periodic[a] and hi - lo <= 2.0 * d.support:
                 raise SceneError(key, f"the box is too narrow along axis {a} for ghost images (needs more than "
                                  f"two kernel supports, {2.0 * d.support:g})")
+            if not d.periodic[a] and (lo < d.lower[a] - 1e-9 * d.dx or hi > d.upper[a] + 1e-9 * d.dx):
+                raise SceneError(key, f"along axis {a} the box leaves the domain: the fluid at the domain's "
+                                 "edge would have no wall")
+        if box.lid_velocity and d.periodic[1]:
+            raise SceneError(f"bodies[{ghosts[0]}].lid_velocity", "a ghost box has no top side along a periodic "
+                             "y axis: the lid would be ignored")
 
     def check(self, path):
         fluid = self.physics.scheme in FLUID_SCHEMES

@@ -210,15 +210,22 @@ class DeltaALE:
                 self.free_stream * (1.0 - np.cos(2.0 * np.pi * t / T)) / T)
 
     def _drive_free_stream(self, system, t, d_mom):
-        """Add the uniform acceleration g that makes the fluid's total momentum P follow M U(t):
-        M g = M dU/dt - sum_i d(m_i u_i)/dt, whatever the walls and bodies took (physics.free_stream).
-        Collective."""
+        """Add the uniform acceleration g that makes the fluid's mean velocity P/M follow U(t):
+        g = dU/dt - (sum_i d(m_i u_i)/dt) / M + (U(t) - P/M) / T, whatever the walls and bodies took
+        (physics.free_stream, T its ramp time). The first two terms hold the total momentum at M U(t) to the
+        time integrator's error where the masses are constant (delta_ale, delta_ale_const_mass); the last
+        relaxes what they leave over T: the changing masses of delta_ale_const_volume and the momentum the
+        IIPS field updates move between steps. Collective."""
         p = system.particles
         fluid = p.owned("kind") == 0
         m = p.owned("mass")[fluid]
         rate = d_mom[fluid].sum(axis=0) if self.variant == 0 else (m[:, None] * d_mom[fluid]).sum(axis=0)
-        total = allreduce_sum(system.comm, np.append(rate, m.sum()))
-        g = self.free_stream_velocity(t)[1] - total[:-1] / total[-1]
+        momentum = (m[:, None] * p.owned("velocity")[fluid]).sum(axis=0)
+        total = allreduce_sum(system.comm, np.concatenate([rate, momentum, [m.sum()]]))
+        d = len(rate)
+        mass = total[-1]
+        target, slope = self.free_stream_velocity(t)
+        g = slope - total[:d] / mass + (target - total[d:2 * d] / mass) / self.free_stream_ramp
         d_mom[fluid] += m[:, None] * g if self.variant == 0 else g
 
     def end_step(self, system, dt):

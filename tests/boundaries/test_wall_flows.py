@@ -21,7 +21,9 @@ def with_walls(tmp_path, case, model):
     if model == "clone":
         return CASES / case
     path = tmp_path / f"{model}_{case}"
-    path.write_text((CASES / case).read_text().replace('wall = "no_slip"', f'wall = "no_slip"\nmodel = "{model}"'))
+    text = (CASES / case).read_text()
+    assert 'wall = "no_slip"' in text, case
+    path.write_text(text.replace('wall = "no_slip"', f'wall = "no_slip"\nmodel = "{model}"'))
     return path
 
 
@@ -99,8 +101,8 @@ def test_hydrostatic_tank_stays_at_rest(tmp_path, model):
 @pytest.mark.parametrize("model", ["clone", "ghost"])
 def test_lid_driven_cavity_conserves_mass_and_turns(tmp_path, model):
     """A short Re = 100 cavity run: mass to round-off; the lid drags the top layer forward and the fluid
-    returns below (the primary vortex forms); with clone particles and with ghost walls (seed 001 section
-    6.2: mass to machine precision thanks to the mirrored (u + du) . n)."""
+    returns below (the primary vortex forms); with clone particles and with ghost walls. (Total mass is a
+    check of the scheme, not of the walls: no wall pair changes a mass.)"""
     out = run(tmp_path, with_walls(tmp_path, "lid_driven_cavity.toml", model), "cavity", "domain.dx=0.04",
               "time.t_end=1.0", "output.every=1.0", "output.history_every=10")
     rows = read_history(out / "history.csv")
@@ -211,16 +213,20 @@ def test_free_stream_without_bodies_stays_uniform(tmp_path):
         assert np.abs(mean - ramp(r["time"], [0.5, -0.25], 0.2)).max() < 1e-7, r["time"]
 
 
-def test_free_stream_is_held_against_the_ellipse_drag(tmp_path):
+@pytest.mark.parametrize("scheme, tol", [("delta_ale", 1e-6), ("delta_ale_const_volume", 5e-5)])
+def test_free_stream_is_held_against_the_ellipse_drag(tmp_path, scheme, tol):
     """The inclined ellipse at a coarse dx: the force keeps the fluid's mean velocity on the ramp and then at
-    U although the ellipse takes momentum all along (positive drag)."""
+    U although the ellipse takes momentum all along (positive drag). With constant volumes the masses
+    change: the relaxation term holds the mean velocity within 4e-5 U (without it: 8e-5 by t = 1.5, and
+    growing)."""
     common = ["domain.dx=0.2", "physics.free_stream_ramp=0.5", "time.t_end=1.5", "output.every=0",
-              "output.history_every=5"]
+              "output.history_every=5", f"physics.scheme={scheme}"]
     rows = read_history(run(tmp_path, "inclined_ellipse.toml", "held", *common) / "history.csv")
     for r in rows:
-        assert abs(r["momentum_x"] / r["total_mass"] - ramp(r["time"], 1.0, 0.5)) < 1e-6, r["time"]
-        assert abs(r["momentum_y"]) < 1e-6 * r["total_mass"]
+        assert abs(r["momentum_x"] / r["total_mass"] - ramp(r["time"], 1.0, 0.5)) < tol, r["time"]
+        assert abs(r["momentum_y"]) < tol * r["total_mass"]
     late = [r for r in rows if r["time"] > 1.0]  # the pressure drag still carries the start's sound waves
     assert len(late) > 5 and all(r["cd_viscous"] > 0.0 for r in late)
     assert np.mean([r["cd_pressure"] for r in late]) > 0.0
-    assert rows[-1]["total_mass"] == pytest.approx(rows[0]["total_mass"], rel=1e-13)
+    if scheme == "delta_ale":
+        assert rows[-1]["total_mass"] == pytest.approx(rows[0]["total_mass"], rel=1e-13)

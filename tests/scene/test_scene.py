@@ -146,6 +146,8 @@ def ghost_cavity(**changes):
     ({"physics.scheme": "none"}, "bodies[0].model", "need a fluid scheme"),
     ({"domain.periodic": [True, False], "bodies.0.size": [0.8, 1.0]}, "bodies[0].model", "must span the domain"),
     ({"bodies.0.size": [1.0, 0.05], "bodies.0.center": [0.5, 0.95]}, "bodies[0].model", "too narrow"),
+    ({"bodies.0.size": [1.2, 1.0]}, "bodies[0].model", "leaves the domain"),
+    ({"domain.periodic": [False, True], "bodies.0.size": [1.0, 1.0]}, "bodies[0].lid_velocity", "periodic y"),
 ])
 def test_ghost_walls_are_refused_where_they_do_not_apply(changes, key, words):
     scene_from_table(ghost_cavity())  # the cavity itself is fine
