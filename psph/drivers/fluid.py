@@ -155,7 +155,10 @@ class FluidDriver:
             [0.5 * float((m * (u * u).sum(axis=1))[mask].sum()), float(m[mask].sum()), float(vol[mask].sum())],
             (m[:, None] * u)[mask].sum(axis=0)]))
         drho = allreduce_max(comm, float(np.abs(rho[mask] / self.scheme.rho0 - 1.0).max()) if mask.any() else 0.0)
-        l2, linf = norms(comm, grad_c(self.system, self.concentration_volume), mask, self.system.kernel.h)
+        grad = grad_c(self.system, self.concentration_volume)
+        if self.scheme.walls is not None:  # ghost walls complete the support with images
+            self.scheme.walls.add_ghost_grad_c(self.system, 0.0, 1.0, 1.0, grad)
+        l2, linf = norms(comm, grad, mask, self.system.kernel.h)
         dvol = allreduce_max(comm, float(np.abs(vol / p.owned("volume0") - 1.0).max()) if p.n_owned else 0.0)
         speed = np.sqrt((u * u).sum(axis=1))[mask]
         vmax = allreduce_max(comm, float(speed.max()) if len(speed) else 0.0)
