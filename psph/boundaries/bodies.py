@@ -60,7 +60,7 @@ class MotionLaw:
 class Body:
     """One wall or immersed body of the scene."""
 
-    def __init__(self, spec, index, dx):
+    def __init__(self, spec, index, dx, stream=(1.0, 0.0)):
         self.spec, self.index, self.name = spec, index, spec.name
         ds = dx / 4.0
         if spec.shape == "ellipse":
@@ -70,9 +70,11 @@ class Body:
                                              fluid_inside=spec.shape == "box")
         self.center0 = np.asarray(spec.center, dtype=np.float64)
         self.velocity = np.asarray(spec.motion.velocity or (0.0, 0.0), dtype=np.float64)
-        # drag acts along the flow seen from the body: against its motion, or along +x for a body at rest
+        # drag acts along the flow seen from the body: against its motion, or along the free stream (+x
+        # without one) for a body at rest
         speed = float(np.linalg.norm(self.velocity))
-        self.drag_direction = -self.velocity / speed if speed > 0 else np.array([1.0, 0.0])
+        stream = np.asarray(stream, dtype=np.float64)
+        self.drag_direction = -self.velocity / speed if speed > 0 else stream / np.linalg.norm(stream)
         self.omega = spec.motion.angular_velocity
         self.law = MotionLaw(spec.motion)
         self.kind = Kind.WALL if spec.shape == "box" else Kind.BODY
@@ -132,4 +134,5 @@ def _rot_rad(a):
 
 
 def make_bodies(scene):
-    return [Body(spec, k, scene.domain.dx) for k, spec in enumerate(scene.bodies)]
+    stream = scene.physics.free_stream or (1.0, 0.0)
+    return [Body(spec, k, scene.domain.dx, stream) for k, spec in enumerate(scene.bodies)]

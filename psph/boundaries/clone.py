@@ -149,7 +149,8 @@ class WallTerms:
     def body_forces(self, comm) -> dict:
         """Drag and lift coefficients 2 F / (rho0 U^2 D) of every immersed body, pressure and viscous parts,
         from the last right-hand side: drag along the flow seen from the body (against a moving body's
-        velocity, +x for a body at rest), lift 90 degrees anticlockwise from it. Collective."""
+        velocity, along physics.free_stream or +x for a body at rest), lift 90 degrees anticlockwise from it.
+        Collective."""
         force = allreduce_sum(comm, self.force.copy())
         immersed = [b for b in self.bodies if b.kind == Kind.BODY]
         out = {}

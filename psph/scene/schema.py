@@ -286,9 +286,6 @@ class Scene:
             if not d.periodic[a] and (lo < d.lower[a] - 1e-9 * d.dx or hi > d.upper[a] + 1e-9 * d.dx):
                 raise SceneError(key, f"along axis {a} the box leaves the domain: the fluid at the domain's "
                                  "edge would have no wall")
-        if box.lid_velocity and d.periodic[1]:
-            raise SceneError(f"bodies[{ghosts[0]}].lid_velocity", "a ghost box has no top side along a periodic "
-                             "y axis: the lid would be ignored")
 
     def check(self, path):
         fluid = self.physics.scheme in FLUID_SCHEMES
@@ -301,6 +298,11 @@ class Scene:
             if len(set(names)) != len(names):
                 raise SceneError("bodies", f"body names must be unique, got {names}")
             self._check_ghost_walls(fluid)
+            d = self.domain
+            for k, b in enumerate(self.bodies):
+                if b.lid_velocity and d.periodic[1] and b.center[1] + b.size[1] / 2.0 >= d.upper[1] - 1e-9 * d.dx:
+                    raise SceneError(f"bodies[{k}].lid_velocity", "the box's top side is not inside the periodic "
+                                     "y axis (a box spanning it keeps only its side plates): the lid would be ignored")
         for key in ("fill_lower", "fill_upper"):
             value = getattr(self.initial, key)
             if value and len(value) != self.domain.dimension:
@@ -335,6 +337,8 @@ class Scene:
             if not (fluid and all(self.domain.periodic) and self.initial.velocity == "zero"):
                 raise SceneError("physics.free_stream", "needs a fluid scheme starting from rest in a fully "
                                  "periodic domain (walls would take the momentum the force puts in)")
+            if not any(self.physics.free_stream):
+                raise SceneError("physics.free_stream", "a zero free stream: leave the key out for none")
         if self.initial.velocity == "taylor_green":
             d = self.domain
             square = d.dimension == 2 and all(d.periodic) and math.isclose(

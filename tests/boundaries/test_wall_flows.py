@@ -9,10 +9,14 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from mpi4py import MPI
 
 from psph.analytic import couette_startup
+from psph.boundaries.clone import WallTerms
+from psph.errors import SceneError
 from psph.io.history import read_history
 from psph.particles import Kind
+from psph.scene.load import load_scene
 from tests.helpers import CASES, run_psph
 
 
@@ -232,3 +236,25 @@ def test_free_stream_is_held_against_the_ellipse_drag(tmp_path, scheme, tol):
     assert np.mean([r["cd_pressure"] for r in late]) > 0.0
     if scheme == "delta_ale":
         assert rows[-1]["total_mass"] == pytest.approx(rows[0]["total_mass"], rel=1e-13)
+
+
+@pytest.mark.parametrize("stream", [[1.0, 0.0], [0.0, 2.0], [-0.6, 0.8]])
+def test_drag_of_a_body_at_rest_is_along_the_free_stream(stream):
+    """Drag along the free stream (not +x) and lift 90 degrees anticlockwise from it, both scaled by
+    physics.reference_velocity (which sets the Reynolds number)."""
+    scene = load_scene(CASES / "inclined_ellipse.toml", [f"physics.free_stream={stream}"])
+    walls = WallTerms(scene)
+    force = np.array([3.0, -1.0])
+    walls.force[0, 0] = force
+    e = np.asarray(stream) / np.linalg.norm(stream)
+    scale = 2.0 / (scene.physics.density * scene.physics.reference_velocity ** 2 * 1.0)  # chord a = 1
+    out = walls.body_forces(MPI.COMM_SELF)
+    assert out["cd_pressure"] == pytest.approx(scale * force @ e)
+    assert out["cl_pressure"] == pytest.approx(scale * force @ [-e[1], e[0]])
+    assert out["cd_viscous"] == 0.0 and out["cl_viscous"] == 0.0
+
+
+def test_a_zero_free_stream_is_refused():
+    with pytest.raises(SceneError) as info:
+        load_scene(CASES / "inclined_ellipse.toml", ["physics.free_stream=[0.0, 0.0]"])
+    assert info.value.key == "physics.free_stream" and "leave the key out" in str(info.value)
