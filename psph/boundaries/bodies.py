@@ -60,7 +60,7 @@ class MotionLaw:
 class Body:
     """One wall or immersed body of the scene."""
 
-    def __init__(self, spec, index, dx, stream=(1.0, 0.0)):
+    def __init__(self, spec, index, dx, stream):
         self.spec, self.index, self.name = spec, index, spec.name
         ds = dx / 4.0
         if spec.shape == "ellipse":
