@@ -1,0 +1,151 @@
+"""Where the total volume of a walled delta-ALE-SPH flow comes from: the budget of d(sum_i V_i)/dt.
+
+    .venv/bin/python run_scripts/volume_budget.py [--walls clone ghost] [--dx 0.04] [--t0 2] [--t1 6]
+
+With V_i = m_i / rho_i (seed 001 eq. 13), dV_i/dt = V_i (dm_i/dt / m_i - drho_i/dt / rho_i). After every
+time step the right-hand side is split into the fluid pairs' and the walls' parts, each with and without
+its shifting (du) terms, summed over regions of the lid-driven cavity (the two top corners, the rest of the
+lid, the other walls, the interior), and integrated over t0..t1 (one evaluation per step, at its end). For
+the fluid pairs, the du terms of the continuity equation (eq. 12: div du as a difference, div(rho du) as a
+sum) add up over all particles to -2 sum_i V_i du_i . grad C_i (grad C over the fluid pairs), and with
+clone walls, whose du mirrors the particle's own, to the same with the walls' part of grad C included:
+printed as "-2 V du.grad C" to check. Writes results/volume_budget/budget.{md,csv}.
+"""
+
+import argparse
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+
+from psph.compute.fluid import delta_ale_rhs
+from psph.diagnostics import fluid_mask, grad_c
+from psph.drivers.fluid import FluidDriver
+from psph.scene.load import load_scene
+from psph.studies import CASES, write_table
+
+PARTS = ("fluid pairs, u", "fluid pairs, du", "walls, u", "walls, du")
+REGIONS = ("top-left corner", "top-right corner", "lid", "other walls", "interior")
+
+
+@contextmanager
+def shifting_off(scheme):
+    """The scheme's right-hand side pieces without their du terms (the shift law is left as it is)."""
+    active = scheme.shift.active
+    scheme.shift.active = False
+    try:
+        yield
+    finally:
+        scheme.shift.active = active
+
+
+def regions(x, support):
+    """Masks of REGIONS for positions x in the unit cavity."""
+    top = x[:, 1] > 1.0 - 2.0 * support
+    left, right = top & (x[:, 0] < 2.0 * support), top & (x[:, 0] > 1.0 - 2.0 * support)
+    lid = (x[:, 1] > 1.0 - support) & ~left & ~right
+    near = np.minimum.reduce([x[:, 0], 1.0 - x[:, 0], x[:, 1], 1.0 - x[:, 1]]) < support
+    walls = near & ~left & ~right & ~lid
+    return left, right, lid, walls, ~(left | right | lid | walls)
+
+
+def rates(drv, t, dt):
+    """Per fluid particle dV/dt of each part of PARTS, and -2 V du . grad C, at the current state."""
+    sch, system = drv.scheme, drv.system
+    p = system.particles
+    full = sch.rhs(system, t, dt)  # refreshes the halo, the shift velocity, grad rho and the pair cache
+    n, d = p.n_owned, p.dim
+    fluid = {}
+    for shifted in (True, False):
+        d_rho, d_mass = np.zeros(n), np.zeros(n)
+        delta_ale_rhs(p["position"], p["volume"], p["density"], p["mass"], p["velocity"],
+                      p["shift_velocity"] if shifted else p["velocity"], p["pressure"], p["grad_rho"], sch.pairs,
+                      system.kernel.params, sch.c0, sch.delta, sch.delta_m, sch.mu, sch.gravity, sch.variant,
+                      shifted, sch.tensile, p["kind"], True, d_rho, d_mass, np.zeros((n, d)))
+        fluid[shifted] = (d_rho, d_mass)
+    walls = {}
+    for shifted in (True, False):
+        d_rho = np.zeros(n)
+        if shifted:
+            sch.walls.add(system, sch, t, d_rho, np.zeros((n, d)))
+        else:
+            with shifting_off(sch):
+                sch.walls.add(system, sch, t, d_rho, np.zeros((n, d)))
+        walls[shifted] = d_rho
+    assert np.allclose(full["density"], fluid[True][0] + walls[True], rtol=1e-10, atol=1e-12)
+    mask = fluid_mask(system)
+    vol, m, rho = p.owned("volume"), p.owned("mass"), p.owned("density")
+
+    def dv(d_rho, d_mass):
+        return (vol * (d_mass / m - d_rho / rho))[mask]
+
+    zero = np.zeros(n)
+    out = [dv(*fluid[False]), dv(fluid[True][0] - fluid[False][0], fluid[True][1] - fluid[False][1]),
+           dv(walls[False], zero), dv(walls[True] - walls[False], zero)]
+    grad = grad_c(system, "volume")
+    sch.walls.add_ghost_grad_c(system, 0.0, 1.0, 1.0, grad)
+    out.append((-2.0 * vol * (p.owned("shift_velocity") * grad).sum(axis=1))[mask])
+    return out
+
+
+def budget(scene_path, dx, t0, t1, out_dir):
+    """Integrated parts (fractions of the initial volume) per region over t0..t1, and eps_V at both ends."""
+    scene = load_scene(scene_path, [f"domain.dx={dx}", f"time.t_end={t1}", "output.every=0"])
+    drv = FluidDriver(scene, MPI.COMM_WORLD, out_dir)
+    system = drv.system
+    p = system.particles
+    v0 = drv.initial_volume
+    table = np.zeros((len(PARTS) + 1, len(REGIONS)))
+    state = {"step": 0, "time": 0.0}
+    totals = {k: 0 for k in ("iips_time_s", "iips_newton", "iips_linear", "iips_calls", "iips_failures")}
+    eps = []
+    while state["time"] < t1 * (1.0 - 1e-12):
+        dt, vmax = drv.time_step()
+        drv.first_dt = drv.first_dt or dt
+        dt = min(dt, t1 - state["time"])
+        drv.advance(state, dt, vmax, totals)
+        mask = fluid_mask(system)
+        if state["time"] < t0:
+            continue
+        if not eps:
+            eps.append(p.owned("volume")[mask].sum() / v0 - 1.0)
+        if state["time"] < t1 * (1.0 - 1e-12):
+            masks = regions(p.owned("position")[mask], system.kernel.support)
+            for a, r in enumerate(rates(drv, state["time"], dt)):
+                table[a] += [dt * r[k].sum() / v0 for k in masks]
+    eps.append(p.owned("volume")[fluid_mask(system)].sum() / v0 - 1.0)
+    return table, eps
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--walls", nargs="+", default=["clone", "ghost"], choices=["clone", "ghost"])
+    parser.add_argument("--dx", type=float, default=0.04)
+    parser.add_argument("--t0", type=float, default=2.0)
+    parser.add_argument("--t1", type=float, default=6.0)
+    parser.add_argument("--out", type=Path, default=Path("results/volume_budget"))
+    args = parser.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    scene = CASES / "lid_driven_cavity.toml"
+    rows = []
+    for walls in args.walls:
+        path = scene
+        if walls == "ghost":
+            path = args.out / "lid_driven_cavity_ghost.toml"
+            path.write_text(scene.read_text().replace('wall = "no_slip"', 'wall = "no_slip"\nmodel = "ghost"'))
+        table, eps = budget(path, args.dx, args.t0, args.t1, args.out / f"run_{walls}")
+        for name, values in zip(PARTS + ("-2 V du.grad C",), table):
+            rows.append([walls, name, *values, values.sum()])
+        rows.append([walls, "sum of the parts", *table[:-1].sum(axis=0), table[:-1].sum()])
+        rows.append([walls, f"eps_V({args.t1:g}) - eps_V({args.t0:g})", *[float("nan")] * len(REGIONS),
+                     eps[1] - eps[0]])
+        print(f"{walls}: eps_V {eps[0]:.4e} -> {eps[1]:.4e}", flush=True)
+    print(write_table(args.out / "budget", ["walls", "part", *REGIONS, "total"], rows,
+                      title=f"Lid-driven cavity, Re = 100, dx = {args.dx:g}: volume budget over t = {args.t0:g}"
+                            f"..{args.t1:g} (fractions of the initial volume)",
+                      note="One right-hand side evaluation per step, at its end (a left Riemann sum of the rate)."))
+
+
+if __name__ == "__main__":
+    main()
