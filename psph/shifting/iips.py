@@ -92,6 +92,10 @@ class ImplicitShifting:
         with phase("iips_structure"):
             indptr, indices, slot = iips_structure(rows, system.nbr_ptr, system.nbr_idx, d)
             n_total = int(allreduce_sum(system.comm, n_free))
+            if self._structure_of is not None:  # free the previous matrix and vectors (FixedPatternMatrix.destroy)
+                self.matrix.destroy()
+                self.rhs.destroy()
+                self.dx.destroy()
             with petsc_errors("creating the IIPS matrix"):
                 self.matrix = FixedPatternMatrix(system.comm, indptr, indices, slot, n_total * d, d,
                                                  self.solver.prefix)

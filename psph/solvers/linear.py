@@ -52,7 +52,7 @@ class LinearSolver:
         self.defaults = dict(ksp_type=ksp_type, pc_type=pc_type, rtol=rtol, atol=atol, max_it=max_it,
                              initial_guess_nonzero=initial_guess_nonzero)
         self.ksp = self._create()
-        self.operator = None
+        self.operator_sizes = None  # of the current operator (which a caller may have freed since)
         self.iterations = 0
 
     def _create(self, settings=None):
@@ -75,7 +75,7 @@ class LinearSolver:
         types and tolerances (options set only while the solver was built, as a program or test may do,
         are gone from the database by then). Collective: the local sizes may change on some ranks only,
         and creating a KSP is collective, so the ranks decide together."""
-        changed = self.operator is not None and self.operator.getSizes() != mat.getSizes()
+        changed = self.operator_sizes is not None and self.operator_sizes != mat.getSizes()
         if self.comm.allreduce(changed, op=MPI.LOR):
             rtol, atol, _, max_it = self.ksp.getTolerances()
             settings = dict(ksp_type=self.ksp.getType(), pc_type=self.ksp.getPC().getType(), rtol=rtol,
@@ -84,7 +84,7 @@ class LinearSolver:
             self.ksp = self._create(settings)
         with petsc_errors(f"setting up the -{self.prefix} solver"):
             self.ksp.setOperators(mat)
-        self.operator = mat
+        self.operator_sizes = mat.getSizes()
 
     def solve(self, b, x) -> int:
         """Solve operator x = b (x holds the initial guess); returns iterations or raises SolverError."""
