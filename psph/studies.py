@@ -61,6 +61,18 @@ def _same_command(a, b) -> bool:
     return key(a) == key(b)
 
 
+def cavity_scene(walls, out_dir) -> Path:
+    """cases/lid_driven_cavity.toml with clone walls, or a copy in out_dir with fixed ghost walls
+    (bodies[].model = "ghost", seed 001 section 6.2)."""
+    scene = CASES / "lid_driven_cavity.toml"
+    if walls == "clone":
+        return scene
+    path = Path(out_dir) / "lid_driven_cavity_ghost.toml"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(scene.read_text().replace('wall = "no_slip"', 'wall = "no_slip"\nmodel = "ghost"'))
+    return path
+
+
 def rate(e_coarse, e_fine, ratio=2.0) -> float:
     """Observed convergence order between two resolutions `ratio` apart."""
     if e_coarse and e_fine and e_coarse > 0 and e_fine > 0:

@@ -23,7 +23,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from psph.compute.smoothing import make_kernel  # noqa: E402
 from psph.particles import Kind  # noqa: E402
-from psph.studies import CASES, last_snapshot, run_scene, shepard_sample, write_table  # noqa: E402
+from psph.studies import cavity_scene, last_snapshot, run_scene, shepard_sample, write_table  # noqa: E402
 
 GHIA = Path(__file__).resolve().parent / "reference" / "ghia1982_Re100_Re1000.csv"
 
@@ -56,10 +56,7 @@ def main():
     parser.add_argument("--ghost-resolutions", type=int, nargs="+", help="L/dx of the ghost runs (default: all)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    scenes = {"clone": CASES / "lid_driven_cavity.toml", "ghost": args.out / "lid_driven_cavity_ghost.toml"}
-    if "ghost" in args.walls:
-        scenes["ghost"].write_text(scenes["clone"].read_text().replace(
-            'wall = "no_slip"', 'wall = "no_slip"\nmodel = "ghost"'))
+    scenes = {walls: cavity_scene(walls, args.out) for walls in args.walls}
     table, histories = [], {}
     for re in args.re:
         gy, gu, gx, gv = ghia(re)

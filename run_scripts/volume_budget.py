@@ -23,7 +23,7 @@ from psph.compute.fluid import delta_ale_rhs
 from psph.diagnostics import fluid_mask, grad_c
 from psph.drivers.fluid import FluidDriver
 from psph.scene.load import load_scene
-from psph.studies import CASES, write_table
+from psph.studies import cavity_scene, write_table
 
 PARTS = ("fluid pairs, u", "fluid pairs, du", "walls, u", "walls, du")
 REGIONS = ("top-left corner", "top-right corner", "lid", "other walls", "interior")
@@ -127,14 +127,9 @@ def main():
     parser.add_argument("--out", type=Path, default=Path("results/volume_budget"))
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    scene = CASES / "lid_driven_cavity.toml"
     rows = []
     for walls in args.walls:
-        path = scene
-        if walls == "ghost":
-            path = args.out / "lid_driven_cavity_ghost.toml"
-            path.write_text(scene.read_text().replace('wall = "no_slip"', 'wall = "no_slip"\nmodel = "ghost"'))
-        table, eps = budget(path, args.dx, args.t0, args.t1, args.out / f"run_{walls}")
+        table, eps = budget(cavity_scene(walls, args.out), args.dx, args.t0, args.t1, args.out / f"run_{walls}")
         for name, values in zip(PARTS + ("-2 V du.grad C",), table):
             rows.append([walls, name, *values, values.sum()])
         rows.append([walls, "sum of the parts", *table[:-1].sum(axis=0), table[:-1].sum()])
