@@ -93,14 +93,14 @@ class ImplicitShifting:
             indptr, indices, slot = iips_structure(rows, system.nbr_ptr, system.nbr_idx, d)
             n_total = int(allreduce_sum(system.comm, n_free))
             if self._structure_of is not None:  # free the previous matrix and vectors (FixedPatternMatrix.destroy)
-                self.matrix.destroy()
-                self.rhs.destroy()
-                self.dx.destroy()
+                for obj in (self.matrix, self.rhs, self.dx, self.residual):
+                    obj.destroy()
             with petsc_errors("creating the IIPS matrix"):
                 self.matrix = FixedPatternMatrix(system.comm, indptr, indices, slot, n_total * d, d,
                                                  self.solver.prefix)
         self.mat = self.matrix.mat
         self.rhs, self.dx = self.mat.createVecs()
+        self.residual = self.rhs.duplicate()  # work vector of _start_from
         self.values = np.zeros(len(slot))
         self.free = free
         self.solver.set_operator(self.mat)
@@ -143,12 +143,10 @@ class ImplicitShifting:
         """Start the solve from `guess` where its residual is smaller than zero's (|b - A g| < |b|), as after
         a pre-procedure, whose large first step is no guess for a flow's small corrections. Collective."""
         self.dx.setArray(guess)
-        residual = self.rhs.duplicate()
-        self.mat.mult(self.dx, residual)
-        residual.aypx(-1.0, self.rhs)
-        if residual.norm() >= self.rhs.norm():
+        self.mat.mult(self.dx, self.residual)
+        self.residual.aypx(-1.0, self.rhs)
+        if self.residual.norm() >= self.rhs.norm():
             self.dx.set(0.0)
-        residual.destroy()
 
     def prepare(self, system, on_iteration=None):
         """Static pre-procedure (`iips.pre_newton` iterations) and the beta threshold (eq. 8.34)."""
