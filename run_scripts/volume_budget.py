@@ -13,7 +13,7 @@ printed as "-2 V du.grad C" to check. Writes results/volume_budget/budget.{md,cs
 """
 
 import argparse
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +22,7 @@ from mpi4py import MPI
 from psph.compute.fluid import delta_ale_rhs
 from psph.diagnostics import fluid_mask, grad_c
 from psph.drivers.fluid import FluidDriver
+from psph.parallel.comm import allreduce_sum
 from psph.scene.load import load_scene
 from psph.studies import cavity_scene, write_table
 
@@ -66,13 +67,9 @@ def rates(drv, t, dt):
         fluid[shifted] = (d_rho, d_mass)
     walls = {}
     for shifted in (True, False):
-        d_rho = np.zeros(n)
-        if shifted:
-            sch.walls.add(system, sch, t, d_rho, np.zeros((n, d)))
-        else:
-            with shifting_off(sch):
-                sch.walls.add(system, sch, t, d_rho, np.zeros((n, d)))
-        walls[shifted] = d_rho
+        walls[shifted] = np.zeros(n)
+        with nullcontext() if shifted else shifting_off(sch):
+            sch.walls.add(system, sch, t, walls[shifted], np.zeros((n, d)))
     assert np.allclose(full["density"], fluid[True][0] + walls[True], rtol=1e-10, atol=1e-12)
     mask = fluid_mask(system)
     vol, m, rho = p.owned("volume"), p.owned("mass"), p.owned("density")
@@ -109,13 +106,18 @@ def budget(scene_path, dx, t0, t1, out_dir):
         if state["time"] < t0:
             continue
         if not eps:
-            eps.append(p.owned("volume")[mask].sum() / v0 - 1.0)
+            eps.append(total_volume(system) / v0 - 1.0)
         if state["time"] < t1 * (1.0 - 1e-12):
             masks = regions(p.owned("position")[mask], system.kernel.support)
             for a, r in enumerate(rates(drv, state["time"], dt)):
                 table[a] += [dt * r[k].sum() / v0 for k in masks]
-    eps.append(p.owned("volume")[fluid_mask(system)].sum() / v0 - 1.0)
-    return table, eps
+    eps.append(total_volume(system) / v0 - 1.0)
+    return allreduce_sum(system.comm, table), eps
+
+
+def total_volume(system):
+    """Sum of the fluid particles' volumes over all ranks. Collective."""
+    return allreduce_sum(system.comm, float(system.particles.owned("volume")[fluid_mask(system)].sum()))
 
 
 def main():
@@ -135,7 +137,10 @@ def main():
         rows.append([walls, "sum of the parts", *table[:-1].sum(axis=0), table[:-1].sum()])
         rows.append([walls, f"eps_V({args.t1:g}) - eps_V({args.t0:g})", *[float("nan")] * len(REGIONS),
                      eps[1] - eps[0]])
-        print(f"{walls}: eps_V {eps[0]:.4e} -> {eps[1]:.4e}", flush=True)
+        if MPI.COMM_WORLD.rank == 0:
+            print(f"{walls}: eps_V {eps[0]:.4e} -> {eps[1]:.4e}", flush=True)
+    if MPI.COMM_WORLD.rank:
+        return
     print(write_table(args.out / "budget", ["walls", "part", *REGIONS, "total"], rows,
                       title=f"Lid-driven cavity, Re = 100, dx = {args.dx:g}: volume budget over t = {args.t0:g}"
                             f"..{args.t1:g} (fractions of the initial volume)",
