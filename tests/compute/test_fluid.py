@@ -128,3 +128,21 @@ def test_shifting_terms_change_the_total_volume_by_minus_two_v_du_grad_c(dim):
     source = -2.0 * (vol * (du * grad_c).sum(axis=1)).sum()
     assert abs(source) > 1e-3 * np.abs(dv[True] - dv[False]).sum()  # not a vanishing identity
     assert abs((dv[True] - dv[False]).sum() - source) < 1e-12 * np.abs(dv[True] - dv[False]).sum()
+
+
+def test_viscous_operator_has_a_lattice_error_that_refinement_does_not_remove():
+    """The floor of the Taylor-Green convergence (run_scripts/tgv_operator_error.py): on a square lattice the
+    viscous operator of seed 001 eq. 11 (K = 2(d + 2)) dissipates the vortex with nu_eff = 1.09 nu at h/dx =
+    2 at every resolution (a quadrature error of the lattice, not a smoothing error), 1.02 at h/dx = 3, while
+    the pressure gradient converges at second order."""
+    from psph.studies import tgv_operator_errors
+
+    def lattice(m):
+        g = (np.arange(m) + 0.5) / m
+        return np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2), np.full(m * m, 1.0 / m**2)
+
+    coarse, fine = tgv_operator_errors(*lattice(40), 2.0), tgv_operator_errors(*lattice(80), 2.0)
+    assert 1.08 < coarse["nu_eff_ratio"] < 1.095 and abs(fine["nu_eff_ratio"] - coarse["nu_eff_ratio"]) < 0.005
+    assert abs(fine["viscous_rms"] - (fine["nu_eff_ratio"] - 1.0)) < 1e-6  # a uniform factor on the lattice
+    assert 1.8 < np.log2(coarse["grad_p_rms"] / fine["grad_p_rms"]) < 2.1
+    assert 1.0 < tgv_operator_errors(*lattice(80), 3.0)["nu_eff_ratio"] < 1.02
