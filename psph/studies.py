@@ -11,6 +11,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from psph.errors import NumericalError
 from psph.io.history import read_history
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,7 +29,8 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None) ->
     """`psph run scene --out out --set ... [PETSc options]` on `ranks` MPI ranks; raises on failure.
 
     With reuse (default: the PSPH_STUDY_REUSE environment variable is set), a directory holding a
-    complete run of exactly this command is read instead of run again (to resume or extend a study)."""
+    complete run of exactly this command is read instead of run again (to resume or extend a study), and
+    one that psph stopped with a numerical diagnosis (exit code 3) raises that diagnosis again."""
     cmd = [sys.executable, "-m", "psph", "run", str(scene), "--out", str(out), "--overwrite"]
     for s in sets:
         cmd += ["--set", s]
@@ -41,14 +43,22 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None) ->
     stamp = out / "study_command.json"
     if reuse is None:
         reuse = bool(os.environ.get("PSPH_STUDY_REUSE"))
-    if reuse and stamp.exists() and _same_command(json.loads(stamp.read_text()), cmd[cmd.index("-m"):]) \
-            and (out / "summary.json").exists():
-        return Run(out, json.loads((out / "summary.json").read_text()), read_history(out / "history.csv"))
+    stopped = out / "study_stopped.txt"
+    if reuse and stamp.exists() and _same_command(json.loads(stamp.read_text()), cmd[cmd.index("-m"):]):
+        if (out / "summary.json").exists():
+            return Run(out, json.loads((out / "summary.json").read_text()), read_history(out / "history.csv"))
+        if stopped.exists():
+            raise RuntimeError(stopped.read_text())
     stamp.unlink(missing_ok=True)  # a run killed half-way must not pass for the old complete one
+    stopped.unlink(missing_ok=True)
     env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_COMM", "PMIX"))}
     res = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if res.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed:\n{res.stderr[-2000:]}")
+        message = f"{' '.join(cmd)} failed:\n{res.stderr[-2000:]}"
+        if res.returncode == NumericalError.exit_code and out.is_dir():  # a diagnosed stop is a result too
+            stopped.write_text(message)
+            stamp.write_text(json.dumps(cmd[cmd.index("-m"):]))
+        raise RuntimeError(message)
     stamp.write_text(json.dumps(cmd[cmd.index("-m"):]))
     return Run(out, json.loads((out / "summary.json").read_text()), read_history(out / "history.csv"))
 

@@ -1,0 +1,31 @@
+"""The study harness of run_scripts/ (psph.studies.run_scene): a resumed study reads back the runs it
+already made, complete or stopped by a diagnosis, instead of running them again."""
+
+import subprocess
+
+import pytest
+
+from psph import studies
+
+SETS = ["domain.dx=0.1", "time.t_end=0.02", "shifting.method=none", "iips.update=none", "output.every=0"]
+
+
+def test_a_resumed_study_reads_back_complete_and_stopped_runs(tmp_path, monkeypatch):
+    scene = studies.CASES / "taylor_green.toml"
+    done = studies.run_scene(scene, tmp_path / "done", sets=SETS, reuse=True)
+    with pytest.raises(RuntimeError, match="density left the weakly compressible range") as first:
+        studies.run_scene(scene, tmp_path / "stopped", sets=SETS + ["physics.max_density_variation=1e-6"],
+                          reuse=True)
+
+    def no_run(*args, **kwargs):
+        raise AssertionError("the run was made again")
+
+    monkeypatch.setattr(subprocess, "run", no_run)
+    again = studies.run_scene(scene, tmp_path / "done", sets=SETS, reuse=True)
+    assert again.summary == done.summary
+    with pytest.raises(RuntimeError) as second:
+        studies.run_scene(scene, tmp_path / "stopped", sets=SETS + ["physics.max_density_variation=1e-6"],
+                          reuse=True)
+    assert str(second.value) == str(first.value)
+    with pytest.raises(AssertionError, match="made again"):  # another command is a new run
+        studies.run_scene(scene, tmp_path / "done", sets=SETS + ["time.cfl=0.1"], reuse=True)
