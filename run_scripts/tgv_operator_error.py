@@ -2,7 +2,7 @@
 pressure gradient applied to the analytic vortex on the particle distributions the runs left at t = 1,
 and on the square lattice, at h/dx = 2 (the runs') and larger.
 
-    .venv/bin/python run_scripts/tgv_operator_error.py [--runs results/tgv_tradeoff results/tgv_tradeoff_A]
+    .venv/bin/python run_scripts/tgv_operator_error.py [--runs results/tgv_tradeoff results/tgv_tradeoff_A ...]
                                                        [--h-over-dx 2 2.5 3] [--lattices 40 80 160]
 
 Reads every run directory under --runs (as run_scripts/tgv_tradeoff.py writes them) that reached t = 1
@@ -30,7 +30,7 @@ def implied_energy_error(ratio, reynolds=100.0, t=1.0):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=Path, nargs="+",
-                        default=[Path("results/tgv_tradeoff"), Path("results/tgv_tradeoff_A")])
+                        default=[Path("results/" + name) for name in ("tgv_tradeoff", "tgv_tradeoff_A", "tgv_hdx3")])
     parser.add_argument("--h-over-dx", type=float, nargs="+", default=[2.0, 2.5, 3.0])
     parser.add_argument("--lattices", type=int, nargs="+", default=[40, 80, 160])
     parser.add_argument("--out", type=Path, default=Path("results/tgv_operator_error"))
