@@ -43,10 +43,11 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None) ->
     stamp = out / "study_command.json"
     if reuse is None:
         reuse = bool(os.environ.get("PSPH_STUDY_REUSE"))
-    stopped = out / "study_stopped.txt"
-    if reuse and stamp.exists() and _same_command(json.loads(stamp.read_text()), cmd[cmd.index("-m"):]):
-        if (out / "summary.json").exists():
-            return Run(out, json.loads((out / "summary.json").read_text()), read_history(out / "history.csv"))
+    stopped, summary = out / "study_stopped.txt", out / "summary.json"
+    key = cmd[cmd.index("-m"):]  # without the mpiexec prefix: the rank count does not change the result
+    if reuse and stamp.exists() and _same_command(json.loads(stamp.read_text()), key):
+        if summary.exists():
+            return Run(out, json.loads(summary.read_text()), read_history(out / "history.csv"))
         if stopped.exists():
             raise RuntimeError(stopped.read_text())
     stamp.unlink(missing_ok=True)  # a run killed half-way must not pass for the old complete one
@@ -57,10 +58,10 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None) ->
         message = f"{' '.join(cmd)} failed:\n{res.stderr[-2000:]}"
         if res.returncode == NumericalError.exit_code and out.is_dir():  # a diagnosed stop is a result too
             stopped.write_text(message)
-            stamp.write_text(json.dumps(cmd[cmd.index("-m"):]))
+            stamp.write_text(json.dumps(key))
         raise RuntimeError(message)
-    stamp.write_text(json.dumps(cmd[cmd.index("-m"):]))
-    return Run(out, json.loads((out / "summary.json").read_text()), read_history(out / "history.csv"))
+    stamp.write_text(json.dumps(key))
+    return Run(out, json.loads(summary.read_text()), read_history(out / "history.csv"))
 
 
 def _same_command(a, b) -> bool:
