@@ -127,11 +127,11 @@ def first_iteration(history, predicate):
     return None
 
 
-def last_snapshot(out) -> tuple:
-    """(fields by name, time) of the last snapshot a run wrote in `out`."""
+def last_snapshot(out, index=-1) -> tuple:
+    """(fields by name, time) of the last snapshot a run wrote in `out` (index -2: the one before it)."""
     import h5py
 
-    path = sorted(Path(out).glob("snapshot_*.h5"))[-1]
+    path = sorted(Path(out).glob("snapshot_*.h5"))[index]
     with h5py.File(path) as f:
         return {k: f["particles"][k][:] for k in f["particles"]}, float(f.attrs["time"])
 
@@ -151,6 +151,93 @@ def shepard_sample(pos, vol, values, points, kernel):
     return out
 
 
+def _tiled_unit_box(pos, vol, h_over_dx):
+    """A 2-D distribution of the bi-periodic unit box and its 3 x 3 tiling (the box itself first), Wendland
+    C6 with h = h_over_dx / sqrt(n): (positions, volumes, kernel, ptr, idx), the neighbour lists of the n
+    particles of the box."""
+    import numpy as np
+
+    from psph.compute.neighbours import build_neighbour_lists
+    from psph.compute.smoothing import make_kernel
+
+    n = len(pos)
+    tiles = np.array([(a, b) for a in (0, -1, 1) for b in (0, -1, 1)], float)
+    all_pos = np.ascontiguousarray((np.mod(pos, 1.0)[None, :, :] + tiles[:, None, :]).reshape(-1, 2))
+    all_vol = np.ascontiguousarray(np.tile(vol, len(tiles)))
+    kern = make_kernel("wendland_c6", 2, h_over_dx / math.sqrt(n))
+    ptr, idx = build_neighbour_lists(all_pos, n, kern.support)
+    return all_pos, all_vol, kern, ptr, idx
+
+
+def _lu_solve(matrix, rhs, PETSc):
+    """Solve a scipy CSR system on one process with PETSc's LU (scipy's SuperLU is minutes slower here)."""
+    a = PETSc.Mat().createAIJ(matrix.shape, csr=(matrix.indptr, matrix.indices, matrix.data), comm=PETSc.COMM_SELF)
+    ksp = PETSc.KSP().create(comm=PETSc.COMM_SELF)
+    ksp.setOperators(a)
+    ksp.setType("preonly")
+    ksp.getPC().setType("lu")
+    ksp.getPC().setFactorOrdering("nd")
+    b, x = a.createVecs()
+    b.setArray(rhs)
+    ksp.solve(b, x)
+    out = x.getArray().copy()
+    for obj in (ksp, a, b, x):
+        obj.destroy()
+    return out
+
+
+def iips_pair_defects(pos, vol, h_over_dx, newton=3) -> dict:
+    """Where IIPS's printed operator (thesis eq. 8.32, psph.compute.iips) stops being a Newton operator, on a
+    2-D distribution of the bi-periodic unit box (e.g. a Taylor-Green run's particles), Wendland C6:
+
+      min_spacing      smallest distance between two particles over dx = 1 / sqrt(n);
+      hess_c_ratio     |Hess C_i| / |omega_i HessW(0)| per particle (2-norm): the printed operator differs
+                       from the exact Jacobian by Hess C_i on its diagonal (seeds/README.md), and Hess C_i is
+                       the sum of the operator's blocks in row i;
+      linf             h max|grad C| before and after each of `newton` iterations with the printed operator,
+                       solved exactly (PETSc's sparse LU, nested-dissection order), not by BCGS;
+      max_step         largest displacement of each iteration over dx.
+
+    Returns those, with hess_c_ratio and the nearest-neighbour distance per particle (for correlations)."""
+    import numpy as np
+    import scipy.sparse as sp
+    from petsc4py import PETSc
+
+    from psph.compute import iips, sums
+
+    n = len(pos)
+    dx = 1.0 / math.sqrt(n)
+    row = np.tile(np.arange(n, dtype=np.int64), 9)  # images carry their particle's number
+
+    def state(p):
+        all_pos, all_vol, kern, ptr, idx = _tiled_unit_box(p, vol, h_over_dx)
+        grad = np.zeros((n, 2))
+        sums.grad_concentration(all_pos, all_vol, ptr, idx, kern.params, grad)
+        indptr, indices, slot = iips.iips_structure(row, ptr, idx, 2)
+        values = np.zeros(len(slot))
+        iips.iips_values(all_pos, all_vol, row, ptr, idx, kern.params, values)
+        data = np.zeros(len(indices))
+        np.add.at(data, slot, values)
+        matrix = sp.csr_matrix((data, indices, indptr), shape=(2 * n, 2 * n))
+        return all_pos, kern, ptr, idx, grad, matrix
+
+    all_pos, kern, ptr, idx, grad, matrix = state(pos)
+    nearest = np.zeros(n)
+    sums.nearest_distance(all_pos, ptr, idx, np.zeros(len(all_pos), np.int8), nearest)
+    hess_c = np.stack([matrix @ np.tile(e, n) for e in np.eye(2)], axis=-1).reshape(n, 2, 2)
+    self_term = np.abs(vol * kern.radial(np.zeros(1))[0])
+    ratio = np.linalg.norm(hess_c, ord=2, axis=(1, 2)) / self_term
+    linf, max_step, p = [kern.h * float(np.sqrt((grad * grad).sum(axis=1)).max())], [], np.array(pos, float)
+    for _ in range(newton):
+        step = _lu_solve(matrix, grad.ravel(), PETSc).reshape(n, 2)
+        p = p + step
+        max_step.append(float(np.sqrt((step * step).sum(axis=1)).max()) / dx)
+        _, _, _, _, grad, matrix = state(p)
+        linf.append(kern.h * float(np.sqrt((grad * grad).sum(axis=1)).max()))
+    return {"min_spacing": float(nearest.min()) / dx, "hess_c_ratio": ratio, "nearest": nearest / dx,
+            "linf": linf, "max_step": max_step}
+
+
 def tgv_operator_errors(pos, vol, h_over_dx) -> dict:
     """How well the delta-ALE-SPH operators (psph.compute.fluid, the kernels every run uses) reproduce the
     analytic Taylor-Green vortex on a given 2-D particle distribution of the bi-periodic unit box (e.g.
@@ -167,15 +254,9 @@ def tgv_operator_errors(pos, vol, h_over_dx) -> dict:
 
     from psph.analytic import taylor_green
     from psph.compute import fluid
-    from psph.compute.neighbours import build_neighbour_lists
-    from psph.compute.smoothing import make_kernel
 
     n = len(pos)
-    tiles = np.array([(a, b) for a in (0, -1, 1) for b in (0, -1, 1)], float)  # the box itself first
-    all_pos = np.ascontiguousarray((np.mod(pos, 1.0)[None, :, :] + tiles[:, None, :]).reshape(-1, 2))
-    all_vol = np.tile(vol, len(tiles))
-    kern = make_kernel("wendland_c6", 2, h_over_dx / math.sqrt(n))
-    ptr, idx = build_neighbour_lists(all_pos, n, kern.support)
+    all_pos, all_vol, kern, ptr, idx = _tiled_unit_box(pos, vol, h_over_dx)
     vel, prs = taylor_green(all_pos)
     rho, kind = np.ones(len(all_pos)), np.zeros(len(all_pos), np.int8)
     grad_rho, pairs = np.zeros_like(all_pos), fluid.PairCache()

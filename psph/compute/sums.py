@@ -259,3 +259,20 @@ def invert_renormalisation(mat, lambda_min, tol, out):
             for a in range(d):
                 for b in range(d):
                     out[i, a, b] = 1.0 if a == b else 0.0
+
+
+@njit(cache=True)
+def nearest_distance(pos, ptr, idx, same, out):
+    """Distance from each particle to its nearest neighbour j != i with same[j] == same[i] (inf if none):
+    particles drawing closer than the lattice allows (pairing) show here long before grad C sees them."""
+    d = pos.shape[1]
+    for i in range(ptr.size - 1):
+        best = np.inf
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            if j == i or same[j] != same[i]:
+                continue
+            rr = pair2(pos, i, j, d)[3]
+            if rr < best:
+                best = rr
+        out[i] = np.sqrt(best)

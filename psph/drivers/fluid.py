@@ -6,7 +6,8 @@ rebuild if the step could outrun the skin; the integrator's stages; the shifting
 IIPS and its field update when the scene asks; checks (NaN, density outside the weakly compressible range,
 escaped particles, collapsing time step) that stop the run with the step, time, particle and a diagnostic
 snapshot. history.csv every `output.history_every` steps: time, dt, kinetic energy, total mass and
-momentum, total-volume error eps_V (seed 001 eq. 27), max |rho/rho0 - 1|, L2/Linf(grad C), IIPS work, and
+momentum, total-volume error eps_V (seed 001 eq. 27), max |rho/rho0 - 1|, L2/Linf(grad C), the smallest
+distance between two fluid particles over dx (`min_spacing`: pairing that grad C misses), IIPS work, and
 against an analytic solution (Taylor-Green) L2|v_x - v_xA| (thesis eq. 3.8) and the kinetic-energy error.
 """
 
@@ -16,6 +17,7 @@ import time
 import numpy as np
 
 from psph.analytic import taylor_green, taylor_green_kinetic_energy
+from psph.compute.sums import nearest_distance
 from psph.diagnostics import fluid_mask, grad_c, norms
 from psph.errors import NumericalError
 from psph.parallel.comm import allreduce_max, allreduce_min, allreduce_sum, raise_if_any
@@ -162,8 +164,11 @@ class FluidDriver:
         dvol = allreduce_max(comm, float(np.abs(vol / p.owned("volume0") - 1.0).max()) if p.n_owned else 0.0)
         speed = np.sqrt((u * u).sum(axis=1))[mask]
         vmax = allreduce_max(comm, float(speed.max()) if len(speed) else 0.0)
+        nearest = np.empty(p.n_owned)
+        nearest_distance(p["position"], self.system.nbr_ptr, self.system.nbr_idx, p["kind"], nearest)
+        spacing = allreduce_min(comm, float(nearest[mask].min()) if mask.any() else np.inf)
         out = {"kinetic_energy": sums[0], "total_mass": sums[1], "volume_error": sums[2] / self.initial_volume - 1.0,
-               "max_speed": vmax,
+               "max_speed": vmax, "min_spacing": spacing / self.scene.domain.dx,
                "max_density_variation": drho, "max_volume_variation": dvol, "L2_grad_c": l2, "Linf_grad_c": linf}
         for a in range(p.dim):
             out[f"momentum_{'xyz'[a]}"] = sums[3 + a]

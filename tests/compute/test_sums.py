@@ -157,3 +157,19 @@ def test_isolated_particle_gets_identity_renormalisation():
     lmat = np.zeros_like(m)
     sums.invert_renormalisation(m, lam, 1e-6, lmat)
     assert np.all(lam == 0.0) and np.allclose(lmat, np.eye(2))
+
+
+def test_nearest_distance_sees_a_pair_among_particles_of_the_same_kind():
+    pos, _ = lattice(2, 10)
+    dx = 0.1
+    ptr, idx = build_neighbour_lists(pos, len(pos), 0.35)
+    kind = np.zeros(len(pos), dtype=np.int8)
+    out = np.zeros(len(pos))
+    sums.nearest_distance(pos, ptr, idx, kind, out)
+    assert np.allclose(out, dx)
+    pos[55, 0] -= 0.6 * dx  # particle 55 moves to 0.4 dx of particle 45
+    sums.nearest_distance(pos, ptr, idx, kind, out)
+    assert np.isclose(out[55], 0.4 * dx) and np.isclose(out[45], 0.4 * dx) and np.isclose(out.max(), dx)
+    kind[45] = 1  # a wall particle, the only one: no pair of fluid particles, no wall neighbour
+    sums.nearest_distance(pos, ptr, idx, kind, out)
+    assert np.isclose(out[55], np.sqrt(0.4 ** 2 + 1.0) * dx) and out[45] == np.inf

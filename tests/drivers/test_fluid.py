@@ -34,6 +34,9 @@ def test_taylor_green_conserves_mass_and_follows_the_decay(tmp_path, method):
     assert np.abs(mom).max() < 1e-12  # periodic box, no gravity, no tensile switch
     assert abs(rows[-1]["kinetic_energy_error"]) < 0.1  # 20 x 20 particles: coarse
     assert rows[-1]["L2_vx_error"] < 0.05
+    # the stagnation points squeeze the lattice's rows together (README, "At h/dx = 3")
+    spacing = [r["min_spacing"] for r in rows]
+    assert spacing[0] == pytest.approx(1.0) and 0.2 < min(spacing) < 0.9
 
 
 def test_iips_runs_are_more_accurate_and_converge(tmp_path):
