@@ -64,6 +64,13 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None) ->
     return Run(out, json.loads(summary.read_text()), read_history(out / "history.csv"))
 
 
+def stop_message(err) -> str:
+    """The one-line reason of a run_scene failure: psph's `psph: error: ...` line (mpiexec adds its own
+    banner after it), else the last line."""
+    lines = [line for line in str(err).splitlines() if line.strip()]
+    return next((line for line in lines if line.startswith("psph: error:")), lines[-1] if lines else "")
+
+
 def _same_command(a, b) -> bool:
     """Two study commands are the same run if they differ at most in where the scene file lies (a study
     resumed from another checkout of psph)."""

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from psph.studies import fmt, iips_pair_defects, last_snapshot, run_scene, write_table
+from psph.studies import fmt, iips_pair_defects, last_snapshot, run_scene, stop_message, write_table
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -39,7 +39,7 @@ def main():
         run_scene(ROOT / "cases/taylor_green.toml", run_dir, sets, ranks=args.ranks)
         stop, states = "reached t_end", [(-1, "")]
     except RuntimeError as err:
-        stop = "stopped: " + next(line for line in str(err).splitlines() if line.startswith("psph: error:"))
+        stop = "stopped: " + stop_message(err)
         states = [(-2, ", before the stop"), (-1, ", saved at the stop")]
     print(stop, flush=True)
     m = round(1.0 / args.dx)

@@ -18,7 +18,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from psph.studies import CASES, run_scene, write_table  # noqa: E402
+from psph.studies import CASES, run_scene, stop_message, write_table  # noqa: E402
 
 
 def pareto(points):
@@ -37,7 +37,7 @@ def static_sweep(out, ranks):
                                       "iips.max_newton=10"],
                                 petsc=["-iips_pc_type", pc, "-iips_ksp_rtol", str(rtol)])
             except RuntimeError as exc:  # a diagnosed failure is a result of the sweep
-                rows.append([pc, rtol, "failed: " + str(exc).splitlines()[-1][:80]] + ["-"] * 5)
+                rows.append([pc, rtol, "failed: " + stop_message(exc)[:80]] + ["-"] * 5)
                 print(rows[-1], flush=True)
                 continue
             h = run.history

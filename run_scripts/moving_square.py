@@ -17,7 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from psph.studies import CASES, run_scene, write_table  # noqa: E402
+from psph.studies import CASES, run_scene, stop_message, write_table  # noqa: E402
 
 METHODS = {
     "explicit P_S=10": ["shifting.method=neuhauser", "shifting.neuhauser_ps=10", "iips.update=none"],
@@ -46,7 +46,7 @@ def main():
                                 sets=[f"domain.dx={args.dx}", f"time.t_end={args.t_end}", "output.every=1.0",
                                       "output.history_every=10", *sets, *args.set], ranks=ranks)
             except RuntimeError as err:
-                print(f"{name} on {ranks} rank(s): stopped: {str(err).splitlines()[-1]}", flush=True)
+                print(f"{name} on {ranks} rank(s): stopped: {stop_message(err)}", flush=True)
                 table.append([name, ranks, "stopped", "-", "-", "-", "-"])
                 continue
             runs[(name, ranks)] = run

@@ -18,7 +18,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from psph.studies import CASES, rate, run_scene, write_table  # noqa: E402
+from psph.studies import CASES, rate, run_scene, stop_message, write_table  # noqa: E402
 
 METHODS = {  # label: scene overrides
     "no shifting": ["shifting.method=none", "iips.update=none"],
@@ -52,7 +52,7 @@ def main():
                                                        "output.every=0", "output.history_every=50"]
                                 + ([f"iips.procedure={args.procedure}"] if args.procedure else []) + args.set)
             except RuntimeError as exc:  # a run stopped by a diagnosis is a result too
-                print(f"{label} dx={dx}: stopped: {str(exc).splitlines()[-1]}", flush=True)
+                print(f"{label} dx={dx}: stopped: {stop_message(exc)}", flush=True)
                 runs[(label, dx)] = None
                 continue
             runs[(label, dx)] = run

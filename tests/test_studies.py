@@ -27,5 +27,14 @@ def test_a_resumed_study_reads_back_complete_and_stopped_runs(tmp_path, monkeypa
         studies.run_scene(scene, tmp_path / "stopped", sets=SETS + ["physics.max_density_variation=1e-6"],
                           reuse=True)
     assert str(second.value) == str(first.value)
+    assert studies.stop_message(first.value).startswith("psph: error: density left the weakly compressible")
     with pytest.raises(AssertionError, match="made again"):  # another command is a new run
         studies.run_scene(scene, tmp_path / "done", sets=SETS + ["time.cfl=0.1"], reuse=True)
+
+
+def test_the_stop_message_is_psphs_line_not_mpiexecs_banner():
+    err = RuntimeError("mpiexec -n 2 python -m psph run scene.toml failed:\n"
+                       "psph: error: IIPS Newton iteration diverged [step 168, t = 0.115]\n"
+                       "-----\nPrimary job  terminated normally, but 1 process returned\n-----\n")
+    assert studies.stop_message(err) == "psph: error: IIPS Newton iteration diverged [step 168, t = 0.115]"
+    assert studies.stop_message(RuntimeError("no psph line\nlast line\n")) == "last line"
