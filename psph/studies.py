@@ -176,8 +176,10 @@ def _tiled_unit_box(pos, vol, h_over_dx):
     return all_pos, all_vol, kern, ptr, idx
 
 
-def _lu_solve(matrix, rhs, PETSc):
+def _lu_solve(matrix, rhs):
     """Solve a scipy CSR system on one process with PETSc's LU (scipy's SuperLU is minutes slower here)."""
+    from petsc4py import PETSc
+
     a = PETSc.Mat().createAIJ(matrix.shape, csr=(matrix.indptr, matrix.indices, matrix.data), comm=PETSc.COMM_SELF)
     ksp = PETSc.KSP().create(comm=PETSc.COMM_SELF)
     ksp.setOperators(a)
@@ -208,7 +210,6 @@ def iips_pair_defects(pos, vol, h_over_dx, newton=3) -> dict:
     Returns those, with hess_c_ratio and the nearest-neighbour distance per particle (for correlations)."""
     import numpy as np
     import scipy.sparse as sp
-    from petsc4py import PETSc
 
     from psph.compute import iips, sums
 
@@ -236,7 +237,7 @@ def iips_pair_defects(pos, vol, h_over_dx, newton=3) -> dict:
     ratio = np.linalg.norm(hess_c, ord=2, axis=(1, 2)) / self_term
     linf, max_step, p = [kern.h * float(np.sqrt((grad * grad).sum(axis=1)).max())], [], np.array(pos, float)
     for _ in range(newton):
-        step = _lu_solve(matrix, grad.ravel(), PETSc).reshape(n, 2)
+        step = _lu_solve(matrix, grad.ravel()).reshape(n, 2)
         p = p + step
         max_step.append(float(np.sqrt((step * step).sum(axis=1)).max()) / dx)
         _, _, _, _, grad, matrix = state(p)
