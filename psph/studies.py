@@ -73,8 +73,10 @@ def stop_message(err) -> str:
 
 def _same_command(a, b) -> bool:
     """Two study commands are the same run if they differ at most in where the scene file lies (a study
-    resumed from another checkout of psph)."""
+    resumed from another checkout of psph) and in how the output directory is spelled (the stamp lies in
+    that directory, so it names it already)."""
     def key(cmd):
+        cmd = [c for k, c in enumerate(cmd) if k == 0 or cmd[k - 1] != "--out"]
         return [Path(c).name if c.endswith(".toml") else c for c in cmd]
     return key(a) == key(b)
 
@@ -246,7 +248,7 @@ def iips_pair_defects(pos, vol, h_over_dx, newton=3) -> dict:
             "linf": linf, "max_step": max_step}
 
 
-def tgv_operator_errors(pos, vol, h_over_dx) -> dict:
+def tgv_operator_errors(pos, vol, h_over_dx, morris=False) -> dict:
     """How well the delta-ALE-SPH operators (psph.compute.fluid, the kernels every run uses) reproduce the
     analytic Taylor-Green vortex on a given 2-D particle distribution of the bi-periodic unit box (e.g.
     the one a run left at t = 1), Wendland C6 with h = h_over_dx * dx, dx = 1 / sqrt(n):
@@ -257,7 +259,8 @@ def tgv_operator_errors(pos, vol, h_over_dx) -> dict:
       viscous_rms  = RMS |a - nu lap u| / RMS |nu lap u|, the pointwise error;
       grad_p_rms   = RMS |<grad p>/rho - grad p| / RMS |grad p| (seed 001 eq. 13, p_j + p_i form).
 
-    The periodic neighbours come from the 3 x 3 tiling of the box."""
+    The periodic neighbours come from the 3 x 3 tiling of the box. morris: Morris' viscous operator instead
+    of eq. 11 (physics.viscosity)."""
     import numpy as np
 
     from psph.analytic import taylor_green
@@ -274,7 +277,7 @@ def tgv_operator_errors(pos, vol, h_over_dx) -> dict:
         out = np.zeros((n, 2))
         fluid.delta_ale_rhs(all_pos, all_vol, rho, all_vol, np.ascontiguousarray(v), np.zeros_like(all_pos), p,
                             grad_rho, pairs, kern.params, 1.0, 0.0, 0.0, nu, np.zeros(2), 1, False, False, kind,
-                            False, np.zeros(n), np.zeros(n), out)
+                            False, np.zeros(n), np.zeros(n), out, morris=morris)
         return out
 
     u = vel[:n]

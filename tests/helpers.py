@@ -1,4 +1,4 @@
-"""Helpers for tests that run the command line."""
+"""Helpers for tests: running the command line, a perturbed particle lattice."""
 
 import os
 import subprocess
@@ -22,3 +22,20 @@ def run_psph(*args, ranks=1, timeout=300, cwd=None):
         cmd = ["mpiexec", "-n", str(ranks), "--oversubscribe"] + cmd
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=cwd or ROOT,
                           env=mpi_environment())
+
+
+def perturbed_lattice(rng, dim, n_side):
+    """A lattice of the unit box perturbed by 0.2 dx, volumes within 10% of dx^d, Wendland C6 at h/dx = 1.6,
+    neighbour lists with a skin as in runs: (pos, vol, kernel, ptr, idx)."""
+    import numpy as np
+
+    from psph.compute.neighbours import build_neighbour_lists
+    from psph.compute.smoothing import make_kernel
+
+    dx = 1.0 / n_side
+    grid = np.stack(np.meshgrid(*[np.arange(n_side) * dx] * dim, indexing="ij"), axis=-1).reshape(-1, dim)
+    pos = np.ascontiguousarray(grid + 0.2 * dx * rng.standard_normal(grid.shape))
+    kern = make_kernel("wendland_c6", dim, 1.6 * dx)
+    ptr, idx = build_neighbour_lists(pos, len(pos), 1.1 * kern.support)
+    vol = dx**dim * (1.0 + 0.1 * rng.random(len(pos)))
+    return pos, vol, kern, ptr, idx

@@ -2,6 +2,7 @@
 already made, complete or stopped by a diagnosis, instead of running them again."""
 
 import subprocess
+from pathlib import Path
 
 import pytest
 
@@ -23,6 +24,9 @@ def test_a_resumed_study_reads_back_complete_and_stopped_runs(tmp_path, monkeypa
     monkeypatch.setattr(subprocess, "run", no_run)
     again = studies.run_scene(scene, tmp_path / "done", sets=SETS, reuse=True)
     assert again.summary == done.summary
+    monkeypatch.chdir(tmp_path)
+    elsewhere = studies.run_scene(scene, Path("done"), sets=SETS, reuse=True)  # relative spelling
+    assert elsewhere.summary == done.summary
     with pytest.raises(RuntimeError) as second:
         studies.run_scene(scene, tmp_path / "stopped", sets=SETS + ["physics.max_density_variation=1e-6"],
                           reuse=True)

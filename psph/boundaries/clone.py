@@ -114,8 +114,8 @@ class WallTerms:
             w = self.ghost
             ghost_rhs(p["position"], p["volume"], p["density"], p["velocity"], du, p["pressure"], rows, *images,
                       w["axis"], w["coord"], w["velocity"], w["no_slip"], system.kernel.params, scheme.c0,
-                      scheme.rho0, eos_b, GAMMA, scheme.mu, self.gravity, scheme.variant, scheme.shift.active,
-                      scheme.tensile, d_rho, d_mom)
+                      scheme.rho0, eos_b, GAMMA, scheme.mu, scheme.morris, self.gravity, scheme.variant,
+                      scheme.shift.active, scheme.tensile, d_rho, d_mom)
 
     def _add_clones(self, system, scheme, t, du, eos_b, d_rho, d_mom):
         p = system.particles
@@ -125,8 +125,8 @@ class WallTerms:
                   p["body"], p["normal"], p["wall_distance"], p["wall_accel"], p["wall_velocity"], rows, n_i, s_i,
                   self.no_slip,
                   system.nbr_ptr, system.nbr_idx, system.kernel.params, scheme.c0, scheme.rho0, eos_b, GAMMA,
-                  scheme.mu, self.gravity, self.ds, scheme.variant, scheme.shift.active, scheme.tensile,
-                  self.centers, d_rho, d_mom, self.force, self.torque)
+                  scheme.mu, scheme.morris, self.gravity, self.ds, scheme.variant, scheme.shift.active,
+                  scheme.tensile, self.centers, d_rho, d_mom, self.force, self.torque)
 
     def _ghost_images(self, system):
         """Owned fluid rows within a support of a ghost wall and the images they see."""

@@ -4,6 +4,9 @@ Operators (seed 001 eq. 11-12), with grad_i W_ij = f(r) x_ij (compute.smoothing)
     <div u>_i          = sum_j (u_j - u_i) . grad_i W_ij V_j
     <grad p>_i         = sum_j (p_j + p_i) grad_i W_ij V_j        ((p_j - p_i) where p_i < 0: tensile switch)
     <div V>_i          = mu sum_j pi_ij grad_i W_ij V_j,  pi_ij = K (u_j - u_i) . x_ji / |x_ji|^2,  K = 2 (d + 2)
+                         (morris = True: mu sum_j 2 (u_j - u_i) F_ij V_j, F_ij below; Morris, Fox and Zhu 1997, J.
+                         Comput. Phys. 136, with constant mu and rho: the Laplacian alone, without
+                         eq. 11's 2 grad div u, and with no lattice anisotropy, see tests/compute/test_fluid.py)
     <div du>_i         = sum_j (du_j - du_i) . grad_i W_ij V_j
     <div(rho du)>_i    = sum_j (rho_j du_j + rho_i du_i) . grad_i W_ij V_j
     <div(rho u x du)>_i = sum_j (rho_j u_j (du_j . grad_i W_ij) + rho_i u_i (du_i . grad_i W_ij)) V_j
@@ -96,7 +99,8 @@ def _compile(d):
 
     @njit(cache=True)
     def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, ptr, idx, cf, h, c0, delta, delta_m, mu,
-                      gravity, variant, with_shift, tensile_switch, kind, fluid_only, d_rho, d_mass, d_mom):
+                      morris, gravity, variant, with_shift, tensile_switch, kind, fluid_only, d_rho, d_mass,
+                      d_mom):
         kk = 2.0 * (d + 2)
         c_rho = 2.0 * delta * h * c0
         c_m = 2.0 * delta_m * h * c0
@@ -138,17 +142,25 @@ def _compile(d):
                 dux, duy, duz = uj0 - ui0, uj1 - ui1, uj2 - ui2
                 # pressure
                 pp = prs[j] - p_i if switch else prs[j] + p_i
-                # viscosity: pi_ij = K (u_j - u_i) . x_ji / r^2, x_ji = -x_ij
-                pi = -kk * dot(dux, duy, duz, x0, x1, x2, d) / rr
                 div_u += dot(dux, duy, duz, w0, w1, w2, d)
                 gp0 += pp * w0
-                vs0 += pi * w0
                 if d > 1:
                     gp1 += pp * w1
-                    vs1 += pi * w1
                 if d > 2:
                     gp2 += pp * w2
-                    vs2 += pi * w2
+                if morris:  # 2 (u_j - u_i) F_ij V_j = -2 f V_j (u_j - u_i)
+                    vs0 -= 2.0 * fv * dux
+                    if d > 1:
+                        vs1 -= 2.0 * fv * duy
+                    if d > 2:
+                        vs2 -= 2.0 * fv * duz
+                else:  # pi_ij = K (u_j - u_i) . x_ji / r^2, x_ji = -x_ij
+                    pi = -kk * dot(dux, duy, duz, x0, x1, x2, d) / rr
+                    vs0 += pi * w0
+                    if d > 1:
+                        vs1 += pi * w1
+                    if d > 2:
+                        vs2 += pi * w2
                 # diffusive terms: F_ij = -f
                 gj0, gj1, gj2 = load(grad_rho, j, d)
                 psi = (rho[j] - rho_i) + 0.5 * dot(gi0 + gj0, gi1 + gj1, gi2 + gj2, x0, x1, x2, d)
@@ -218,15 +230,17 @@ def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pa
 
 
 def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, pairs, kp, c0, delta, delta_m, mu,
-                  gravity, variant, with_shift, tensile_switch, kind, fluid_only, d_rho, d_mass, d_mom):
+                  gravity, variant, with_shift, tensile_switch, kind, fluid_only, d_rho, d_mass, d_mom,
+                  morris=False):
     """Time derivatives of the owned particles (rows of pairs) for the delta-ALE-SPH family.
 
     pairs: the PairCache that renormalised_gradient filled at the same positions (with the same kind and
     fluid_only). variant 0: d_rho, d_mass, d_mom = d(m u)/dt (seed 001 eq. 13); 1 and 2: d_rho and
     d_mom = du/dt (eq. 23 and 25; d_mass untouched). vol holds the operators' volumes (V = m / rho, or V0
     for variant 2). with_shift = False skips every du-term (du is then not read). delta_m = 0 switches D^m
-    off. fluid_only: fluid rows only (the walls' pairs: psph.compute.walls).
+    off. fluid_only: fluid rows only (the walls' pairs: psph.compute.walls). morris: Morris' viscous
+    operator instead of seed 001 eq. 11.
     """
     _KERNELS[pos.shape[1]][1](pos, vol, rho, mass, vel, du, prs, grad_rho, pairs.ptr, pairs.idx, pairs.f, kp[1],
-                              c0, delta, delta_m, mu, gravity, variant, with_shift, tensile_switch, kind,
+                              c0, delta, delta_m, mu, morris, gravity, variant, with_shift, tensile_switch, kind,
                               fluid_only, d_rho, d_mass, d_mom)

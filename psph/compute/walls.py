@@ -53,16 +53,21 @@ def _eos_density(p, rho0, c0, eos_b, eos_gamma):
 
 @njit(cache=True)
 def _wall_pair(x0, x1, rr, fv, rho_i, p_i, ui0, ui1, di0, di1, rho_j, p_j, ud0, ud1, ul0, ul1, dj0, dj1,
-               with_shift, switch, variant):
+               with_shift, switch, variant, morris):
     """One mirrored neighbour j of fluid particle i (2-D): x = x_i - x_j, rr = |x|, fv = F(r) V_j; j's
     divergence velocity ud, Laplacian velocity ul, shifting velocity dj, pressure and density. Returns the
-    continuity sum's term, the pressure term (tensile switch applied), the pi_ij viscous term, the du-term
-    of the momentum and the plus-form pressure term (for the force on the wall)."""
+    continuity sum's term, the pressure term (tensile switch applied), the viscous term (pi_ij, or Morris'
+    with morris, as psph.compute.fluid), the du-term of the momentum and the plus-form pressure term (for
+    the force on the wall)."""
     w0, w1 = fv * x0, fv * x1
     cont = (ud0 - ui0) * w0 + (ud1 - ui1) * w1
     pp = p_j + p_i
     pq = p_j - p_i if switch else pp
-    pi = -8.0 * ((ul0 - ui0) * x0 + (ul1 - ui1) * x1) / (rr * rr)  # K = 2 (d + 2), d = 2
+    if morris:
+        v0, v1 = -2.0 * fv * (ul0 - ui0), -2.0 * fv * (ul1 - ui1)
+    else:
+        pi = -8.0 * ((ul0 - ui0) * x0 + (ul1 - ui1) * x1) / (rr * rr)  # K = 2 (d + 2), d = 2
+        v0, v1 = pi * w0, pi * w1
     h0 = h1 = 0.0
     if with_shift:
         ddj = dj0 * w0 + dj1 * w1
@@ -75,7 +80,7 @@ def _wall_pair(x0, x1, rr, fv, rho_i, p_i, ui0, ui1, di0, di1, rho_j, p_j, ud0, 
             div_du = (dj0 - di0) * w0 + (dj1 - di1) * w1
             h0 = ud0 * ddj + ui0 * ddi - ui0 * div_du
             h1 = ud1 * ddj + ui1 * ddi - ui1 * div_du
-    return cont, pq * w0, pq * w1, pi * w0, pi * w1, h0, h1, pp * w0, pp * w1
+    return cont, pq * w0, pq * w1, v0, v1, h0, h1, pp * w0, pp * w1
 
 
 @njit(cache=True)
@@ -105,8 +110,8 @@ def near_wall_rows(kind, ptr, idx):
 
 @njit(cache=True)
 def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel, wall_vel, rows, n_i_all, s_i_all,
-              no_slip, ptr, idx, kp, c0, rho0, eos_b, eos_gamma, mu, gravity, ds_min, variant, with_shift,
-              tensile_switch, centers, d_rho, d_mom, force, torque):
+              no_slip, ptr, idx, kp, c0, rho0, eos_b, eos_gamma, mu, morris, gravity, ds_min, variant,
+              with_shift, tensile_switch, centers, d_rho, d_mom, force, torque):
     """Add the solid neighbours' contributions to the owned fluid `rows` (2-D).
 
     n_i_all, s_i_all: the closest body node's normal and distance, per entry of rows; wall_vel: the velocity
@@ -175,7 +180,7 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
             c, q0, q1, v0, v1, h0, h1, f0, f1 = _wall_pair(
                 x0, x1, rr, kernel_f(rr, kp) * vol[j], rho_i, p_i, ui0, ui1, di0, di1,
                 _eos_density(p_j, rho0, c0, eos_b, eos_gamma), p_j, ud0, ud1, ul0, ul1,
-                dt * t0 - dn * n0, dt * t1 - dn * n1, with_shift, switch, variant)
+                dt * t0 - dn * n0, dt * t1 - dn * n1, with_shift, switch, variant, morris)
             cont += c
             gp0 += q0
             gp1 += q1
@@ -294,7 +299,7 @@ def _mirror(vel, du, j, walls, w_axis, w_vel, no_slip):
 
 @njit(cache=True)
 def ghost_rhs(pos, vol, rho, vel, du, prs, rows, img_ptr, img_j, img_w, w_axis, w_coord, w_vel, no_slip, kp, c0,
-              rho0, eos_b, eos_gamma, mu, gravity, variant, with_shift, tensile_switch, d_rho, d_mom):
+              rho0, eos_b, eos_gamma, mu, morris, gravity, variant, with_shift, tensile_switch, d_rho, d_mom):
     """Add the ghost images' contributions to the owned fluid `rows` (2-D; images from ghost_images)."""
     for r in range(rows.size):
         i = rows[r]
@@ -316,7 +321,7 @@ def ghost_rhs(pos, vol, rho, vel, du, prs, rows, img_ptr, img_j, img_w, w_axis, 
             c, q0, q1, v0, v1, h0, h1, _, _ = _wall_pair(
                 x0, x1, rr, kernel_f(rr, kp) * vol[j], rho_i, p_i, ui0, ui1, di0, di1,
                 _eos_density(p_g, rho0, c0, eos_b, eos_gamma), p_g, ud[0], ud[1], ul[0], ul[1],
-                dd[0] if with_shift else 0.0, dd[1] if with_shift else 0.0, with_shift, switch, variant)
+                dd[0] if with_shift else 0.0, dd[1] if with_shift else 0.0, with_shift, switch, variant, morris)
             cont += c
             gp0 += q0
             gp1 += q1

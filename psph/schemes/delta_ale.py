@@ -5,9 +5,10 @@
     delta_ale_const_volume  eq. 25: density and velocity evolve; operators use V0; m = V0 rho
 
 with the equation of state of psph.schemes.eos, viscosity mu = rho0 U L / Re through the pi_ij operator
-(eq. 11, K = 2(d+2)), gravity, the diffusive terms D^rho (delta = 0.1) and D^m (eq. 14), the tensile
-switch (p_j - p_i where p_i < 0; no free surfaces yet) and the shifting velocity du of an explicit law
-(psph.shifting.velocity) with its du-terms (eq. 12); without shifting those terms are skipped.
+(eq. 11, K = 2(d+2); or Morris' with physics.viscosity = "morris"), gravity, the diffusive terms D^rho
+(delta = 0.1) and D^m (eq. 14), the tensile switch (p_j - p_i where p_i < 0; no free surfaces yet) and
+the shifting velocity du of an explicit law (psph.shifting.velocity) with its du-terms (eq. 12); without
+shifting those terms are skipped.
 The kernels are in psph.compute.fluid.
 """
 
@@ -35,6 +36,7 @@ class DeltaALE:
         dim = scene.domain.dimension
         self.gravity = np.zeros(dim) if not phys.gravity else np.asarray(phys.gravity, dtype=np.float64)
         self.tensile = phys.tensile_switch
+        self.morris = phys.viscosity == "morris"
         self.free_stream = np.asarray(phys.free_stream, dtype=np.float64) if phys.free_stream else None
         self.free_stream_ramp = phys.free_stream_ramp
         self.eos = make_eos(phys)
@@ -54,7 +56,8 @@ class DeltaALE:
                  2: "delta-ALE-SPH with constant volumes (eq. 25)"}
         lines = [f"scheme: {names[self.variant]}",
                  f"equation of state: {self.eos.name}, c0 = {self.c0:g}, rho0 = {self.rho0:g}",
-                 f"viscosity: pi_ij operator (eq. 11), nu = {self.nu:g}",
+                 f"viscosity: {'Morris et al. (1997)' if self.morris else 'pi_ij (eq. 11)'} operator, "
+                 f"nu = {self.nu:g}",
                  f"density diffusion D^rho, delta = {self.delta:g} (eq. 14)"]
         if self.variant == 0:
             lines.append(f"mass diffusion D^m, delta = {self.delta_m:g}" if self.delta_m else "mass diffusion off")
@@ -186,7 +189,7 @@ class DeltaALE:
         delta_ale_rhs(p["position"], p["volume"], p["density"], p["mass"], p["velocity"], du, p["pressure"],
                       p["grad_rho"], self.pairs, kp, self.c0, self.delta, self.delta_m,
                       self.mu, self.gravity, self.variant, self.shift.active, self.tensile, p["kind"], walls,
-                      d_rho, d_mass, d_mom)
+                      d_rho, d_mass, d_mom, morris=self.morris)
         if walls:
             with phase("walls"):
                 self.walls.add(system, self, t, d_rho, d_mom)

@@ -6,19 +6,14 @@ import numpy as np
 import pytest
 
 from psph.compute import shift_velocity
-from psph.compute.neighbours import build_neighbour_lists
-from psph.compute.smoothing import make_kernel
+from tests.helpers import perturbed_lattice
 
 
 def cloud(dim, seed):
     rng = np.random.default_rng(seed)
     n_side = {1: 40, 2: 9, 3: 5}[dim]
     dx = 1.0 / n_side
-    grid = np.stack(np.meshgrid(*[np.arange(n_side) * dx] * dim, indexing="ij"), axis=-1).reshape(-1, dim)
-    pos = np.ascontiguousarray(grid + 0.2 * dx * rng.standard_normal(grid.shape))
-    kern = make_kernel("wendland_c6", dim, 1.6 * dx)
-    ptr, idx = build_neighbour_lists(pos, len(pos), 1.1 * kern.support)
-    vol = dx**dim * (1.0 + 0.1 * rng.random(len(pos)))
+    pos, vol, kern, ptr, idx = perturbed_lattice(rng, dim, n_side)
     x = pos[:, None, :] - pos[None, :, :]
     r = np.sqrt((x * x).sum(axis=2))
     use = (r > 0.0) & (r < kern.support)

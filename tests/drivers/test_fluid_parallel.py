@@ -29,10 +29,12 @@ def assert_matches_serial(scene, comm, tmp, tol):
         assert np.abs(parallel[k] - serial[k]).max() < tol * scale, k
 
 
-@pytest.mark.parametrize("shifting,update,tol", [("delta_plus", "none", 1e-11), ("iips", "nfts", 1e-7),
-                                                  ("iips", "mls2", 1e-7)])
-def test_fluid_run_matches_serial(comm, mpi_tmp_path, shifting, update, tol):
-    scene = periodic_scene(n=16, initial={"velocity": "taylor_green"}, physics={"scheme": "delta_ale"},
+@pytest.mark.parametrize("shifting,update,viscosity,tol", [
+    ("delta_plus", "none", "monaghan", 1e-11), ("iips", "nfts", "monaghan", 1e-7),
+    ("iips", "mls2", "monaghan", 1e-7), ("iips", "mls2", "morris", 1e-7)])
+def test_fluid_run_matches_serial(comm, mpi_tmp_path, shifting, update, viscosity, tol):
+    scene = periodic_scene(n=16, initial={"velocity": "taylor_green"},
+                           physics={"scheme": "delta_ale", "viscosity": viscosity},
                            time={"t_end": 0.04}, shifting={"method": shifting},
                            iips={"update": update, "threshold": 1e-3})
     assert_matches_serial(scene, comm, mpi_tmp_path, tol)
@@ -42,6 +44,7 @@ def test_fluid_run_matches_serial(comm, mpi_tmp_path, shifting, update, tol):
     ("lid_driven_cavity.toml", ["shifting.method=delta_plus"], 1e-11),
     ("lid_driven_cavity.toml", ["shifting.method=iips", "iips.threshold=0.02", "iips.update=nfts",
                                "initial.sigma_over_dx=0.05"], 1e-7),
+    ("lid_driven_cavity.toml", ["shifting.method=delta_plus", "physics.viscosity=morris"], 1e-11),
     ("hydrostatic_tank.toml", [], 1e-11),
     ("inclined_ellipse.toml", ["domain.dx=0.2", "physics.free_stream_ramp=0.05"], 1e-11)])
 def test_runs_with_walls_match_serial(comm, mpi_tmp_path, case, sets, tol):
