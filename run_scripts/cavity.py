@@ -54,6 +54,8 @@ def main():
     parser.add_argument("--h-over-dx", type=float, default=2.0)
     parser.add_argument("--walls", nargs="+", default=["clone"], choices=["clone", "ghost"])
     parser.add_argument("--ghost-resolutions", type=int, nargs="+", help="L/dx of the ghost runs (default: all)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="scene override for every run (e.g. physics.viscosity=morris)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     scenes = {walls: cavity_scene(walls, args.out) for walls in args.walls}
@@ -70,7 +72,8 @@ def main():
                 run = run_scene(scenes[walls], args.out / name,
                                 sets=[f"domain.dx={dx}", f"domain.h_over_dx={args.h_over_dx}",
                                       f"physics.reynolds={re}", f"time.t_end={args.t_end}",
-                                      f"output.every={args.t_end}", "output.history_every=50"], ranks=args.ranks)
+                                      f"output.every={args.t_end}", "output.history_every=50", *args.set],
+                                ranks=args.ranks)
                 sample, _, _ = centrelines(run, args.h_over_dx, dx)
                 inner_y, inner_x = (gy > 0) & (gy < 1), (gx > 0) & (gx < 1)  # the walls' values are boundary data
                 u = sample(np.stack([np.full(inner_y.sum(), 0.5), gy[inner_y]], 1))[:, 0]
@@ -109,7 +112,8 @@ def main():
                                                    "--resolutions", *map(str, args.resolutions),
                                                    "--t-end", str(args.t_end), "--walls", *args.walls,
                                                    *(["--ghost-resolutions", *map(str, args.ghost_resolutions)]
-                                                     if args.ghost_resolutions else [])])))
+                                                     if args.ghost_resolutions else []),
+                                                   *[f"--set {s}" for s in args.set]])))
 
 
 if __name__ == "__main__":
