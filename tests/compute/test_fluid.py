@@ -31,10 +31,10 @@ def reference(pos, vol, rho, mass, vel, du, prs, kp_kernel, c0, delta, delta_m, 
     pp = np.where((switch & (prs < 0.0))[:, None], prs[None, :] - prs[:, None], prs[None, :] + prs[:, None])
     gp = np.einsum("ij,ija->ia", pp, w)
     r2 = np.where(use, r * r, 1.0)
-    pi = 2.0 * (d + 2) * np.einsum("ija,ija->ij", dvel, -x) / r2
-    vs = np.einsum("ij,ija->ia", pi, w)
     if morris:  # 2 sum_j (u_j - u_i) F_ij V_j, F_ij = -f
         vs = -2.0 * np.einsum("ij,ija->ia", f * vol[None, :], dvel)
+    else:  # sum_j pi_ij grad_i W_ij V_j
+        vs = np.einsum("ij,ija->ia", 2.0 * (d + 2) * np.einsum("ija,ija->ij", dvel, -x) / r2, w)
     psi = rho[None, :] - rho[:, None] + 0.5 * np.einsum("ija,ija->ij", grad_rho[:, None] + grad_rho[None, :], x)
     h = kp_kernel.h
     diff_rho = 2.0 * delta * h * c0 * (psi * -f * vol[None, :]).sum(axis=1)
@@ -120,16 +120,18 @@ def test_shifting_terms_change_the_total_volume_by_minus_two_v_du_grad_c(dim):
     assert abs((dv[True] - dv[False]).sum() - source) < 1e-12 * np.abs(dv[True] - dv[False]).sum()
 
 
+def lattice(m):
+    """The m x m square lattice of the unit box: positions and volumes."""
+    g = (np.arange(m) + 0.5) / m
+    return np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2), np.full(m * m, 1.0 / m**2)
+
+
 def test_viscous_operator_has_a_lattice_error_that_refinement_does_not_remove():
     """The floor of the Taylor-Green convergence (run_scripts/tgv_operator_error.py): on a square lattice the
     viscous operator of seed 001 eq. 11 (K = 2(d + 2)) dissipates the vortex with nu_eff = 1.09 nu at h/dx =
     2 at every resolution (a quadrature error of the lattice, not a smoothing error), 1.02 at h/dx = 3, while
     the pressure gradient converges at second order."""
     from psph.studies import tgv_operator_errors
-
-    def lattice(m):
-        g = (np.arange(m) + 0.5) / m
-        return np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2), np.full(m * m, 1.0 / m**2)
 
     coarse, fine = tgv_operator_errors(*lattice(40), 2.0), tgv_operator_errors(*lattice(80), 2.0)
     assert 1.08 < coarse["nu_eff_ratio"] < 1.095 and abs(fine["nu_eff_ratio"] - coarse["nu_eff_ratio"]) < 0.005
@@ -144,10 +146,6 @@ def test_morris_viscous_operator_converges_where_eq_11_stalls():
     the Taylor-Green vortex at h/dx = 2, nu_eff / nu goes to 1 under refinement (0.991 at 40 x 40, 0.997 at
     80 x 80), where eq. 11 stays at 1.09 (test above); its pointwise error also falls."""
     from psph.studies import tgv_operator_errors
-
-    def lattice(m):
-        g = (np.arange(m) + 0.5) / m
-        return np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2), np.full(m * m, 1.0 / m**2)
 
     coarse, fine = (tgv_operator_errors(*lattice(m), 2.0, morris=True) for m in (40, 80))
     assert 0.98 < coarse["nu_eff_ratio"] < 0.995 and abs(fine["nu_eff_ratio"] - 1.0) < 0.004
