@@ -31,13 +31,25 @@ def perturb(gid: np.ndarray, pos: np.ndarray, sigma: float, seed: int) -> None:
 
 
 def initial_fields(scene, pos) -> dict:
-    """Analytic fields the scene's initial condition sets (none for initial.velocity = zero)."""
+    """Fields the scene's initial condition sets at the fluid positions `pos`: the analytic Taylor-Green
+    velocity and pressure, or the hydrostatic pressure (none for initial.velocity = zero, pressure = zero)."""
+    fields = {}
     if scene.initial.velocity == "taylor_green":
         d = scene.domain
         vel, p = taylor_green(pos, 0.0, U=scene.physics.reference_velocity, L=d.upper[0] - d.lower[0],
                               rho=scene.physics.density, lower=d.lower)
-        return {"velocity": vel, "pressure": p}
-    return {}
+        fields = {"velocity": vel, "pressure": p}
+    if scene.initial.pressure == "hydrostatic":
+        fields["pressure"] = hydrostatic_pressure(scene, pos)
+    return fields
+
+
+def reset_initial_fields(scene, particles) -> None:
+    """Set the initial-condition fields again at the owned fluid particles' current positions (after the
+    pre-procedure moved them)."""
+    fluid = particles.owned("kind") == Kind.FLUID
+    for name, values in initial_fields(scene, particles.owned("position")[fluid]).items():
+        particles.owned(name)[fluid] = values
 
 
 INITIAL_FIELD_SPECS = {"velocity": FieldSpec("velocity", ("d",)), "pressure": FieldSpec("pressure")}
@@ -75,8 +87,6 @@ def create_particles(scene, comm, specs=()) -> ParticleSet:
     if "body" in arrays:
         arrays["body"][:] = -1
     fields = initial_fields(scene, pos)
-    if scene.initial.pressure == "hydrostatic":
-        fields["pressure"] = hydrostatic_pressure(scene, pos)
     for name, values in fields.items():
         particles.add_field(INITIAL_FIELD_SPECS[name])
         arrays[name] = values

@@ -20,11 +20,13 @@ from psph.analytic import taylor_green, taylor_green_kinetic_energy
 from psph.compute.sums import nearest_distance
 from psph.diagnostics import fluid_mask, grad_c, norms
 from psph.errors import NumericalError
+from psph.initial import reset_initial_fields
 from psph.parallel.comm import allreduce_max, allreduce_min, allreduce_sum, raise_if_any
 from psph.profiling import phase
 from psph.schemes import make_scheme
 from psph.schemes.integrators import INTEGRATORS, STAGE_REACH
 from psph.shifting.field_update import make_field_update
+from psph.shifting.iips import pre_procedure
 from psph.simulation import Simulation
 
 DT_COLLAPSE = 1e-6  # a time step below this fraction of the first one is a breakdown
@@ -69,6 +71,9 @@ class FluidDriver:
                               halo_fields=self.scheme.halo_fields(), log=log, restart=restart, progress=progress)
         self.system = self.sim.system
         self.resumed = restart[0]["driver"] if restart else None
+        self.pre = None
+        if restart is None and scene.iips.pre_newton > 0:
+            self.pre = self.pre_procedure()
         self.scheme.initialize(self.system, t=self.resumed["time"] if restart else 0.0, fresh=restart is None)
         self.integrate = INTEGRATORS[scene.time.integrator]
         self.reach = STAGE_REACH[scene.time.integrator]
@@ -81,6 +86,8 @@ class FluidDriver:
 
             self.concentration_volume = self.update.concentration_volume
             self.iips = ImplicitShifting(scene.iips, self.sim.comm, volume=self.concentration_volume)
+            if self.pre is not None:
+                self.iips.set_initial_linf(self.pre["linf"])
         self.reference = TaylorGreenReference(scene) if scene.initial.velocity == "taylor_green" else None
         self.initial_volume = allreduce_sum(self.sim.comm, float(
             self.system.particles.owned("volume")[fluid_mask(self.system)].sum()))
@@ -90,6 +97,19 @@ class FluidDriver:
             self.first_dt = self.resumed["first_dt"]
             if self.iips is not None:
                 self.iips.restore(self.resumed["iips"])
+
+    def pre_procedure(self) -> dict:
+        """The static pre-procedure (iips.pre_newton IIPS iterations, for every shifting method) before the
+        fluid fields exist: from a perturbed lattice (initial.sigma_over_dx) it gives a relaxed start that
+        the flow cannot strain into a squeezed lattice as it does the Cartesian one (README, Taylor-Green).
+        The initial condition is then set again at the moved positions. Collective."""
+        start = time.perf_counter()
+        linf = pre_procedure(self.scene.iips, self.sim.comm, self.system)
+        reset_initial_fields(self.scene, self.system.particles)
+        pre = {"linf": linf, "time_s": time.perf_counter() - start}
+        self.sim.log(f"pre-procedure: {self.scene.iips.pre_newton} IIPS iterations, Linf(grad C) = {linf:.3e}, "
+                     f"{pre['time_s']:.1f} s")
+        return pre
 
     def checkpoint(self, step, t, totals, next_output) -> None:
         self.sim.checkpoint(step, t, {

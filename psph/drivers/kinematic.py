@@ -15,6 +15,7 @@ from psph.analytic import taylor_green
 from psph.diagnostics import distribution_report, grad_c
 from psph.profiling import phase
 from psph.shifting import make_shifting
+from psph.shifting.iips import pre_procedure
 from psph.simulation import Simulation
 
 
@@ -41,17 +42,6 @@ class KinematicDriver:
         self.n_steps = math.ceil(scene.time.t_end / self.dt - 1e-9)
         self.length = d.upper[0] - d.lower[0]
 
-    def pre_procedure(self, system):
-        """The static pre-procedure (thesis Algorithms 2-4, line 2): iips.pre_newton IIPS iterations, for
-        every method, so that Procedures A, B and C start from the same distribution."""
-        if self.scene.iips.pre_newton == 0:
-            return None
-        if self.scene.shifting.method == "iips":
-            return self.shifting.prepare(system)
-        from psph.shifting.iips import ImplicitShifting
-
-        return ImplicitShifting(self.scene.iips, self.sim.comm).prepare(system)
-
     def advect(self):
         """Move the owned particles by the frozen field (thesis eq. 8.33) and refresh. Collective."""
         system = self.sim.system
@@ -65,7 +55,8 @@ class KinematicDriver:
         """Pre-procedure, the history's first row and the first snapshot; returns the distribution report."""
         sim, system = self.sim, self.sim.system
         t0 = time.perf_counter()
-        init_linf = self.pre_procedure(system)
+        init_linf = pre_procedure(self.scene.iips, sim.comm, system,
+                                  self.shifting if self.scene.shifting.method == "iips" else None)
         self.pre = {"time_s": time.perf_counter() - t0, "linf": init_linf}
         if init_linf is not None:
             threshold = getattr(self.shifting, "threshold", None)

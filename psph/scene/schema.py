@@ -188,7 +188,8 @@ class IIPSSpec:
     max_newton: int = option(20, doc="Newton iterations per call at most (a static run: exactly, without "
                              "threshold)", ge=1, le=100000)
     pre_newton: int = option(0, doc="Newton iterations of the static pre-procedure before a time-dependent "
-                             "run (thesis: 100)", ge=0)
+                             "run, whatever the shifting method (thesis: 100); from a perturbed lattice "
+                             "(initial.sigma_over_dx) it gives a relaxed start", ge=0)
     divergence_factor: float = option(100.0, doc="a call whose Linf(grad C) grows by this factor has diverged",
                                       gt=1.0)
     update: str = option("none", doc="fluid runs: field update after IIPS moved the particles: none, nfts "
@@ -322,8 +323,6 @@ class Scene:
             raise SceneError("time.t_end", "a fluid run needs t_end > 0")
         if self.iips.update != "none" and not (fluid and method == "iips"):
             raise SceneError("iips.update", "field updates apply to fluid runs with shifting.method = iips")
-        if fluid and method == "iips" and self.iips.pre_newton > 0:
-            raise SceneError("iips.pre_newton", "the static pre-procedure belongs to kinematic runs")
         if self.iips.update == "nfts" and self.physics.scheme != "delta_ale":
             raise SceneError("iips.update", "nfts updates masses and volumes: it needs physics.scheme = delta_ale")
         if self.physics.gravity and len(self.physics.gravity) != self.domain.dimension:

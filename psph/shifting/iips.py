@@ -154,10 +154,23 @@ class ImplicitShifting:
         system.particles.add_field(GUESS_FIELD)
         if self.spec.pre_newton > 0:
             report = self._iterate(system, self.spec.pre_newton, None, False, on_iteration, {})
-            self.initial_linf = report.Linf_grad_c
-            if self.spec.beta > 0:
-                self.threshold = self.spec.beta * self.initial_linf
+            self.set_initial_linf(report.Linf_grad_c)
         return self.initial_linf
+
+    def set_initial_linf(self, linf) -> None:
+        """Linf(grad C) after the pre-procedure (thesis: Linf(grad C)_Init), and the threshold beta x it
+        (eq. 8.34) when `iips.beta` is given."""
+        self.initial_linf = linf
+        if self.spec.beta > 0:
+            self.threshold = self.spec.beta * linf
+
+    def destroy(self) -> None:
+        """Free the PETSc matrix, vectors and solver now (petsc4py keeps them alive otherwise). Collective."""
+        if self._structure_of is not None:
+            for obj in (self.matrix, self.rhs, self.dx, self.residual):
+                obj.destroy()
+            self._structure_of = None
+        self.solver.ksp.destroy()
 
     def correct(self, system, on_iteration=None, iterations=None, **where) -> ShiftReport:
         """One IIPS call (per time step, or a whole static run): Procedure A or B.
@@ -253,3 +266,19 @@ class ImplicitShifting:
         """Largest displacement of the last call (collective)."""
         s = system.particles.owned(SHIFT_FIELD.name)
         return allreduce_max(system.comm, float(np.sqrt((s * s).sum(axis=1)).max()) if len(s) else 0.0)
+
+
+def pre_procedure(spec, comm, system, iips=None):
+    """The static pre-procedure (thesis Algorithms 2-4, line 2): `spec.pre_newton` IIPS iterations with no
+    threshold, whatever the run's shifting method, so that every method starts from the same distribution.
+    From a perturbed lattice (`initial.sigma_over_dx`) it gives a relaxed distribution that is not a lattice.
+    `iips`: the run's own ImplicitShifting, which then keeps its beta threshold; without it a temporary one
+    is used and freed. Returns Linf(grad C) after it, or None when `spec.pre_newton` is 0. Collective."""
+    if spec.pre_newton == 0:
+        return None
+    if iips is not None:
+        return iips.prepare(system)
+    temporary = ImplicitShifting(spec, comm)
+    linf = temporary.prepare(system)
+    temporary.destroy()
+    return linf

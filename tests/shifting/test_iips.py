@@ -292,7 +292,8 @@ def test_printed_operator_iteration_turns_on_a_strained_lattice():
     """A known limit of the printed operator (seeds/README.md), kept in view: on a lattice the Taylor-Green
     flow has strained for t = 0.07 (squeezed to ~0.7 dx at its stagnation points), the iteration first
     lowers Linf(grad C), then a mode grows several-fold per iteration. Why Procedure B stops at
-    dx = 0.00625 in the Taylor-Green runs of run_scripts/tgv_tradeoff.py, and Procedure A does not."""
+    dx = 0.00625 in the Taylor-Green runs of run_scripts/tgv_tradeoff.py from the lattice, and Procedure A
+    does not; from a relaxed start the flow strains no lattice (tests/drivers/test_drivers.py)."""
     from psph.analytic import taylor_green
 
     scene = periodic_scene(n=40, iips={"max_newton": 9})
