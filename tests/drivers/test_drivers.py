@@ -74,7 +74,7 @@ def test_failure_stops_with_step_and_saves_state(tmp_path):
 
 
 def test_relaxed_start_keeps_procedure_b_from_stalling(tmp_path):
-    """The frozen Taylor-Green field strains a lattice into one IIPS cannot level: Procedure B stalls
+    """The frozen Taylor-Green field strains a lattice into a distribution IIPS cannot level: Procedure B stalls
     from t = 0.055 on (dx = 0.025). The pre-procedure on a perturbed lattice (a relaxed start that is not
     a lattice) lets it keep the threshold at every call, with fewer Newton iterations."""
     summaries = {}
