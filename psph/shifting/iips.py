@@ -92,9 +92,7 @@ class ImplicitShifting:
         with phase("iips_structure"):
             indptr, indices, slot = iips_structure(rows, system.nbr_ptr, system.nbr_idx, d)
             n_total = int(allreduce_sum(system.comm, n_free))
-            if self._structure_of is not None:  # free the previous matrix and vectors (FixedPatternMatrix.destroy)
-                for obj in (self.matrix, self.rhs, self.dx, self.residual):
-                    obj.destroy()
+            self._free_structure()  # the previous matrix and vectors (FixedPatternMatrix.destroy)
             with petsc_errors("creating the IIPS matrix"):
                 self.matrix = FixedPatternMatrix(system.comm, indptr, indices, slot, n_total * d, d,
                                                  self.solver.prefix)
@@ -164,12 +162,16 @@ class ImplicitShifting:
         if self.spec.beta > 0:
             self.threshold = self.spec.beta * linf
 
-    def destroy(self) -> None:
-        """Free the PETSc matrix, vectors and solver now (petsc4py keeps them alive otherwise). Collective."""
+    def _free_structure(self) -> None:
+        """Free the matrix and vectors of the last structure, if any (petsc4py keeps them alive). Collective."""
         if self._structure_of is not None:
             for obj in (self.matrix, self.rhs, self.dx, self.residual):
                 obj.destroy()
             self._structure_of = None
+
+    def destroy(self) -> None:
+        """Free the PETSc matrix, vectors and solver now. Collective."""
+        self._free_structure()
         self.solver.ksp.destroy()
 
     def correct(self, system, on_iteration=None, iterations=None, **where) -> ShiftReport:
