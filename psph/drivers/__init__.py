@@ -37,6 +37,8 @@ def shifting_description(scene) -> list:
             trigger = f"threshold beta = {i.beta:g} x Linf(grad C) after {i.pre_newton} pre-procedure iterations"
         elif i.threshold > 0:
             trigger = f"threshold Linf(grad C) <= {i.threshold:g}"
+        elif scene.physics.scheme in FLUID_SCHEMES:
+            trigger = f"no threshold (every call runs all {i.max_newton} Newton iterations: set iips.threshold)"
         else:
             trigger = "no threshold"
         return [f"shifting: IIPS (thesis ch. 8), Procedure {i.procedure}, {trigger}, at most {i.max_newton} Newton "

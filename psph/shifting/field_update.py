@@ -80,16 +80,15 @@ class FictitiousTimeStep(NoFieldUpdate):
         p.owned(SHIFT_FIELD.name)[:] = 0.0
         system.update()
         names = p.names
-        # normals and wall velocities of the solid neighbours (clones, see nfts_increments); none: no walls
-        walls = ((p["normal"], p["wall_velocity"]) if "normal" in names and "wall_velocity" in names
-                 else (np.zeros((1, p.dim)), np.zeros((1, p.dim))))
+        # normals of the solid neighbours (clones, see nfts_increments); none: no walls
+        normal = p["normal"] if "normal" in names else np.zeros((1, p.dim))
         for _ in range(n):
             system.refresh(["position", "volume", "density", "velocity", "nfts_step"])
             vol, rho, vel = p.owned("volume"), p.owned("density"), p.owned("velocity")
             d_vol, d_mass = np.zeros(p.n_owned), np.zeros(p.n_owned)
             d_mom = np.zeros((p.n_owned, p.dim))
             nfts_increments(p["position"], p["volume"], p["density"], p["velocity"], p["nfts_step"], p["kind"],
-                            *walls, system.nbr_ptr, system.nbr_idx, system.kernel.params, d_vol, d_mass, d_mom)
+                            normal, system.nbr_ptr, system.nbr_idx, system.kernel.params, d_vol, d_mass, d_mom)
             mass = vol * rho + d_mass
             mom = (vol * rho)[:, None] * vel + d_mom
             vol += d_vol
