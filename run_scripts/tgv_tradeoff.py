@@ -27,6 +27,7 @@ METHODS = {  # label: scene overrides
     "IIPS": ["shifting.method=iips", "iips.update=none"],
     "IIPS + NFTS": ["shifting.method=iips", "iips.update=nfts"],
     "IIPS + MLS-II": ["shifting.method=iips", "iips.update=mls2"],
+    "IIPS + MLS-II increment": ["shifting.method=iips", "iips.update=mls2_increment"],
 }
 
 

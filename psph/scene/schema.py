@@ -193,8 +193,10 @@ class IIPSSpec:
     divergence_factor: float = option(100.0, doc="a call whose Linf(grad C) grows by this factor has diverged",
                                       gt=1.0)
     update: str = option("none", doc="fluid runs: field update after IIPS moved the particles: none, nfts "
-                         "(fictitious time step, thesis eq. 9.7), mls1, mls2 (MLS re-interpolation, eq. 9.8-9.9)",
-                         choices=("none", "nfts", "mls1", "mls2"))
+                         "(fictitious time step, thesis eq. 9.7), mls1, mls2 (MLS re-interpolation, eq. 9.8-9.9), "
+                         "mls1_increment, mls2_increment (only the MLS fit's change between the old and the new "
+                         "position is added, the Taylor correction of eq. 6.10: no smoothing per call)",
+                         choices=("none", "nfts", "mls1", "mls2", "mls1_increment", "mls2_increment"))
     on_failure: str = option("stop", doc="KSP divergence or Newton divergence: stop the run; reject the "
                              "call (undo its displacements, report, continue); or warn (keep them, report, "
                              "continue)", choices=("stop", "reject", "warn"))

@@ -7,6 +7,12 @@
     mls1   first-order MLS re-interpolation (eq. 9.8) of volume, density and velocity from the pre-shift
            positions; mass = rho V (delta_ale), or V = m / rho (constant mass), or m = V0 rho
     mls2   second-order MLS re-interpolation (eq. 9.9), same fields
+    mls1_increment, mls2_increment
+           the MLS fit's increment only: f_i += MLS[f](x_i') - MLS[f](x_i), the Taylor-series correction of
+           eq. 6.10 (Xu et al. 2009) with the MLS polynomial as the expansion. A particle that did not move
+           keeps its values exactly, so a call does not smooth; a quadratic (mls2) field is still remapped
+           exactly. Next to walls the particle keeps what the walls gave it, where the plain remap, which
+           sees only fluid particles, extrapolates (README: the lid-driven cavity).
 Kernels in psph.compute.field_update.
 """
 
@@ -101,9 +107,10 @@ class FictitiousTimeStep(NoFieldUpdate):
 
 
 class MovingLeastSquares(NoFieldUpdate):
-    def __init__(self, order):
+    def __init__(self, order, increment=False):
         self.order = order
-        self.name = f"mls{order}"
+        self.increment = increment
+        self.name = f"mls{order}" + ("_increment" if increment else "")
 
     def specs(self, dim):
         return (FieldSpec("old_position", ("d",)), FieldSpec("old_fields", (3 + dim,)))
@@ -118,6 +125,14 @@ class MovingLeastSquares(NoFieldUpdate):
         old[:, 2] = p.owned("density")
         old[:, 3:] = p.owned("velocity")
 
+    def _fit(self, system, at, old_pos, old):
+        """The MLS fit of the old fields (columns 1:, weighted by the volumes of column 0) at `at`."""
+        ptr, idx = build_cross_lists(at, old_pos, system.kernel.support)
+        out = np.zeros((len(at), old.shape[1] - 1))
+        mls_interpolate(at, old_pos, old[:, 0], np.ascontiguousarray(old[:, 1:]), ptr, idx, system.kernel.params,
+                        self.order, out)
+        return out
+
     def after(self, system, scheme):
         """Re-interpolate at the new positions from the old ones. The old positions reach other ranks
         through a halo pattern built from the old positions themselves, so a large IIPS displacement does
@@ -130,10 +145,9 @@ class MovingLeastSquares(NoFieldUpdate):
                           shifted=("old_position",))
         old_pos = np.concatenate([owned_old, got["old_position"]])
         old = np.concatenate([p.owned("old_fields"), got["old_fields"]])
-        ptr, idx = build_cross_lists(p.owned("position"), old_pos, system.kernel.support)
-        new = np.zeros((p.n_owned, old.shape[1] - 1))
-        mls_interpolate(p.owned("position"), old_pos, old[:, 0], np.ascontiguousarray(old[:, 1:]), ptr, idx,
-                        system.kernel.params, self.order, new)
+        new = self._fit(system, p.owned("position"), old_pos, old)
+        if self.increment:
+            new += p.owned("old_fields")[:, 1:] - self._fit(system, owned_old, old_pos, old)
         error = None
         if not np.all(np.isfinite(new)):
             error = NumericalError("MLS update: a particle has no old neighbour to interpolate from")
@@ -155,6 +169,6 @@ def make_field_update(scene):
     mode = scene.iips.update
     if mode == "nfts":
         return FictitiousTimeStep(0.2, scene.domain.dx)
-    if mode in ("mls1", "mls2"):
-        return MovingLeastSquares(int(mode[-1]))
+    if mode.startswith("mls"):
+        return MovingLeastSquares(int(mode[3]), increment=mode.endswith("_increment"))
     return NoFieldUpdate()

@@ -46,6 +46,8 @@ def test_fluid_run_matches_serial(comm, mpi_tmp_path, shifting, update, viscosit
     ("lid_driven_cavity.toml", ["shifting.method=delta_plus"], 1e-11),
     ("lid_driven_cavity.toml", ["shifting.method=iips", "iips.threshold=0.02", "iips.update=nfts",
                                "initial.sigma_over_dx=0.05"], 1e-7),
+    ("lid_driven_cavity.toml", ["shifting.method=iips", "iips.threshold=0.02", "iips.update=mls2_increment",
+                               "initial.sigma_over_dx=0.05"], 1e-7),
     ("lid_driven_cavity.toml", ["shifting.method=delta_plus", "physics.viscosity=morris"], 1e-11),
     ("hydrostatic_tank.toml", [], 1e-11),
     ("inclined_ellipse.toml", ["domain.dx=0.2", "physics.free_stream_ramp=0.05"], 1e-11)])
