@@ -33,16 +33,16 @@ def shifting_description(scene) -> list:
     s = scene.shifting
     if s.method == "iips":
         i = scene.iips
+        cap = f"at most {i.max_newton} Newton iterations per call"
         if i.beta > 0:
             trigger = f"threshold beta = {i.beta:g} x Linf(grad C) after {i.pre_newton} pre-procedure iterations"
         elif i.threshold > 0:
             trigger = f"threshold Linf(grad C) <= {i.threshold:g}"
-        elif scene.physics.scheme in FLUID_SCHEMES:
-            trigger = f"no threshold (every call runs all {i.max_newton} Newton iterations: set iips.threshold)"
         else:
             trigger = "no threshold"
-        return [f"shifting: IIPS (thesis ch. 8), Procedure {i.procedure}, {trigger}, at most {i.max_newton} Newton "
-                f"iterations per call, on failure: {i.on_failure}",
+            if scene.physics.scheme in FLUID_SCHEMES:
+                cap = f"so every call runs all {i.max_newton} Newton iterations (set iips.threshold)"
+        return [f"shifting: IIPS (thesis ch. 8), Procedure {i.procedure}, {trigger}, {cap}, on failure: {i.on_failure}",
                 "IIPS linear solver: PETSc KSP prefix -iips_ (default bcgs + jacobi, rtol 1e-2)"]
     if s.method == "explicit_iterative":
         return [f"shifting: explicit Fickian dx = -D grad C, D = {s.diffusion:g} h^2 (thesis eq. 6.13), "
