@@ -224,10 +224,8 @@ def iips_pair_defects(pos, vol, h_over_dx, newton=3) -> dict:
         grad = np.zeros((n, 2))
         sums.grad_concentration(all_pos, all_vol, ptr, idx, kern.params, grad)
         indptr, indices, slot = iips.iips_structure(row, ptr, idx, 2)
-        values = np.zeros(len(slot))
-        iips.iips_values(all_pos, all_vol, row, ptr, idx, kern.params, values)
         data = np.zeros(len(indices))
-        np.add.at(data, slot, values)
+        iips.iips_values(all_pos, all_vol, row, ptr, idx, kern.params, slot, data, np.zeros(0))
         matrix = sp.csr_matrix((data, indices, indptr), shape=(2 * n, 2 * n))
         return all_pos, kern, ptr, idx, grad, matrix
 

@@ -8,8 +8,9 @@ of the matrix.
 
 Bandwidth: a single-core STREAM triad (a = b + s c, numba, 3 x 8 bytes per element, best of 5) measured
 in the same process. Bound of one BCGS + Jacobi iteration: two matrix-vector products at 12 bytes per
-nonzero (8 value + 4 column index) plus 16 bytes per row (row pointer, result), and about 20 vector
-sweeps of 8 bytes per row (the BCGS axpys and dot products, the Jacobi scaling).
+nonzero for AIJ (8 value + 4 column index; 8 + 4 / d^2 for BAIJ, one index per d x d block) plus 16
+bytes per row (row pointer, result), and about 20 vector sweeps of 8 bytes per row (the BCGS axpys and
+dot products, the Jacobi scaling).
 """
 
 import argparse
@@ -83,13 +84,15 @@ def main():
         rows = shifting.mat.getLocalSize()[0]
         ksp_its = its / args.iterations
         per_its = split["ksp_solve"] / max(ksp_its, 1)
-        bound = (2 * (12 * nnz + 16 * rows) + 20 * 8 * rows) / bandwidth
+        kind = shifting.mat.getType()
+        per_nonzero = 8 + 4 / (system.particles.dim ** 2 if "baij" in kind else 1)
+        bound = (2 * (per_nonzero * nnz + 16 * rows) + 20 * 8 * rows) / bandwidth
         worst = {k: allreduce_max(comm, v) for k, v in split.items()}
         per_its_max = allreduce_max(comm, per_its)
         bound_max = allreduce_max(comm, bound)
         total = allreduce_max(comm, total)
         if comm.rank == 0:
-            print(f"\n{n * n} particles ({rows} local rows, {nnz:.0f} local nonzeros on rank 0)")
+            print(f"\n{n * n} particles ({rows} local rows, {nnz:.0f} local nonzeros on rank 0, {kind})")
             print(f"  time per Newton iteration {1e3 * total:.1f} ms (max over ranks); parts:")
             for k in parts:
                 print(f"    {k:15s} {1e3 * worst[k]:8.1f} ms  ({100 * worst[k] / total:4.1f} %)")

@@ -30,10 +30,11 @@ def block_positions(indptr, indices, col_start, col_end, d_start, o_start, block
 @njit(cache=True)
 def split_csr(indptr, indices, col_start, col_end):
     """Split a CSR (global, sorted columns) into PETSc's MPIAIJ blocks: the diagonal block's row pointers
-    and local columns (col - col_start), and the off-diagonal block's row pointers and global columns."""
+    and local columns (col - col_start), and the off-diagonal block's row pointers and global columns, as
+    int32 (PETSc's index type; the caller has checked that the pattern fits)."""
     n = indptr.size - 1
-    di = np.zeros(n + 1, dtype=np.int64)
-    oi = np.zeros(n + 1, dtype=np.int64)
+    di = np.zeros(n + 1, dtype=np.int32)
+    oi = np.zeros(n + 1, dtype=np.int32)
     for r in range(n):
         inside = 0
         for k in range(indptr[r], indptr[r + 1]):
@@ -44,8 +45,8 @@ def split_csr(indptr, indices, col_start, col_end):
     block = np.empty(indices.size, dtype=np.int8)
     where = np.empty(indices.size, dtype=np.int64)
     block_positions(indptr, indices, col_start, col_end, di, oi, block, where)
-    dj = np.empty(di[n], dtype=np.int64)
-    oj = np.empty(oi[n], dtype=np.int64)
+    dj = np.empty(di[n], dtype=np.int32)
+    oj = np.empty(oi[n], dtype=np.int32)
     for k in range(indices.size):
         if block[k] == 0:
             dj[where[k]] = indices[k] - col_start
@@ -55,36 +56,29 @@ def split_csr(indptr, indices, col_start, col_end):
 
 
 @njit(cache=True)
-def split_positions(indptr, indices, col_start, col_end, ia_d, ia_o, slot, target, offset):
-    """For each natural value (via slot -> CSR position): block (0 diagonal, 1 off-diagonal) and position
-    in the blocks whose row pointers PETSc reports (ia_d, ia_o). Returns False if they disagree with the
-    CSR (then the caller uses the generic path)."""
+def split_positions(indptr, indices, col_start, col_end, ia_d, ia_o, slot, where):
+    """For each natural value (via slot -> CSR position): its position in the blocks whose row pointers
+    PETSc reports (ia_d, ia_o), coded as `add_at` reads it (p: diagonal block, -1 - p: off-diagonal block).
+    Returns False if they disagree with the CSR (then the caller uses the generic path)."""
     block = np.empty(indices.size, dtype=np.int8)
-    where = np.empty(indices.size, dtype=np.int64)
-    if not block_positions(indptr, indices, col_start, col_end, ia_d, ia_o, block, where):
+    position = np.empty(indices.size, dtype=np.int64)
+    if not block_positions(indptr, indices, col_start, col_end, ia_d, ia_o, block, position):
         return False
     for e in range(slot.size):
-        target[e] = block[slot[e]]
-        offset[e] = where[slot[e]]
+        k = slot[e]
+        where[e] = position[k] if block[k] == 0 else -1 - position[k]
     return True
 
 
 @njit(cache=True)
-def write_split(values, target, offset, diag, off):
-    diag[:] = 0.0
-    off[:] = 0.0
-    for e in range(values.size):
-        if target[e] == 0:
-            diag[offset[e]] += values[e]
-        else:
-            off[offset[e]] += values[e]
-
-
-@njit(cache=True)
-def scatter(values, slot, out):
-    out[:] = 0.0
-    for e in range(values.size):
-        out[slot[e]] += values[e]
+def add_at(where, e, value, diag, off):
+    """Add value number e into its storage: diag[where[e]] if where[e] >= 0, else off[-1 - where[e]] (the
+    off-diagonal block of a distributed AIJ matrix; unused, and may be empty, when every code is >= 0)."""
+    w = where[e]
+    if w >= 0:
+        diag[w] += value
+    else:
+        off[-1 - w] += value
 
 
 @njit(cache=True)
@@ -101,3 +95,38 @@ def block_major_positions(indptr, d):
                 for b in range(d):
                     out[base + a * m * d + s * d + b] = base + s * d * d + a * d + b
     return out
+
+
+@njit(cache=True)
+def block_pattern(indptr, indices, d):
+    """The block CSR (block row pointers, block columns; int32) of a scalar CSR whose d scalar rows per
+    block row hold d x d blocks in row-oriented layout (row a of the block row, then block s, then b)."""
+    n = (indptr.size - 1) // d
+    bptr = np.zeros(n + 1, dtype=np.int32)
+    for p in range(n):
+        bptr[p + 1] = bptr[p] + (indptr[p * d + 1] - indptr[p * d]) // d
+    bcols = np.empty(bptr[n], dtype=np.int32)
+    for p in range(n):
+        for s in range(bptr[p + 1] - bptr[p]):
+            bcols[bptr[p] + s] = indices[indptr[p * d] + s * d] // d
+    return bptr, bcols
+
+
+@njit(cache=True)
+def block_codes(indptr, d, bptr, block_where, slot, where):
+    """Position codes (as add_at reads them) of the natural values of a blocked matrix: scalar CSR
+    position slot[e] lies in block k of the block CSR (bptr) at row a, column b; block_where[k] codes the
+    block's position in PETSc's diagonal (>= 0) or off-diagonal (< 0) block storage, where each d x d
+    block is stored column-major (BAIJ), so the value goes to d * d * position + b * d + a."""
+    code = np.empty(indptr[-1], dtype=np.int32)
+    d2 = d * d
+    for p in range(bptr.size - 1):
+        m = bptr[p + 1] - bptr[p]
+        for a in range(d):
+            for s in range(m):
+                w = block_where[bptr[p] + s]
+                for b in range(d):
+                    inner = b * d + a
+                    code[indptr[p * d + a] + s * d + b] = w * d2 + inner if w >= 0 else -1 - ((-1 - w) * d2 + inner)
+    for e in range(slot.size):
+        where[e] = code[slot[e]]

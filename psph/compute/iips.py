@@ -23,6 +23,7 @@ scalar unknown of component a of particle p is p * d + a. Several halo images of
 import numpy as np
 from numba import njit
 
+from psph.compute.csr import add_at
 from psph.compute.smoothing import hessian_coefficients, kernel_f
 from psph.compute.sums import pair
 
@@ -36,7 +37,9 @@ def iips_structure(row, ptr, idx, d):
     Returns (indptr, indices): scalar CSR with global, sorted, unique columns per row; and slot: for
     each value iips_values produces (its "natural" order: the d diagonal self entries of a particle,
     then d x d entries per free neighbour-list entry), the CSR position it adds into (several halo images
-    of one particle in a row share a position).
+    of one particle in a row share a position). All three are int32, PETSc's index type (a 64-bit-index
+    PETSc gets copies): half the memory, and the page faults of fresh memory, of int64. ValueError if a
+    position or a column would not fit.
     """
     n_rows = ptr.size - 1
     n_free = 0
@@ -48,9 +51,14 @@ def iips_structure(row, ptr, idx, d):
             for k in range(ptr[i], ptr[i + 1]):
                 if row[idx[k]] >= 0:
                     n_values += d * d
-    slot = np.empty(n_values, dtype=np.int64)
-    indptr = np.zeros(n_free * d + 1, dtype=np.int64)
-    columns = np.empty(n_values // d, dtype=np.int64)  # unique particle columns, row after row
+    largest = 0
+    for i in range(n_rows):
+        largest = max(largest, row[i])
+    if n_values + n_free * d * (d - 1) >= 2 ** 31 or (largest + 1) * d >= 2 ** 31:
+        raise ValueError("the IIPS matrix has more nonzeros on a rank, or more rows, than 32-bit indices allow")
+    slot = np.empty(n_values, dtype=np.int32)
+    indptr = np.zeros(n_free * d + 1, dtype=np.int32)
+    columns = np.empty(n_values // d, dtype=np.int32)  # unique particle columns, row after row
     width = np.zeros(n_free, dtype=np.int64)
     scratch = np.empty(64, dtype=np.int64)
     # unique sorted particle columns of every particle row (insertion sort: rows arrive nearly sorted)
@@ -86,7 +94,7 @@ def iips_structure(row, ptr, idx, d):
     base = np.zeros(n_free + 1, dtype=np.int64)
     for p in range(n_free):
         base[p + 1] = base[p] + width[p] * d * d
-    indices = np.empty(base[n_free], dtype=np.int64)
+    indices = np.empty(base[n_free], dtype=np.int32)
     start = 0
     for p in range(n_free):
         m = width[p]
@@ -124,15 +132,21 @@ def iips_structure(row, ptr, idx, d):
 
 
 @njit(cache=True)
-def iips_values(pos, vol, row, ptr, idx, kp, values):
-    """Values of the printed IIPS operator in natural order (see iips_structure)."""
+def iips_values(pos, vol, row, ptr, idx, kp, where, diag, off):
+    """Values of the printed IIPS operator, each added straight into its storage: value number e of the
+    natural order (see iips_structure) into diag[where[e]], or off[-1 - where[e]] if where[e] < 0
+    (csr.add_at). With where = slot and diag the CSR values this fills the CSR matrix; with PETSc's split
+    codes it fills a distributed AIJ matrix's own arrays. diag and off are zeroed first."""
     d = pos.shape[1]
+    diag[:] = 0.0
+    off[:] = 0.0
     h0 = kernel_f(0.0, kp)  # HessW(0) = W''(0) I = f(0) I
     e = 0
     for i in range(ptr.size - 1):
         if row[i] < 0:
             continue
-        values[e:e + d] = vol[i] * h0
+        for a in range(d):
+            add_at(where, e + a, vol[i] * h0, diag, off)
         e += d
         for k in range(ptr[i], ptr[i + 1]):
             j = idx[k]
@@ -143,15 +157,16 @@ def iips_values(pos, vol, row, ptr, idx, kp, values):
             ha *= vol[j]
             hb *= vol[j]
             if d == 2:
-                values[e] = ha + hb * x0 * x0
-                values[e + 1] = hb * x0 * x1
-                values[e + 2] = values[e + 1]
-                values[e + 3] = ha + hb * x1 * x1
+                off_diagonal = hb * x0 * x1
+                add_at(where, e, ha + hb * x0 * x0, diag, off)
+                add_at(where, e + 1, off_diagonal, diag, off)
+                add_at(where, e + 2, off_diagonal, diag, off)
+                add_at(where, e + 3, ha + hb * x1 * x1, diag, off)
             elif d == 3:
                 xs = (x0, x1, x2)
                 for a in range(3):
                     for b in range(3):
-                        values[e + 3 * a + b] = hb * xs[a] * xs[b] + (ha if a == b else 0.0)
+                        add_at(where, e + 3 * a + b, hb * xs[a] * xs[b] + (ha if a == b else 0.0), diag, off)
             else:
-                values[e] = ha + hb * x0 * x0
+                add_at(where, e, ha + hb * x0 * x0, diag, off)
             e += d * d

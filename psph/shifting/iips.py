@@ -2,7 +2,8 @@
 section 11.2 proposes).
 
 Each Newton iteration assembles the printed operator of thesis eq. 8.11 / 8.32 (compute.iips) in a
-distributed PETSc AIJ matrix with block size d, preallocated once per neighbour-list rebuild, solves
+distributed PETSc AIJ matrix with block size d (BAIJ with `-iips_mat_type baij`), built once per
+neighbour-list rebuild, solves
 A dx = grad C with the KSP of prefix `iips_` (default BCGS + Jacobi, rtol 1e-2, thesis section 8.3.1;
 any `-iips_ksp_*` / `-iips_pc_*` option overrides them) and moves the free particles by dx.
 
@@ -32,7 +33,7 @@ import time
 import numpy as np
 
 from psph.compute.iips import iips_structure, iips_values
-from psph.errors import NumericalError, SolverError
+from psph.errors import NumericalError, PsphError, SolverError
 from psph.parallel.comm import allreduce_max, allreduce_sum
 from psph.particles import FieldSpec, Kind
 from psph.profiling import phase
@@ -90,16 +91,18 @@ class ImplicitShifting:
         free = p.owned("kind") == Kind.FLUID
         rows, _, n_free = system.global_rows(free)
         with phase("iips_structure"):
-            indptr, indices, slot = iips_structure(rows, system.nbr_ptr, system.nbr_idx, d)
+            self._free_structure()  # the previous matrix and vectors first: their memory can serve the new ones
+            try:
+                indptr, indices, slot = iips_structure(rows, system.nbr_ptr, system.nbr_idx, d)
+            except ValueError as err:  # more than 32-bit indices can address: run on more ranks
+                raise PsphError(f"{err}; run on more ranks") from None
             n_total = int(allreduce_sum(system.comm, n_free))
-            self._free_structure()  # the previous matrix and vectors (FixedPatternMatrix.destroy)
             with petsc_errors("creating the IIPS matrix"):
                 self.matrix = FixedPatternMatrix(system.comm, indptr, indices, slot, n_total * d, d,
                                                  self.solver.prefix)
         self.mat = self.matrix.mat
         self.rhs, self.dx = self.mat.createVecs()
         self.residual = self.rhs.duplicate()  # work vector of _start_from
-        self.values = np.zeros(len(slot))
         self.free = free
         self.solver.set_operator(self.mat)
         self._structure_of = system.rebuilds
@@ -109,10 +112,10 @@ class ImplicitShifting:
         if self._structure_of != system.rebuilds:
             self._structure(system)
         p = system.particles
+        pos, vol, row, ptr, idx = p["position"], p[self.volume], p["row"], system.nbr_ptr, system.nbr_idx
         with phase("iips_assemble"):
-            iips_values(p["position"], p[self.volume], p["row"], system.nbr_ptr, system.nbr_idx,
-                        system.kernel.params, self.values)
-            self.matrix.set_values(self.values)
+            self.matrix.set_values(lambda where, diag, off: iips_values(pos, vol, row, ptr, idx, system.kernel.params,
+                                                                        where, diag, off))
         return self.mat
 
     # -------------------------------------------------------------- iterate

@@ -1,21 +1,24 @@
-"""Distributed AIJ matrices with a fixed pattern: built once per neighbour-list rebuild, values rewritten in place.
+"""Distributed AIJ / BAIJ matrices with a fixed pattern: built once per neighbour-list rebuild, values
+rewritten in place.
 
-An AIJ matrix (the default) is built on the pattern arrays themselves, without copying or inserting:
+An AIJ matrix is built on the pattern arrays themselves, without copying or inserting:
 MatCreateSeqAIJWithArrays on one rank, MatCreateMPIAIJWithSplitArrays (diagonal block with local
 columns, off-diagonal block with global ones) on several (~2 ms for 1.6M nonzeros, where
-`setPreallocationCSR`, which inserts entry by entry, takes 60-90 ms). Values then go straight into
-PETSc's value arrays of the local diagonal and off-diagonal SeqAIJ blocks, reached through PETSc's public
-C API (MatMPIAIJGetSeqAIJ, MatGetRowIJ, MatSeqAIJGetArray/RestoreArray) with ctypes, because petsc4py
-3.18 binds none of them. Another matrix type asked for on the command line (e.g. -iips_mat_type baij) is
-preallocated with `setPreallocationCSR` and filled through the generic `setValuesCSR` path. Either way
-the matrix is re-assembled, which advances its state so that preconditioners are set up again.
+`setPreallocationCSR`, which inserts entry by entry, takes 60-90 ms). A BAIJ matrix (block size d) is
+preallocated from its block pattern (PETSc 3.18 has no BAIJ on given arrays for block sizes above 1).
+Values then go straight into PETSc's value arrays of the local diagonal and off-diagonal SeqAIJ /
+SeqBAIJ blocks, reached through PETSc's public C API (MatMPI(B)AIJGetSeq(B)AIJ, MatGetRowIJ,
+MatSeq(B)AIJGetArray/RestoreArray) with ctypes, because petsc4py 3.18 binds none of them. Another matrix
+type asked for on the command line (e.g. -iips_mat_type sell) is preallocated with `setPreallocationCSR`
+and filled through the generic `setValuesCSR` path. Either way the matrix is re-assembled, which
+advances its state so that preconditioners are set up again.
 """
 
 import ctypes
 
 import numpy as np
 
-from psph.compute.csr import block_major_positions, scatter, split_csr, split_positions, write_split
+from psph.compute.csr import block_codes, block_major_positions, block_pattern, split_csr, split_positions
 from psph.errors import PsphError
 from psph.parallel.comm import exclusive_scan
 from psph.solvers.petsc import petsc
@@ -44,6 +47,11 @@ def _petsc_library():
                                                 ctypes.POINTER(_ptr), ctypes.POINTER(ctypes.c_int)]),
                            ("MatCreateMPIAIJWithSplitArrays", [_ptr] + [_int_type()] * 4 + [_ptr] * 6
                             + [ctypes.POINTER(_ptr)]),
+                           ("MatSeqBAIJGetArray", [_ptr, ctypes.POINTER(_ptr)]),
+                           ("MatSeqBAIJRestoreArray", [_ptr, ctypes.POINTER(_ptr)]),
+                           ("MatMPIBAIJGetSeqBAIJ", [_ptr, ctypes.POINTER(_ptr), ctypes.POINTER(_ptr),
+                                                     ctypes.POINTER(_ptr)]),
+                           ("MatSeqBAIJSetColumnIndices", [_ptr, _ptr]),
                            ("PCSetOperators", [_ptr, _ptr, _ptr]),
                            ("MatDestroy", [ctypes.POINTER(_ptr)])):
             fn = getattr(lib, name)
@@ -74,12 +82,12 @@ def _doubles_at(address, size):
     return np.asarray(_Memory(address, size, "<f8"))
 
 
-def _row_pointers(lib, handle):
-    """Row pointers (ia) of a SeqAIJ matrix, as int64."""
+def _row_pointers(lib, handle, blocks=False):
+    """Row pointers (ia) of a SeqAIJ matrix, or block-row pointers of a SeqBAIJ one (blocks), as int64."""
     n = ctypes.c_int()
     ia, ja = _ptr(), _ptr()
     done = ctypes.c_int()
-    _check(lib.MatGetRowIJ(handle, 0, 0, 0, ctypes.byref(n), ctypes.byref(ia), ctypes.byref(ja),
+    _check(lib.MatGetRowIJ(handle, 0, 0, int(blocks), ctypes.byref(n), ctypes.byref(ia), ctypes.byref(ja),
                            ctypes.byref(done)), "MatGetRowIJ")
     if not done.value:
         raise PsphError("MatGetRowIJ is not supported for this matrix")
@@ -88,7 +96,7 @@ def _row_pointers(lib, handle):
         rows = np.zeros(1, dtype=np.int64)
     else:
         rows = np.asarray(_Memory(ia.value, n.value + 1, np.dtype(int_type).str)).astype(np.int64)
-    _check(lib.MatRestoreRowIJ(handle, 0, 0, 0, ctypes.byref(n), ctypes.byref(ia), ctypes.byref(ja),
+    _check(lib.MatRestoreRowIJ(handle, 0, 0, int(blocks), ctypes.byref(n), ctypes.byref(ia), ctypes.byref(ja),
                                ctypes.byref(done)), "MatRestoreRowIJ")
     return rows
 
@@ -105,7 +113,7 @@ def _aij_on_arrays(comm, indptr, indices, n_global):
     from mpi4py import MPI
 
     start = exclusive_scan(comm, n_local)
-    di, dj, oi, oj = split_csr(np.asarray(indptr, np.int64), np.asarray(indices, np.int64), start, start + n_local)
+    di, dj, oi, oj = split_csr(indptr, indices, start, start + n_local)
     arrays = tuple(np.ascontiguousarray(a, dtype=PETSc.IntType) for a in (di, dj, oi, oj))
     arrays += (np.zeros(len(dj)), np.zeros(len(oj)))
     di, dj, oi, oj, da, oa = arrays
@@ -115,65 +123,128 @@ def _aij_on_arrays(comm, indptr, indices, n_global):
                                               di.ctypes.data, dj.ctypes.data, da.ctypes.data, oi.ctypes.data,
                                               oj.ctypes.data, oa.ctypes.data, ctypes.byref(handle)),
            "MatCreateMPIAIJWithSplitArrays")
-    # petsc4py 3.18 cannot wrap a C handle directly; a PC hands back the operator it was given as a Mat
+    return _wrap(comm, handle), arrays
+
+
+def _baij(comm, bptr, bcols, bsize, n_global):
+    """A BAIJ matrix of block size `bsize` on the block pattern (bptr, bcols; global block columns), values
+    zero. PETSc 3.18 builds no BAIJ on given arrays for block sizes above 1. One rank: exact preallocation,
+    then the column indices copied in (MatSeqBAIJSetColumnIndices: 0.5 ms where the CSR preallocation,
+    which inserts block by block, takes 9 ms at 6400 particles); several: the CSR preallocation. Collective."""
+    PETSc = petsc()
+    n_local = (len(bptr) - 1) * bsize
+    sizes = ((n_local, n_global), (n_local, n_global))
+    bptr, bcols = (np.asarray(a, dtype=PETSc.IntType) for a in (bptr, bcols))
+    if comm.size > 1:
+        return PETSc.Mat().createBAIJ(sizes, bsize, csr=(bptr, bcols), comm=comm)
+    mat = PETSc.Mat().createBAIJ(sizes, bsize, nnz=np.diff(bptr), comm=comm)
+    _check(_petsc_library().MatSeqBAIJSetColumnIndices(mat.handle, bcols.ctypes.data), "MatSeqBAIJSetColumnIndices")
+    mat.assemble()
+    return mat
+
+
+def _wrap(comm, handle):
+    """A petsc4py Mat for a new C Mat handle, whose own reference is then dropped. petsc4py 3.18 cannot wrap
+    a C handle directly; a PC hands back the operator it was given as a Mat."""
+    PETSc = petsc()
+    lib = _petsc_library()
     pc = PETSc.PC().create(comm=comm)
     _check(lib.PCSetOperators(_ptr(pc.handle), handle, handle), "PCSetOperators")
     mat, _ = pc.getOperators()
     pc.destroy()
     _check(lib.MatDestroy(ctypes.byref(handle)), "MatDestroy")  # the Mat wrapper holds its own reference
-    return mat, arrays
+    return mat
 
 
 class FixedPatternMatrix:
     """A square distributed matrix with block size `bsize`, pattern (indptr, indices) and `slot`, the
-    CSR position of every value a value kernel produces (repeats add up). Collective constructor."""
+    CSR position of every value a value kernel produces (repeats add up). Collective constructor.
+
+    The kernel writes into the matrix's storage itself (set_values): `where` codes each value's position,
+    p >= 0 in the local diagonal block's values (on one rank: all values), -1 - p in the off-diagonal
+    block's (csr.add_at), as int32 like the pattern (compute.iips.iips_structure checks that it fits).
+    AIJ (the default) and BAIJ (`-<prefix>mat_type baij`, block size d: a quarter of AIJ's column indices,
+    fewer bytes per matrix-vector product) are written in place; other types go through setValuesCSR."""
+
+    ACCESS = {"aij": ("MatSeqAIJGetArray", "MatSeqAIJRestoreArray", "MatMPIAIJGetSeqAIJ"),
+              "baij": ("MatSeqBAIJGetArray", "MatSeqBAIJRestoreArray", "MatMPIBAIJGetSeqBAIJ")}
 
     def __init__(self, comm, indptr, indices, slot, n_global, bsize, prefix):
         PETSc = petsc()
         n_local = len(indptr) - 1
         self.arrays = ()
-        if PETSc.Options().getString(f"{prefix}mat_type", "aij") in ("aij", "seqaij", "mpiaij"):
+        requested = PETSc.Options().getString(f"{prefix}mat_type", "aij")
+        family = {"aij": "aij", "seqaij": "aij", "mpiaij": "aij", "baij": "baij", "seqbaij": "baij",
+                  "mpibaij": "baij"}.get(requested)
+        if family == "baij" and bsize > 1:
+            bptr, bcols = block_pattern(indptr, indices, bsize)
+            mat = _baij(comm, bptr, bcols, bsize, n_global)
+        elif family == "aij":
             mat, self.arrays = _aij_on_arrays(comm, indptr, indices, n_global)
             mat.setBlockSize(bsize)
-            mat.setOptionsPrefix(prefix)
         else:
             mat = PETSc.Mat().create(comm=comm)
             mat.setSizes(((n_local, n_global), (n_local, n_global)), bsize=bsize)
-            mat.setOptionsPrefix(prefix)
+        mat.setOptionsPrefix(prefix)
+        if family is None:
             mat.setFromOptions()
         self.kind = mat.getType()
         self.blocked = bsize > 1 and "baij" in self.kind
+        self.mat = mat
+        self.blocks = []  # (SeqAIJ / SeqBAIJ handle, number of values) of the blocks written in place
+        self.where = None
+        if self.kind in ("seqaij", "seqbaij"):
+            size = len(indices) if self.kind == "seqaij" else len(bcols) * bsize * bsize
+            self.blocks = [(mat.handle, size)]
+            self.where = np.asarray(slot, dtype=np.int32)
+            if self.blocked:
+                block_codes(indptr, bsize, bptr, np.arange(len(bcols), dtype=np.int32), slot, self.where)
+        elif self.kind in ("mpiaij", "mpibaij"):
+            self._split(indptr, indices, slot, bsize, *((bptr, bcols) if self.blocked else (None, None)))
+        if not self.blocks:  # generic path (other matrix types): CSR values, then setValues(Blocked)CSR
+            self._generic(indptr, indices, slot, bsize, preallocate=family is None)
+        if family is not None:  # the pattern is exactly the one built
+            mat.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+
+    def _split(self, indptr, indices, slot, bsize, bptr, bcols):
+        """Codes into the diagonal and off-diagonal blocks of an MPIAIJ / MPIBAIJ matrix (if their patterns
+        are the ones expected; otherwise the generic path is used)."""
+        lib = _petsc_library()
+        ad, ao, colmap = _ptr(), _ptr(), _ptr()
+        get_blocks = getattr(lib, self.ACCESS["baij" if self.blocked else "aij"][2])
+        _check(get_blocks(self.mat.handle, ctypes.byref(ad), ctypes.byref(ao), ctypes.byref(colmap)),
+               "MatMPI(B)AIJGetSeq(B)AIJ")
+        start, end = self.mat.getOwnershipRangeColumn()
+        ia_d, ia_o = _row_pointers(lib, ad, self.blocked), _row_pointers(lib, ao, self.blocked)
+        where = np.empty(len(slot), dtype=np.int32)
+        if self.blocked:
+            block_where = np.empty(len(bcols), dtype=np.int32)
+            ok = split_positions(bptr, bcols, start // bsize, end // bsize, ia_d, ia_o,
+                                 np.arange(len(bcols), dtype=np.int32), block_where)
+            if ok:
+                block_codes(indptr, bsize, bptr, block_where, slot, where)
+            per_block = bsize * bsize
+        else:
+            ok = split_positions(indptr, indices, start, end, ia_d, ia_o, slot, where)
+            per_block = 1
+        if ok:
+            self.blocks = [(ad.value, int(ia_d[-1]) * per_block), (ao.value, int(ia_o[-1]) * per_block)]
+            self.where = where
+
+    def _generic(self, indptr, indices, slot, bsize, preallocate):
+        PETSc = petsc()
         if self.blocked:  # block CSR: the scalar layout per particle row is already row-oriented blocks
-            d2 = bsize * bsize
-            self.indptr = np.asarray(np.asarray(indptr)[::bsize] // d2, dtype=PETSc.IntType)
-            first = np.concatenate([np.arange(indptr[r], indptr[r + 1], bsize) for r in range(0, n_local, bsize)])
-            self.indices = np.asarray(np.asarray(indices)[first.astype(np.int64)] // bsize, dtype=PETSc.IntType)
-            slot = block_major_positions(np.asarray(indptr, np.int64), bsize)[slot]
+            pattern = block_pattern(indptr, indices, bsize)
+            self.indptr, self.indices = (np.asarray(a, dtype=PETSc.IntType) for a in pattern)
+            slot = block_major_positions(indptr, bsize)[slot]
         else:
             self.indptr = np.asarray(indptr, dtype=PETSc.IntType)
             self.indices = np.asarray(indices, dtype=PETSc.IntType)
-        if not self.arrays:
-            mat.setPreallocationCSR((self.indptr, self.indices))
-        mat.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
-        self.mat = mat
-        self.slot = slot
-        self.target = np.zeros(len(slot), dtype=np.int8)  # 0: diagonal block, 1: off-diagonal block
-        self.offset = np.asarray(slot, dtype=np.int64)  # position in that block's values
-        self.blocks = []  # (SeqAIJ handle, number of values) of the blocks written in place
-        if self.kind == "seqaij":
-            self.blocks = [(mat.handle, len(indices))]
-        elif self.kind == "mpiaij":
-            lib = _petsc_library()
-            ad, ao, colmap = _ptr(), _ptr(), _ptr()
-            _check(lib.MatMPIAIJGetSeqAIJ(mat.handle, ctypes.byref(ad), ctypes.byref(ao), ctypes.byref(colmap)),
-                   "MatMPIAIJGetSeqAIJ")
-            start, end = mat.getOwnershipRangeColumn()
-            ia_d, ia_o = _row_pointers(lib, ad), _row_pointers(lib, ao)
-            self.offset = np.empty(len(slot), dtype=np.int64)
-            if split_positions(np.asarray(indptr, np.int64), np.asarray(indices, np.int64), start, end, ia_d, ia_o,
-                                np.asarray(slot, np.int64), self.target, self.offset):
-                self.blocks = [(ad.value, int(ia_d[-1])), (ao.value, int(ia_o[-1]))]
-        self.values = None if self.blocks else np.zeros(len(indices))
+        if preallocate:  # a type the CSR preallocation does not reach (e.g. sell) is set up by default
+            self.mat.setPreallocationCSR((self.indptr, self.indices))
+            self.mat.setUp()
+        self.where = np.asarray(slot, dtype=np.int32)
+        self.values = np.zeros(len(indices))
 
     def destroy(self) -> None:
         """Free the PETSc matrix now. Dropping the last Python reference is not enough: petsc4py 3.18 keeps a
@@ -182,25 +253,30 @@ class FixedPatternMatrix:
         self.mat.destroy()
         self.blocks = []
 
-    def set_values(self, natural):
-        """Replace the matrix values by `natural` (one per slot, repeats summed) and assemble. Collective."""
+    def set_values(self, fill):
+        """Replace the matrix values and assemble. fill(where, diag, off) zeroes diag and off and adds every
+        value into its storage by its code in `where` (csr.add_at; e.g. compute.iips.iips_values). Collective."""
         if not self.blocks:  # generic path (other matrix types)
-            scatter(natural, self.slot, self.values)
+            fill(self.where, self.values, np.zeros(0))
             if self.blocked:
                 self.mat.setValuesBlockedCSR(self.indptr, self.indices, self.values)
             else:
                 self.mat.setValuesCSR(self.indptr, self.indices, self.values)
         else:
             lib = _petsc_library()
+            get_name, restore_name, _ = self.ACCESS["baij" if self.blocked else "aij"]
+            get, restore = getattr(lib, get_name), getattr(lib, restore_name)
             pointers, views = [], []
             for handle, size in self.blocks:
                 data = _ptr()
-                _check(lib.MatSeqAIJGetArray(handle, ctypes.byref(data)), "MatSeqAIJGetArray")
+                _check(get(handle, ctypes.byref(data)), get_name)
                 pointers.append((handle, data))
                 views.append(_doubles_at(data.value, size) if size else np.zeros(0))
             if len(views) == 1:
                 views.append(np.zeros(0))
-            write_split(natural, self.target, self.offset, views[0], views[1])
-            for handle, data in pointers:
-                _check(lib.MatSeqAIJRestoreArray(handle, ctypes.byref(data)), "MatSeqAIJRestoreArray")
+            try:
+                fill(self.where, views[0], views[1])
+            finally:
+                for handle, data in pointers:
+                    _check(restore(handle, ctypes.byref(data)), restore_name)
         self.mat.assemble()

@@ -11,10 +11,8 @@ from psph.particles import Kind
 from tests.conftest import periodic_scene
 
 
-def dense_from_csr(indptr, indices, slot, values, n):
-    """Dense matrix from the CSR pattern and the natural-order values added into their slots."""
-    csr = np.zeros(len(indices))
-    np.add.at(csr, slot, values)
+def dense_from_csr(indptr, indices, csr, n):
+    """Dense matrix from a CSR pattern and its values."""
     a = np.zeros((n, n))
     for r in range(n):
         a[r, indices[indptr[r]:indptr[r + 1]]] = csr[indptr[r]:indptr[r + 1]]
@@ -51,14 +49,24 @@ def test_matrix_is_the_printed_operator(dim, n):
     rows, _, n_free = s.global_rows(free)
     assert n_free == free.sum()
     indptr, indices, slot = iips_structure(rows, s.nbr_ptr, s.nbr_idx, dim)
-    values = np.zeros(len(slot))
-    iips_values(p["position"], p["volume"], rows, s.nbr_ptr, s.nbr_idx, s.kernel.params, values)
+    values = np.zeros(len(indices))
+    iips_values(p["position"], p["volume"], rows, s.nbr_ptr, s.nbr_idx, s.kernel.params, slot, values, np.zeros(0))
     assert len(indptr) == n_free * dim + 1
     for r in range(n_free * dim):  # sorted, unique columns per row (PETSc's CSR preallocation needs it)
         assert np.all(np.diff(indices[indptr[r]:indptr[r + 1]]) > 0)
-    got = dense_from_csr(indptr, indices, slot, values, n_free * dim)
+    got = dense_from_csr(indptr, indices, values, n_free * dim)
     expect = printed_operator(p.owned("position"), p.owned("volume"), free, s.kernel, s.domain)
     assert np.allclose(got, expect, rtol=0, atol=1e-12 * np.abs(expect).max())
+
+
+def test_a_pattern_beyond_32_bit_indices_is_refused():
+    """The pattern is built in int32 (PETSc's index type): a global row number whose scalar columns would
+    not fit is an error, not a wrapped index."""
+    ptr = np.array([0, 1, 2], dtype=np.int64)
+    idx = np.array([1, 0], dtype=np.int64)
+    iips_structure(np.array([0, 2 ** 30 - 2], dtype=np.int64), ptr, idx, 2)  # columns up to 2^31 - 3: fits
+    with pytest.raises(ValueError, match="32-bit"):
+        iips_structure(np.array([0, 2 ** 30], dtype=np.int64), ptr, idx, 2)
 
 
 def test_printed_operator_differs_from_exact_jacobian():
