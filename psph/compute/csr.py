@@ -82,22 +82,6 @@ def add_at(where, e, value, diag, off):
 
 
 @njit(cache=True)
-def block_major_positions(indptr, d):
-    """Map the positions of a scalar CSR whose block rows (d scalar rows each) hold d x d blocks in
-    row-oriented layout (row a of the block row, then block s, then column b) to the block-contiguous
-    layout of BAIJ values (block s, then a, then b)."""
-    out = np.empty(indptr[-1], dtype=np.int64)
-    for p in range((indptr.size - 1) // d):
-        base = indptr[p * d]
-        m = (indptr[p * d + 1] - base) // d
-        for a in range(d):
-            for s in range(m):
-                for b in range(d):
-                    out[base + a * m * d + s * d + b] = base + s * d * d + a * d + b
-    return out
-
-
-@njit(cache=True)
 def block_pattern(indptr, indices, d):
     """The block CSR (block row pointers, block columns; int32) of a scalar CSR whose d scalar rows per
     block row hold d x d blocks in row-oriented layout (row a of the block row, then block s, then b)."""

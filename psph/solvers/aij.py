@@ -18,7 +18,7 @@ import ctypes
 
 import numpy as np
 
-from psph.compute.csr import block_codes, block_major_positions, block_pattern, split_csr, split_positions
+from psph.compute.csr import block_codes, block_pattern, split_csr, split_positions
 from psph.errors import PsphError
 from psph.parallel.comm import exclusive_scan
 from psph.solvers.petsc import petsc
@@ -233,17 +233,19 @@ class FixedPatternMatrix:
 
     def _generic(self, indptr, indices, slot, bsize, preallocate):
         PETSc = petsc()
-        if self.blocked:  # block CSR: the scalar layout per particle row is already row-oriented blocks
+        if self.blocked:  # block CSR values, blocks column-major as block_codes writes them
             pattern = block_pattern(indptr, indices, bsize)
             self.indptr, self.indices = (np.asarray(a, dtype=PETSc.IntType) for a in pattern)
-            slot = block_major_positions(indptr, bsize)[slot]
+            self.where = np.empty(len(slot), dtype=np.int32)
+            block_codes(indptr, bsize, pattern[0], np.arange(len(pattern[1]), dtype=np.int32), slot, self.where)
+            self.mat.setOption(PETSc.Mat.Option.ROW_ORIENTED, False)
         else:
             self.indptr = np.asarray(indptr, dtype=PETSc.IntType)
             self.indices = np.asarray(indices, dtype=PETSc.IntType)
+            self.where = np.asarray(slot, dtype=np.int32)
         if preallocate:  # a type the CSR preallocation does not reach (e.g. sell) is set up by default
             self.mat.setPreallocationCSR((self.indptr, self.indices))
             self.mat.setUp()
-        self.where = np.asarray(slot, dtype=np.int32)
         self.values = np.zeros(len(indices))
 
     def destroy(self) -> None:
