@@ -1,6 +1,7 @@
 """Where the total volume of a walled delta-ALE-SPH flow comes from: the budget of d(sum_i V_i)/dt.
 
     .venv/bin/python run_scripts/volume_budget.py [--walls clone ghost] [--dx 0.04] [--t0 2] [--t1 6]
+        [--set physics.reynolds=1000 --set shifting.method=iips --set iips.update=nfts] [--out DIR]
 
 With V_i = m_i / rho_i (seed 001 eq. 13), dV_i/dt = V_i (dm_i/dt / m_i - drho_i/dt / rho_i). After every
 time step the right-hand side is split into the fluid pairs' and the walls' parts, each with and without
@@ -9,7 +10,10 @@ lid, the other walls, the interior), and integrated over t0..t1 (one evaluation 
 the fluid pairs, the du terms of the continuity equation (eq. 12: div du as a difference, div(rho du) as a
 sum) add up over all particles to -2 sum_i V_i du_i . grad C_i (grad C over the fluid pairs), and with
 clone walls, whose du mirrors the particle's own, to the same with the walls' part of grad C included:
-printed as "-2 V du.grad C" to check. Writes results/volume_budget/budget.{md,csv}.
+printed as "-2 V du.grad C" to check. With IIPS (no du terms) the field update after each IIPS call is a
+part of its own, measured as the change of each particle's volume over the call (NFTS sweeps volume with
+its fictitious time step; seed 000 eq. 9.7), by region of the particle's final position. Writes
+results/volume_budget/budget.{md,csv}.
 """
 
 import argparse
@@ -22,11 +26,13 @@ from mpi4py import MPI
 from psph.compute.fluid import delta_ale_rhs
 from psph.diagnostics import fluid_mask, grad_c
 from psph.drivers.fluid import FluidDriver
+from psph.errors import PsphError
 from psph.parallel.comm import allreduce_sum
+from psph.particles import FieldSpec
 from psph.scene.load import load_scene
 from psph.studies import cavity_scene, write_table
 
-PARTS = ("fluid pairs, u", "fluid pairs, du", "walls, u", "walls, du")
+PARTS = ("fluid pairs, u", "fluid pairs, du", "walls, u", "walls, du", "IIPS field update")
 REGIONS = ("top-left corner", "top-right corner", "lid", "other walls", "interior")
 
 
@@ -57,13 +63,14 @@ def rates(drv, t, dt):
     p = system.particles
     full = sch.rhs(system, t, dt)  # refreshes the halo, the shift velocity, grad rho and the pair cache
     n, d = p.n_owned, p.dim
+    du = p["shift_velocity"] if sch.shift.active else p["velocity"]  # IIPS: no du terms
     fluid = {}
     for shifted in (True, False):
         d_rho, d_mass = np.zeros(n), np.zeros(n)
         delta_ale_rhs(p["position"], p["volume"], p["density"], p["mass"], p["velocity"],
-                      p["shift_velocity"] if shifted else p["velocity"], p["pressure"], p["grad_rho"], sch.pairs,
+                      du if shifted else p["velocity"], p["pressure"], p["grad_rho"], sch.pairs,
                       system.kernel.params, sch.c0, sch.delta, sch.delta_m, sch.mu, sch.gravity, sch.variant,
-                      shifted, sch.tensile, p["kind"], True, d_rho, d_mass, np.zeros((n, d)))
+                      shifted and sch.shift.active, sch.tensile, p["kind"], True, d_rho, d_mass, np.zeros((n, d)))
         fluid[shifted] = (d_rho, d_mass)
     walls = {}
     for shifted in (True, False):
@@ -82,18 +89,31 @@ def rates(drv, t, dt):
            dv(walls[False], zero), dv(walls[True] - walls[False], zero)]
     grad = grad_c(system, "volume")
     sch.walls.add_ghost_grad_c(system, 0.0, 1.0, 1.0, grad)
-    out.append((-2.0 * vol * (p.owned("shift_velocity") * grad).sum(axis=1))[mask])
+    out.append((-2.0 * vol * (du[:n] * grad).sum(axis=1))[mask] if sch.shift.active else np.zeros(mask.sum()))
     return out
 
 
-def budget(scene_path, dx, t0, t1, out_dir):
+def budget(scene, t0, t1, out_dir):
     """Integrated parts (fractions of the initial volume) per region over t0..t1, and eps_V at both ends."""
-    scene = load_scene(scene_path, [f"domain.dx={dx}", f"time.t_end={t1}", "output.every=0"])
     drv = FluidDriver(scene, MPI.COMM_WORLD, out_dir)
     system = drv.system
     p = system.particles
     v0 = drv.initial_volume
     table = np.zeros((len(PARTS) + 1, len(REGIONS)))
+    update_after = drv.update.after
+
+    p.add_field(FieldSpec("volume_before_update"))  # travels with its particle through rebuilds
+
+    def measured_update(system, scheme):  # the IIPS field update's part, from t0 on
+        p.owned("volume_before_update")[:] = p.owned("volume")
+        update_after(system, scheme)
+        if state["time"] >= t0:
+            mask = fluid_mask(system)
+            masks = regions(p.owned("position")[mask], system.kernel.support)
+            change = (p.owned("volume") - p.owned("volume_before_update"))[mask]
+            table[len(PARTS) - 1] += [change[k].sum() / v0 for k in masks]
+
+    drv.update.after = measured_update
     state = {"step": 0, "time": 0.0}
     totals = {k: 0 for k in ("iips_time_s", "iips_newton", "iips_linear", "iips_calls", "iips_failures")}
     eps = []
@@ -109,7 +129,7 @@ def budget(scene_path, dx, t0, t1, out_dir):
             eps.append(total_volume(system) / v0 - 1.0)
         if state["time"] < t1 * (1.0 - 1e-12):
             masks = regions(p.owned("position")[mask], system.kernel.support)
-            for a, r in enumerate(rates(drv, state["time"], dt)):
+            for a, r in zip((0, 1, 2, 3, len(PARTS)), rates(drv, state["time"], dt)):
                 table[a] += [dt * r[k].sum() / v0 for k in masks]
     eps.append(total_volume(system) / v0 - 1.0)
     return allreduce_sum(system.comm, table), eps
@@ -126,12 +146,21 @@ def main():
     parser.add_argument("--dx", type=float, default=0.04)
     parser.add_argument("--t0", type=float, default=2.0)
     parser.add_argument("--t1", type=float, default=6.0)
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="scene override for every run, e.g. physics.reynolds=1000")
     parser.add_argument("--out", type=Path, default=Path("results/volume_budget"))
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
+    scenes = {}
+    for walls in args.walls:  # every scene is checked before the first run starts
+        try:
+            scenes[walls] = load_scene(cavity_scene(walls, args.out), [f"domain.dx={args.dx}", f"time.t_end={args.t1}",
+                                                                       "output.every=0", *args.set])
+        except PsphError as err:
+            parser.error(f"{walls} walls: {err}")
     rows = []
-    for walls in args.walls:
-        table, eps = budget(cavity_scene(walls, args.out), args.dx, args.t0, args.t1, args.out / f"run_{walls}")
+    for walls, scene in scenes.items():
+        table, eps = budget(scene, args.t0, args.t1, args.out / f"run_{walls}")
         for name, values in zip(PARTS + ("-2 V du.grad C",), table):
             rows.append([walls, name, *values, values.sum()])
         rows.append([walls, "sum of the parts", *table[:-1].sum(axis=0), table[:-1].sum()])
@@ -142,8 +171,8 @@ def main():
     if MPI.COMM_WORLD.rank:
         return
     print(write_table(args.out / "budget", ["walls", "part", *REGIONS, "total"], rows,
-                      title=f"Lid-driven cavity, Re = 100, dx = {args.dx:g}: volume budget over t = {args.t0:g}"
-                            f"..{args.t1:g} (fractions of the initial volume)",
+                      title=f"Lid-driven cavity, dx = {args.dx:g}{''.join(', ' + s for s in args.set)}: volume "
+                            f"budget over t = {args.t0:g}..{args.t1:g} (fractions of the initial volume)",
                       note="One right-hand side evaluation per step, at its end (a left Riemann sum of the rate)."))
 
 
