@@ -104,10 +104,10 @@ def budget(scene, t0, t1, out_dir):
 
     p.add_field(FieldSpec("volume_before_update"))  # travels with its particle through rebuilds
 
-    def measured_update(system, scheme):  # the IIPS field update's part, from t0 on
+    def measured_update(system, scheme):  # the IIPS field update's part, once eps_V(t0) is taken
         p.owned("volume_before_update")[:] = p.owned("volume")
         update_after(system, scheme)
-        if state["time"] >= t0:
+        if eps:
             mask = fluid_mask(system)
             masks = regions(p.owned("position")[mask], system.kernel.support)
             change = (p.owned("volume") - p.owned("volume_before_update"))[mask]
