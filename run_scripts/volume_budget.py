@@ -34,6 +34,7 @@ from psph.studies import cavity_scene, write_table
 
 PARTS = ("fluid pairs, u", "fluid pairs, du", "walls, u", "walls, du", "IIPS field update")
 REGIONS = ("top-left corner", "top-right corner", "lid", "other walls", "interior")
+UPDATE, CHECK = len(PARTS) - 1, len(PARTS)  # table rows: the field update's part, -2 V du.grad C
 
 
 @contextmanager
@@ -111,7 +112,7 @@ def budget(scene, t0, t1, out_dir):
             mask = fluid_mask(system)
             masks = regions(p.owned("position")[mask], system.kernel.support)
             change = (p.owned("volume") - p.owned("volume_before_update"))[mask]
-            table[len(PARTS) - 1] += [change[k].sum() / v0 for k in masks]
+            table[UPDATE] += [change[k].sum() / v0 for k in masks]
 
     drv.update.after = measured_update
     state = {"step": 0, "time": 0.0}
@@ -129,7 +130,7 @@ def budget(scene, t0, t1, out_dir):
             eps.append(total_volume(system) / v0 - 1.0)
         if state["time"] < t1 * (1.0 - 1e-12):
             masks = regions(p.owned("position")[mask], system.kernel.support)
-            for a, r in zip((0, 1, 2, 3, len(PARTS)), rates(drv, state["time"], dt)):
+            for a, r in zip((0, 1, 2, 3, CHECK), rates(drv, state["time"], dt)):
                 table[a] += [dt * r[k].sum() / v0 for k in masks]
     eps.append(total_volume(system) / v0 - 1.0)
     return allreduce_sum(system.comm, table), eps
@@ -171,7 +172,8 @@ def main():
     if MPI.COMM_WORLD.rank:
         return
     print(write_table(args.out / "budget", ["walls", "part", *REGIONS, "total"], rows,
-                      title=f"Lid-driven cavity, dx = {args.dx:g}{''.join(', ' + s for s in args.set)}: volume "
+                      title=f"Lid-driven cavity, Re = {scene.physics.reynolds:g}, dx = {args.dx:g}"
+                            f"{''.join(', ' + s for s in args.set if not s.startswith('physics.reynolds='))}: volume "
                             f"budget over t = {args.t0:g}..{args.t1:g} (fractions of the initial volume)",
                       note="One right-hand side evaluation per step, at its end (a left Riemann sum of the rate)."))
 
