@@ -11,6 +11,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from psph.errors import NumericalError
 from psph.io.history import read_history
 
@@ -100,6 +102,27 @@ def rate(e_coarse, e_fine, ratio=2.0) -> float:
     return float("nan")
 
 
+def dominant_frequency(times, values, t0=0.0, oversample=64, periods=3) -> float:
+    """Frequency of the largest peak in the periodogram of values(t) over t >= t0 (history rows need not be
+    evenly spaced: they are interpolated onto an even grid of the same number of samples). The window is
+    zero-padded `oversample` times and detrended linearly, so a steady oscillation over a few periods is
+    located to a small fraction of 1/(window length); nan with fewer than 8 samples, no oscillation, or
+    fewer than `periods` periods of the peak's frequency in the window (a transient is no frequency)."""
+    from scipy.signal import periodogram
+
+    t, v = np.asarray(times, dtype=float), np.asarray(values, dtype=float)
+    keep = t >= t0
+    t, v = t[keep], v[keep]
+    if t.size < 8 or t[-1] <= t[0] or np.ptp(v) <= 1e-12 * np.abs(v).max():
+        return float("nan")
+    grid = np.linspace(t[0], t[-1], t.size)
+    step = grid[1] - grid[0]
+    freq, power = periodogram(np.interp(grid, t, v), fs=1.0 / step, detrend="linear",
+                              nfft=oversample * t.size, window="hann")
+    peak = float(freq[1 + np.argmax(power[1:])])
+    return peak if peak * (t[-1] - t[0]) >= periods else float("nan")
+
+
 def fmt(value, spec=".3g") -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "-"
@@ -148,7 +171,6 @@ def last_snapshot(out, index=-1) -> tuple:
 def shepard_sample(pos, vol, values, points, kernel):
     """Kernel (Shepard) interpolation sum_j W_j V_j f_j / sum_j W_j V_j of particle `values` at `points`
     (probes, e.g. a centreline), from the particles within the kernel support."""
-    import numpy as np
     from scipy.spatial import cKDTree
 
     tree = cKDTree(pos)
@@ -164,7 +186,6 @@ def _tiled_unit_box(pos, vol, h_over_dx):
     """A 2-D distribution of the bi-periodic unit box and its 3 x 3 tiling (the box itself first), Wendland
     C6 with h = h_over_dx / sqrt(n): (positions, volumes, kernel, ptr, idx), the neighbour lists of the n
     particles of the box."""
-    import numpy as np
 
     from psph.compute.neighbours import build_neighbour_lists
     from psph.compute.smoothing import make_kernel
@@ -210,7 +231,6 @@ def iips_pair_defects(pos, vol, h_over_dx, newton=3) -> dict:
       max_step         largest displacement of each iteration over dx.
 
     Returns those, with hess_c_ratio and the nearest-neighbour distance per particle (for correlations)."""
-    import numpy as np
     import scipy.sparse as sp
 
     from psph.compute import iips, sums
@@ -259,7 +279,6 @@ def tgv_operator_errors(pos, vol, h_over_dx, morris=False) -> dict:
 
     The periodic neighbours come from the 3 x 3 tiling of the box. morris: Morris' viscous operator instead
     of eq. 11 (physics.viscosity)."""
-    import numpy as np
 
     from psph.analytic import taylor_green
     from psph.compute import fluid

@@ -3,8 +3,9 @@
 
     .venv/bin/python run_scripts/ellipse.py [--resolutions 25 50] [--t-end 50] [--ranks 2]
 
-For each a/dx it runs cases/inclined_ellipse.toml to t_end and writes results/ellipse/{forces.md,csv},
-drag.png (cd_viscous, cd_pressure, cl against t U/a), variations_a{N}.png (eps_Vi = V_i/V0 - 1 and
+For each a/dx it runs cases/inclined_ellipse.toml to t_end and writes results/ellipse/{forces.md,csv}
+(over the second half of the run: mean coefficients, the viscous drag's range and the Strouhal number
+St = f a / U of the lift's dominant frequency, studies.dominant_frequency), drag.png (cd_viscous, cd_pressure, cl against t U/a), variations_a{N}.png (eps_Vi = V_i/V0 - 1 and
 eps_mi = m_i/m0 - 1 around the ellipse at t_end) and volume_error.png. Seed 001 compares with the DVH
 solution of Rossi et al. (2015), which is not in ../shared/reference: the resolutions are compared with
 each other.
@@ -20,12 +21,19 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from psph.particles import Kind  # noqa: E402
-from psph.studies import CASES, last_snapshot, run_scene, write_table  # noqa: E402
+from psph.studies import CASES, dominant_frequency, last_snapshot, run_scene, write_table  # noqa: E402
+
+
+def after(rows, key, t0):
+    """The values of a history column (cl: pressure + viscous) over t >= t0."""
+    if key == "cl":
+        return np.array([r["cl_pressure"] + r["cl_viscous"] for r in rows if r["time"] >= t0])
+    return np.array([r[key] for r in rows if r["time"] >= t0])
 
 
 def mean_after(rows, key, t0):
-    values = [r[key] for r in rows if r["time"] >= t0]
-    return float(np.mean(values)) if values else float("nan")
+    values = after(rows, key, t0)
+    return float(values.mean()) if values.size else float("nan")
 
 
 def plot_variations(run, n, rho0, path):
@@ -69,17 +77,18 @@ def main():
         rho0 = run.summary["scene"]["physics"]["density"]
         eps_vi, eps_mi = plot_variations(run, n, rho0, args.out / f"variations_a{n}.png")
         t0 = 0.5 * args.t_end
+        cdv = after(rows, "cd_viscous", t0)
         table.append([n, run.summary["n_particles"], mean_after(rows, "cd_viscous", t0),
-                      mean_after(rows, "cd_pressure", t0), mean_after(rows, "cl_pressure", t0)
-                      + mean_after(rows, "cl_viscous", t0), rows[-1]["volume_error"], eps_vi, eps_mi,
-                      float(np.abs(mass / mass[0] - 1).max()), run.summary["wall_time_s"]])
+                      f"{cdv.min():.3g}-{cdv.max():.3g}" if cdv.size else "-", mean_after(rows, "cd_pressure", t0),
+                      mean_after(rows, "cl", t0), dominant_frequency(after(rows, "time", t0), after(rows, "cl", t0)),
+                      rows[-1]["volume_error"], eps_vi, eps_mi, float(np.abs(mass / mass[0] - 1).max()),
+                      run.summary["wall_time_s"]])
         print(f"a/dx={n}: mean cd_viscous(t >= {t0:g}) = {table[-1][2]:.4f}", flush=True)
     fig, axes = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
     for n, run in runs.items():
         t = [r["time"] for r in run.history]
-        for ax, key in zip(axes, ("cd_viscous", "cd_pressure", "cl_pressure")):
-            values = [r[key] + (r["cl_viscous"] if key == "cl_pressure" else 0.0) for r in run.history]
-            ax.plot(t, values, label=f"a/dx = {n}")
+        for ax, key in zip(axes, ("cd_viscous", "cd_pressure", "cl")):
+            ax.plot(t, after(run.history, key, 0.0), label=f"a/dx = {n}")
     for ax, name in zip(axes, ("viscous drag cd_viscous", "pressure drag cd_pressure", "lift cl")):
         ax.set_ylabel(name)
         ax.grid(alpha=0.3)
@@ -99,12 +108,13 @@ def main():
     fig.savefig(args.out / "volume_error.png", dpi=120)
     plt.close(fig)
     print(write_table(args.out / "forces",
-                      ["a/dx", "particles", f"mean cd_viscous (t >= {0.5 * args.t_end:g})", "mean cd_pressure",
-                       "mean cl", "eps_V(t_end)", "max |eps_Vi|", "max |eps_mi|", "max mass drift", "wall s"],
+                      ["a/dx", "particles", f"mean cd_viscous (t >= {0.5 * args.t_end:g})", "cd_viscous range",
+                       "mean cd_pressure", "mean cl", "St = f a / U (lift)", "eps_V(t_end)", "max |eps_Vi|",
+                       "max |eps_mi|", "max mass drift", "wall s"],
                       table, title=f"Inclined ellipse, Re = 500, to t U/a = {args.t_end:g}",
                       note="Command: " + " ".join(["run_scripts/ellipse.py", "--resolutions",
                                                    *map(str, args.resolutions), "--t-end", str(args.t_end),
-                                                   "--ranks", str(args.ranks)])))
+                                                   "--ranks", str(args.ranks), "--out", str(args.out)])))
 
 
 if __name__ == "__main__":

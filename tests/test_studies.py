@@ -4,6 +4,7 @@ already made, complete or stopped by a diagnosis, instead of running them again.
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from psph import studies
@@ -42,3 +43,16 @@ def test_the_stop_message_is_psphs_line_not_mpiexecs_banner():
                        "-----\nPrimary job  terminated normally, but 1 process returned\n-----\n")
     assert studies.stop_message(err) == "psph: error: IIPS Newton iteration diverged [step 168, t = 0.115]"
     assert studies.stop_message(RuntimeError("no psph line\nlast line\n")) == "last line"
+
+
+def test_the_dominant_frequency_of_an_unevenly_sampled_noisy_oscillation():
+    rng = np.random.default_rng(3)
+    t = np.sort(rng.uniform(0.0, 50.0, 1800))  # history rows: every 20 steps of a varying dt
+    f = 0.2137
+    lift = 0.6 + 0.3 * np.sin(2 * np.pi * f * t) + 0.05 * t / 50 + 0.1 * rng.standard_normal(t.size)
+    lift[t < 10] = np.exp(-t[t < 10])  # a start-up transient, left out by t0
+    assert studies.dominant_frequency(t, lift, t0=25.0) == pytest.approx(f, rel=0.01)
+    assert studies.dominant_frequency(t, 2 * np.sin(2 * np.pi * 0.5 * t), t0=25.0) == pytest.approx(0.5, rel=0.01)
+    assert np.isnan(studies.dominant_frequency(t, np.full(t.size, 0.6), t0=25.0))  # no oscillation
+    assert np.isnan(studies.dominant_frequency(t[:5], lift[:5]))
+    assert np.isnan(studies.dominant_frequency(t, lift, t0=40.0))  # two periods are no steady oscillation
