@@ -6,6 +6,7 @@ import csv
 import json
 import math
 import os
+import shlex
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -131,6 +132,12 @@ def fmt(value, spec=".3g") -> str:
     if isinstance(value, int) and not isinstance(value, bool):
         return str(value)
     return format(value, spec)
+
+
+def command_line() -> str:
+    """The study's own command line as typed (script and arguments), for a table's note: the run that made a
+    table is reproduced by copying it."""
+    return " ".join(["run_scripts/" + Path(sys.argv[0]).name, *map(shlex.quote, sys.argv[1:])])
 
 
 def write_table(path, header, rows, title="", note="") -> str:

@@ -23,7 +23,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from psph.compute.smoothing import make_kernel  # noqa: E402
 from psph.particles import Kind  # noqa: E402
-from psph.studies import cavity_scene, last_snapshot, run_scene, shepard_sample, write_table  # noqa: E402
+from psph.studies import cavity_scene, command_line, last_snapshot, run_scene, shepard_sample, write_table  # noqa: E402
 
 GHIA = Path(__file__).resolve().parent / "reference" / "ghia1982_Re100_Re1000.csv"
 
@@ -108,12 +108,7 @@ def main():
                       ["Re", "walls", "L/dx", "max dev. u", "max dev. v", "max dev.", "eps_V(t_end)", "max mass drift",
                        "wall s"], table,
                       title=f"Lid-driven cavity at t = {args.t_end}: deviation from Ghia et al. (1982), in U",
-                      note="Command: " + " ".join(["run_scripts/cavity.py", "--re", *map(str, args.re),
-                                                   "--resolutions", *map(str, args.resolutions),
-                                                   "--t-end", str(args.t_end), "--walls", *args.walls,
-                                                   *(["--ghost-resolutions", *map(str, args.ghost_resolutions)]
-                                                     if args.ghost_resolutions else []),
-                                                   *[f"--set {s}" for s in args.set]])))
+                      note="Command: " + command_line()))
 
 
 if __name__ == "__main__":

@@ -3,10 +3,11 @@
 
     .venv/bin/python run_scripts/ellipse.py [--resolutions 25 50] [--t-end 50] [--ranks 2]
 
-For each a/dx it runs cases/inclined_ellipse.toml to t_end and writes results/ellipse/{forces.md,csv}
-(over the second half of the run: mean coefficients, the viscous drag's range and the Strouhal number
-St = f a / U of the lift's dominant frequency, studies.dominant_frequency), drag.png (cd_viscous, cd_pressure, cl against t U/a), variations_a{N}.png (eps_Vi = V_i/V0 - 1 and
-eps_mi = m_i/m0 - 1 around the ellipse at t_end) and volume_error.png. Seed 001 compares with the DVH
+For each a/dx it runs cases/inclined_ellipse.toml to t_end and writes, in --out (results/ellipse):
+forces.md and .csv (over the second half of the run: mean coefficients, the viscous drag's range and
+the Strouhal number St = f a / U of the lift's dominant frequency, studies.dominant_frequency);
+drag.png (cd_viscous, cd_pressure, cl against t U/a); variations_a{N}.png (eps_Vi = V_i/V0 - 1 and
+eps_mi = m_i/m0 - 1 around the ellipse at t_end); volume_error.png. Seed 001 compares with the DVH
 solution of Rossi et al. (2015), which is not in ../shared/reference: the resolutions are compared with
 each other.
 """
@@ -21,7 +22,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from psph.particles import Kind  # noqa: E402
-from psph.studies import CASES, dominant_frequency, last_snapshot, run_scene, write_table  # noqa: E402
+from psph.studies import CASES, command_line, dominant_frequency, last_snapshot, run_scene, write_table  # noqa: E402
 
 
 def after(rows, key, t0):
@@ -112,9 +113,7 @@ def main():
                        "mean cd_pressure", "mean cl", "St = f a / U (lift)", "eps_V(t_end)", "max |eps_Vi|",
                        "max |eps_mi|", "max mass drift", "wall s"],
                       table, title=f"Inclined ellipse, Re = 500, to t U/a = {args.t_end:g}",
-                      note="Command: " + " ".join(["run_scripts/ellipse.py", "--resolutions",
-                                                   *map(str, args.resolutions), "--t-end", str(args.t_end),
-                                                   "--ranks", str(args.ranks), "--out", str(args.out)])))
+                      note="Command: " + command_line()))
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from psph.studies import fmt, iips_pair_defects, last_snapshot, run_scene, stop_message, write_table
+from psph.studies import command_line, fmt, iips_pair_defects, last_snapshot, run_scene, stop_message, write_table
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -64,9 +64,7 @@ def main():
                  "corr(ratio, nearest distance)", "h Linf(grad C), Newton 0-3", "max step / dx, Newton 1-3"],
                 rows, title=f"IIPS printed operator at h/dx = {args.h_over_dx:g}, dx = {args.dx:g}",
                 note=f"Run: cases/taylor_green.toml --set {' --set '.join(sets)} ({stop}). Newton iterations "
-                     "with the printed operator solved by LU. Command: run_scripts/iips_pair_defects.py "
-                     f"--dx {args.dx:g} --h-over-dx {args.h_over_dx:g} --t-end {args.t_end:g} --every {args.every:g} "
-                     f"--ranks {args.ranks}")
+                     "with the printed operator solved by LU. Command: " + command_line())
 
 
 if __name__ == "__main__":

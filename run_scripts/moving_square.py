@@ -17,7 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from psph.studies import CASES, run_scene, stop_message, write_table  # noqa: E402
+from psph.studies import CASES, command_line, run_scene, stop_message, write_table  # noqa: E402
 
 METHODS = {
     "explicit P_S=10": ["shifting.method=neuhauser", "shifting.neuhauser_ps=10", "iips.update=none"],
@@ -63,10 +63,7 @@ def main():
     print(write_table(args.out / "cost", ["method", "ranks", "wall s", "CPU / explicit", "mean cd (t>=2)",
                                           "max Linf(grad C)", "IIPS stalls"], table,
                       title=f"Moving square, D/dx = {1 / args.dx:g}, t = {args.t_end}",
-                      note=f"Command: run_scripts/moving_square.py --dx {args.dx} --t-end {args.t_end} "
-                           f"--ranks {' '.join(map(str, args.ranks))}"
-                           + (f" --methods {' '.join(repr(m) for m in args.methods)}"
-                              if args.methods != list(METHODS) else "") + "".join(f" --set {s}" for s in args.set)))
+                      note="Command: " + command_line()))
     fig, (ax_p, ax_v) = plt.subplots(1, 2, figsize=(11, 4))
     fig2, ax_g = plt.subplots(figsize=(6, 4))
     for (name, ranks), run in runs.items():

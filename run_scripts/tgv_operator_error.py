@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from psph.studies import fmt, last_snapshot, tgv_operator_errors, write_table
+from psph.studies import command_line, fmt, last_snapshot, tgv_operator_errors, write_table
 
 
 def implied_energy_error(ratio, reynolds=100.0, t=1.0):
@@ -72,8 +72,7 @@ def main():
                 title=f"Taylor-Green: the viscous operator ({args.viscosity}) and grad p on the runs' distributions "
                       "at t = 1",
                 note="Analytic vortex at t = 0 applied to the positions and volumes of each run's last snapshot; "
-                     "Wendland C6; RMS errors relative to the exact term. Command: run_scripts/tgv_operator_error.py "
-                     + "--runs " + " ".join(map(str, args.runs)) + f" --viscosity {args.viscosity}")
+                     "Wendland C6; RMS errors relative to the exact term. Command: " + command_line())
 
 
 if __name__ == "__main__":

@@ -56,3 +56,9 @@ def test_the_dominant_frequency_of_an_unevenly_sampled_noisy_oscillation():
     assert np.isnan(studies.dominant_frequency(t, np.full(t.size, 0.6), t0=25.0))  # no oscillation
     assert np.isnan(studies.dominant_frequency(t[:5], lift[:5]))
     assert np.isnan(studies.dominant_frequency(t, lift, t0=40.0))  # two periods are no steady oscillation
+
+
+def test_a_tables_command_line_is_the_study_as_typed(monkeypatch):
+    monkeypatch.setattr("sys.argv", ["/work/run_scripts/cavity.py", "--re", "1000", "--set", "iips.update=nfts",
+                                     "--out", "results/a b"])
+    assert studies.command_line() == "run_scripts/cavity.py --re 1000 --set iips.update=nfts --out 'results/a b'"
