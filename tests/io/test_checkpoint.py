@@ -1,6 +1,7 @@
 """Checkpoints and restarts: a continued run equals the uninterrupted one bit for bit (same ranks) or to
 round-off / solver tolerance (other ranks); a run killed while writing a checkpoint keeps the last one."""
 
+import json
 import textwrap
 
 import numpy as np
@@ -114,12 +115,16 @@ def test_kinematic_restart_continues_bit_for_bit(tmp_path):
     shutil.copytree(tmp_path / "whole", tmp_path / "again")
     checkpoint = latest_checkpoint(tmp_path / "again")
     assert checkpoint.name == "checkpoint_000074.h5"
+    last = "snapshot_000001.h5"
+    for name in (last, "history.csv", "summary.json"):  # the restart must write them again, not keep the copies
+        (tmp_path / "again" / name).unlink()
     done = run_psph("run", "--restart", checkpoint)
     assert done.returncode == 0, done.stderr
     same_history(tmp_path / "whole", tmp_path / "again")
+    whole, again = (json.loads((tmp_path / d / "summary.json").read_text()) for d in ("whole", "again"))
+    assert again["steps"] == whole["steps"] and again["final"]["L2_grad_c"] == whole["final"]["L2_grad_c"]
     import h5py
 
-    last = "snapshot_000001.h5"
     with h5py.File(tmp_path / "whole" / last) as a, h5py.File(tmp_path / "again" / last) as b:
         for k in ("position", "grad_c", "gid"):
             assert np.array_equal(a["particles"][k][()], b["particles"][k][()]), k

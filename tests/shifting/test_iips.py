@@ -358,16 +358,14 @@ def test_printed_operator_iteration_turns_on_a_strained_lattice():
 
 # ------------------------------------------------------------------ extremes (issue: IIPS, "Extremes")
 @pytest.mark.parametrize("overrides", [{"sigma": 0.5}, {"h_over_dx": 1.2, "sigma": 0.1}])
-def test_extreme_inputs_converge_or_stop_clearly(overrides):
+def test_extreme_inputs_converge(overrides):
+    """Half a spacing of disorder, or a kernel of 1.2 dx: ten Newton iterations still level the distribution
+    (L2(grad C) falls 1000 and 50 times). A failing call's diagnosis is tested above (stall, KSP divergence)."""
     scene = periodic_scene(n=20, iips={"max_newton": 10}, **overrides)
-    try:
-        system, _, reports = run_iips(scene)
-    except NumericalError as err:  # a clear, one-line diagnosis is acceptable
-        assert "\n" not in str(err) and ("IIPS" in str(err) or "diverged" in str(err))
-        return
+    system, _, reports = run_iips(scene)
     assert all(np.isfinite(r["L2_grad_c"]) for r in reports)
     assert np.all(np.isfinite(system.particles["position"]))
-    assert reports[-1]["L2_grad_c"] < reports[0]["L2_grad_c"]
+    assert reports[-1]["L2_grad_c"] < 0.05 * reports[0]["L2_grad_c"]
 
 
 def test_coincident_particles_are_separated():
