@@ -30,7 +30,7 @@ from psph.errors import PsphError
 from psph.parallel.comm import allreduce_sum
 from psph.particles import FieldSpec
 from psph.scene.load import load_scene
-from psph.studies import cavity_scene, write_table
+from psph.studies import cavity_scene, command_line, write_table
 
 PARTS = ("fluid pairs, u", "fluid pairs, du", "walls, u", "walls, du", "IIPS field update")
 REGIONS = ("top-left corner", "top-right corner", "lid", "other walls", "interior")
@@ -175,7 +175,8 @@ def main():
                       title=f"Lid-driven cavity, Re = {scene.physics.reynolds:g}, dx = {args.dx:g}"
                             f"{''.join(', ' + s for s in args.set if not s.startswith('physics.reynolds='))}: volume "
                             f"budget over t = {args.t0:g}..{args.t1:g} (fractions of the initial volume)",
-                      note="One right-hand side evaluation per step, at its end (a left Riemann sum of the rate)."))
+                      note="One right-hand side evaluation per step, at its end (a left Riemann sum of the rate). "
+                           "Command: " + command_line()))
 
 
 if __name__ == "__main__":
