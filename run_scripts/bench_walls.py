@@ -1,6 +1,7 @@
 """Cost of the clone-particle walls as a fraction of the flow step (issue: walls and bodies, "Speed").
 
     .venv/bin/python run_scripts/bench_walls.py [--steps 200] [--cases lid_driven_cavity moving_square]
+                                                [--set domain.h_over_dx=2]
     mpiexec -n 2 .venv/bin/python run_scripts/bench_walls.py      # per rank on 2 ranks
 
 Runs each wall scene for a number of steps after a warm-up and prints the wall time of the `walls` phase
@@ -27,10 +28,12 @@ def main():
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--cases", nargs="+", default=list(SETTINGS))
     parser.add_argument("--shifting", default="delta_plus", help="shifting.method (iips adds its own cost)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="scene override")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     for case in args.cases:
-        sets = SETTINGS.get(case, []) + [f"shifting.method={args.shifting}", "output.every=0", "iips.update=none"]
+        sets = SETTINGS.get(case, []) + [f"shifting.method={args.shifting}", "output.every=0", "iips.update=none",
+                                         *args.set]
         with tempfile.TemporaryDirectory() as out:
             out = comm.bcast(out, root=0)
             scene = load_scene(CASES / f"{case}.toml", sets + ["time.t_end=1e9"])
@@ -47,7 +50,8 @@ def main():
             share = comm.allreduce(walls / step, op=MPI.MAX)
             if comm.rank == 0:
                 print(f"{case}: {run.sim.n_particles} particles, {comm.size} rank(s), {args.steps} steps: walls "
-                      f"{walls:.2f} s of the step's {step:.2f} s = {100 * share:.1f}% (max over ranks)", flush=True)
+                      f"{walls:.2f} s of the step's {step:.2f} s = {100 * share:.1f}% (max over ranks), "
+                  f"{1e3 * step / args.steps:.1f} ms per step", flush=True)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 the global volume error eps_V(t) (seed 001 eq. 27, fig. 15).
 
     .venv/bin/python run_scripts/cavity.py [--re 100 1000] [--resolutions 50 100] [--t-end 20] [--ranks 2]
-                                           [--walls clone ghost] [--ghost-resolutions 50]
+                                           [--walls clone ghost] [--ghost-resolutions 50] [--h-over-dx 1.5]
 
 For each Reynolds number and L/dx it runs cases/lid_driven_cavity.toml to t_end (steady state), samples
 u(y) on x = 0.5 and v(x) on y = 0.5 by kernel interpolation of the fluid particles at Ghia's points, and
@@ -23,6 +23,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from psph.compute.smoothing import make_kernel  # noqa: E402
 from psph.particles import Kind  # noqa: E402
+from psph.scene.load import load_scene  # noqa: E402
 from psph.studies import cavity_scene, command_line, last_snapshot, run_scene, shepard_sample, write_table  # noqa: E402
 
 GHIA = Path(__file__).resolve().parent / "reference" / "ghia1982_Re100_Re1000.csv"
@@ -51,7 +52,7 @@ def main():
     parser.add_argument("--t-end", type=float, default=20.0)
     parser.add_argument("--re", type=int, nargs="+", default=[100])
     parser.add_argument("--resolutions", type=int, nargs="+", default=[50, 100], help="L/dx")
-    parser.add_argument("--h-over-dx", type=float, default=2.0)
+    parser.add_argument("--h-over-dx", type=float, help="h/dx (default: the scene's, 2)")
     parser.add_argument("--walls", nargs="+", default=["clone"], choices=["clone", "ghost"])
     parser.add_argument("--ghost-resolutions", type=int, nargs="+", help="L/dx of the ghost runs (default: all)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
@@ -69,12 +70,12 @@ def main():
             for n in (args.ghost_resolutions or args.resolutions) if walls == "ghost" else args.resolutions:
                 dx = 1.0 / n
                 name = f"Re{re}_L{n}" + ("" if walls == "clone" else f"_{walls}")
-                run = run_scene(scenes[walls], args.out / name,
-                                sets=[f"domain.dx={dx}", f"domain.h_over_dx={args.h_over_dx}",
-                                      f"physics.reynolds={re}", f"time.t_end={args.t_end}",
-                                      f"output.every={args.t_end}", "output.history_every=50", *args.set],
-                                ranks=args.ranks)
-                sample, _, _ = centrelines(run, args.h_over_dx, dx)
+                sets = [f"domain.dx={dx}", f"physics.reynolds={re}", f"time.t_end={args.t_end}",
+                        f"output.every={args.t_end}", "output.history_every=50", *args.set]
+                if args.h_over_dx is not None:
+                    sets.insert(1, f"domain.h_over_dx={args.h_over_dx}")
+                run = run_scene(scenes[walls], args.out / name, sets=sets, ranks=args.ranks)
+                sample, _, _ = centrelines(run, load_scene(scenes[walls], sets).domain.h_over_dx, dx)
                 inner_y, inner_x = (gy > 0) & (gy < 1), (gx > 0) & (gx < 1)  # the walls' values are boundary data
                 u = sample(np.stack([np.full(inner_y.sum(), 0.5), gy[inner_y]], 1))[:, 0]
                 v = sample(np.stack([gx[inner_x], np.full(inner_x.sum(), 0.5)], 1))[:, 1]
