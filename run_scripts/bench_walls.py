@@ -1,7 +1,7 @@
 """Cost of the clone-particle walls as a fraction of the flow step (issue: walls and bodies, "Speed").
 
     .venv/bin/python run_scripts/bench_walls.py [--steps 200] [--cases lid_driven_cavity moving_square]
-                                                [--set domain.h_over_dx=2]
+                                                [--set domain.h_over_dx=1.5]
     mpiexec -n 2 .venv/bin/python run_scripts/bench_walls.py      # per rank on 2 ranks
 
 Runs each wall scene for a number of steps after a warm-up and prints the wall time of the `walls` phase
@@ -51,7 +51,7 @@ def main():
             if comm.rank == 0:
                 print(f"{case}: {run.sim.n_particles} particles, {comm.size} rank(s), {args.steps} steps: walls "
                       f"{walls:.2f} s of the step's {step:.2f} s = {100 * share:.1f}% (max over ranks), "
-                  f"{1e3 * step / args.steps:.1f} ms per step", flush=True)
+                      f"{1e3 * step / args.steps:.1f} ms per step", flush=True)
 
 
 if __name__ == "__main__":

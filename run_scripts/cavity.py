@@ -70,10 +70,9 @@ def main():
             for n in (args.ghost_resolutions or args.resolutions) if walls == "ghost" else args.resolutions:
                 dx = 1.0 / n
                 name = f"Re{re}_L{n}" + ("" if walls == "clone" else f"_{walls}")
-                sets = [f"domain.dx={dx}", f"physics.reynolds={re}", f"time.t_end={args.t_end}",
-                        f"output.every={args.t_end}", "output.history_every=50", *args.set]
-                if args.h_over_dx is not None:
-                    sets.insert(1, f"domain.h_over_dx={args.h_over_dx}")
+                ratio = args.h_over_dx or load_scene(scenes[walls]).domain.h_over_dx
+                sets = [f"domain.dx={dx}", f"domain.h_over_dx={ratio}", f"physics.reynolds={re}",
+                        f"time.t_end={args.t_end}", f"output.every={args.t_end}", "output.history_every=50", *args.set]
                 run = run_scene(scenes[walls], args.out / name, sets=sets, ranks=args.ranks)
                 sample, _, _ = centrelines(run, load_scene(scenes[walls], sets).domain.h_over_dx, dx)
                 inner_y, inner_x = (gy > 0) & (gy < 1), (gx > 0) & (gx < 1)  # the walls' values are boundary data
