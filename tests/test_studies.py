@@ -62,3 +62,37 @@ def test_a_tables_command_line_is_the_study_as_typed(monkeypatch):
     monkeypatch.setattr("sys.argv", ["/work/run_scripts/cavity.py", "--re", "1000", "--set", "iips.update=nfts",
                                      "--out", "results/a b"])
     assert studies.command_line() == "run_scripts/cavity.py --re 1000 --set iips.update=nfts --out 'results/a b'"
+
+
+@pytest.mark.parametrize("argv, expected", [
+    ([], 2.0),                                     # the scene's h/dx, passed explicitly (earlier runs' key)
+    (["--h-over-dx", "1.5"], 1.5),
+    (["--set", "domain.h_over_dx=1.5"], 1.5),      # a --set comes last and wins, in the run and the sampling
+])
+def test_the_cavity_study_samples_with_the_kernel_of_its_runs(tmp_path, monkeypatch, argv, expected):
+    """run_scripts/cavity.py interpolates the centrelines with the h/dx its run used."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("cavity_study", studies.CASES.parent / "run_scripts" / "cavity.py")
+    cavity = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(cavity)
+    seen = {}
+
+    def fake_run(scene, out, sets, ranks):
+        seen["sets"] = sets
+        return None
+
+    class Sampled(Exception):
+        pass
+
+    def fake_centrelines(run, ratio, dx):
+        seen["ratio"] = ratio
+        raise Sampled
+
+    monkeypatch.setattr(cavity, "run_scene", fake_run)
+    monkeypatch.setattr(cavity, "centrelines", fake_centrelines)
+    monkeypatch.setattr("sys.argv", ["cavity.py", "--resolutions", "10", "--out", str(tmp_path), *argv])
+    with pytest.raises(Sampled):
+        cavity.main()
+    assert seen["ratio"] == expected
+    assert seen["sets"][1] == f"domain.h_over_dx={1.5 if '--h-over-dx' in argv else 2.0}"
