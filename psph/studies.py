@@ -28,12 +28,17 @@ class Run:
     history: list
 
 
-def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None) -> Run:
+class NotRun(Exception):
+    """run_scene(..., only_finished=True) found no finished run of its command."""
+
+
+def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, only_finished=False) -> Run:
     """`psph run scene --out out --set ... [PETSc options]` on `ranks` MPI ranks; raises on failure.
 
     With reuse (default: the PSPH_STUDY_REUSE environment variable is set), a directory holding a
     complete run of exactly this command is read instead of run again (to resume or extend a study), and
-    one that psph stopped with a numerical diagnosis (exit code 3) raises that diagnosis again."""
+    one that psph stopped with a numerical diagnosis (exit code 3) raises that diagnosis again.
+    only_finished: reuse, and raise NotRun instead of running (a study's table from the runs it has)."""
     cmd = [sys.executable, "-m", "psph", "run", str(scene), "--out", str(out), "--overwrite"]
     for s in sets:
         cmd += ["--set", s]
@@ -45,7 +50,7 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None) ->
     out = Path(out)
     stamp = out / "study_command.json"
     if reuse is None:
-        reuse = bool(os.environ.get("PSPH_STUDY_REUSE"))
+        reuse = only_finished or bool(os.environ.get("PSPH_STUDY_REUSE"))
     stopped, summary = out / "study_stopped.txt", out / "summary.json"
     key = cmd[cmd.index("-m"):]  # without the mpiexec prefix: the rank count does not change the result
     if reuse and stamp.exists() and _same_command(json.loads(stamp.read_text()), key):
@@ -53,6 +58,8 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None) ->
             return Run(out, json.loads(summary.read_text()), read_history(out / "history.csv"))
         if stopped.exists():
             raise RuntimeError(stopped.read_text())
+    if only_finished:
+        raise NotRun(f"{out}: no finished run of this command")
     stamp.unlink(missing_ok=True)  # a run killed half-way must not pass for the old complete one
     stopped.unlink(missing_ok=True)
     env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_COMM", "PMIX"))}

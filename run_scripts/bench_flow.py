@@ -2,6 +2,7 @@
 Taylor-Green, Wendland C6, h = 2 dx: ~45 neighbours in the support, 60 in the lists with the 10% skin).
 
     .venv/bin/python run_scripts/bench_flow.py [--sizes 100 200] [--shifting none delta_plus]
+                                               [--scheme riemann_ale]
     mpiexec -n 2 .venv/bin/python run_scripts/bench_flow.py      # per rank on 2 ranks
 
 One evaluation = everything a Runge-Kutta stage does for the scheme: equation of state, halo refresh of the
@@ -20,7 +21,8 @@ from mpi4py import MPI
 
 from psph import profiling
 from psph.scene.load import scene_from_table
-from psph.schemes.delta_ale import DeltaALE
+from psph.scene.schema import FLUID_SCHEMES
+from psph.schemes import make_scheme
 from psph.simulation import build_system
 
 
@@ -29,10 +31,11 @@ def main():
     parser.add_argument("--sizes", type=int, nargs="+", default=[100, 200], help="particles per side")
     parser.add_argument("--shifting", nargs="+", default=["none", "delta_plus"])
     parser.add_argument("--seconds", type=float, default=4.0, help="minimum timed wall time per case")
+    parser.add_argument("--scheme", default="delta_ale", choices=FLUID_SCHEMES)
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     if comm.rank == 0:
-        print(f"delta-ALE-SPH right-hand side, {comm.size} rank(s), Wendland C6, h = 2 dx")
+        print(f"{args.scheme} right-hand side, {comm.size} rank(s), Wendland C6, h = 2 dx")
         print(f"{'particles':>10} {'shifting':>11} {'RHS/s per core [M]: median':>27} {'best':>6}  split (rank 0)")
     for n in args.sizes:
         for method in args.shifting:
@@ -40,8 +43,8 @@ def main():
                 "name": "bench", "domain": {"dimension": 2, "lower": [0.0, 0.0], "upper": [1.0, 1.0],
                                             "periodic": [True, True], "dx": 1.0 / n},
                 "initial": {"velocity": "taylor_green", "sigma_over_dx": 0.1},
-                "physics": {"scheme": "delta_ale"}, "time": {"t_end": 1.0}, "shifting": {"method": method}})
-            scheme = DeltaALE(scene)
+                "physics": {"scheme": args.scheme}, "time": {"t_end": 1.0}, "shifting": {"method": method}})
+            scheme = make_scheme(scene)
             system = build_system(scene, comm, specs=scheme.field_specs(), halo_fields=scheme.halo_fields())
             scheme.initialize(system)
             state = scheme.state(system)

@@ -3,11 +3,12 @@ error at t = 1 for each shifting method and resolution, the convergence rates, a
 the error (the Pareto front a user needs to choose a method), with the IIPS overhead relative to the step.
 
     .venv/bin/python run_scripts/tgv_tradeoff.py [--ranks 2] [--resolutions 0.05 0.025 0.0125 0.00625]
-                                                 [--methods ...] [--procedure A] [--set KEY=VALUE]
+                                                 [--methods ...] [--procedure A] [--set KEY=VALUE] [--no-run]
 
 Writes results/tgv_tradeoff/{convergence,tradeoff}.{md,csv} and tradeoff.png. Scheme: delta-ALE-SPH (seed
-001), Wendland C6, h/dx = 2, c0 = 10, RK3, CFL 0.2 (thesis eq. 5.52); IIPS Procedure B with
-Linf(grad C) <= 0.001 (thesis ch. 9); --procedure A: at least one Newton iteration every step.
+001; --set physics.scheme=riemann_ale for the thesis' own Riemann SPH-ALE), Wendland C6, h/dx = 2, c0 = 10,
+RK3, CFL 0.2 (thesis eq. 5.52); IIPS Procedure B with Linf(grad C) <= 0.001 (thesis ch. 9); --procedure A:
+at least one Newton iteration every step.
 """
 
 import argparse
@@ -18,7 +19,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from psph.studies import CASES, rate, run_scene, stop_message, write_table  # noqa: E402
+from psph.studies import CASES, NotRun, rate, run_scene, stop_message, write_table  # noqa: E402
 
 METHODS = {  # label: scene overrides
     "no shifting": ["shifting.method=none", "iips.update=none"],
@@ -42,6 +43,8 @@ def main():
                         help="IIPS procedure (thesis Algorithms 2-3; default: the scene's, B)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="scene override for every run (e.g. physics.sound_speed=20)")
+    parser.add_argument("--no-run", action="store_true",
+                        help="run nothing: tabulate the finished runs in --out ('-' for the others)")
     args = parser.parse_args()
     runs = {}
     for dx in args.resolutions:
@@ -51,7 +54,12 @@ def main():
                 run = run_scene(CASES / "taylor_green.toml", args.out / f"{tag}_dx{dx}", ranks=args.ranks,
                                 sets=METHODS[label] + [f"domain.dx={dx}", f"time.t_end={args.t_end}",
                                                        "output.every=0", "output.history_every=50"]
-                                + ([f"iips.procedure={args.procedure}"] if args.procedure else []) + args.set)
+                                + ([f"iips.procedure={args.procedure}"] if args.procedure else []) + args.set,
+                                only_finished=args.no_run)
+            except NotRun:
+                print(f"{label} dx={dx}: not run", flush=True)
+                runs[(label, dx)] = None
+                continue
             except RuntimeError as exc:  # a run stopped by a diagnosis is a result too
                 print(f"{label} dx={dx}: stopped: {stop_message(exc)}", flush=True)
                 runs[(label, dx)] = None

@@ -33,6 +33,10 @@ def test_a_resumed_study_reads_back_complete_and_stopped_runs(tmp_path, monkeypa
                           reuse=True)
     assert str(second.value) == str(first.value)
     assert studies.stop_message(first.value).startswith("psph: error: density left the weakly compressible")
+    # a table of the finished runs only: the finished one is read, another command is not run
+    assert studies.run_scene(scene, tmp_path / "done", sets=SETS, only_finished=True).summary == done.summary
+    with pytest.raises(studies.NotRun):
+        studies.run_scene(scene, tmp_path / "done", sets=SETS + ["time.cfl=0.1"], only_finished=True)
     with pytest.raises(AssertionError, match="made again"):  # another command is a new run
         studies.run_scene(scene, tmp_path / "done", sets=SETS + ["time.cfl=0.1"], reuse=True)
 

@@ -110,14 +110,15 @@ class InitialSpec:
                            choices=("zero", "hydrostatic"))
 
 
-FLUID_SCHEMES = ("delta_ale", "delta_ale_const_mass", "delta_ale_const_volume")
+FLUID_SCHEMES = ("delta_ale", "delta_ale_const_mass", "delta_ale_const_volume", "riemann_ale")
 
 
 @dataclass(frozen=True)
 class PhysicsSpec:
     scheme: str = option("none", doc="what moves the particles: none (a static distribution), kinematic "
                          "(advected by a frozen analytic velocity field, thesis 8.3.2), or a fluid scheme: "
-                         "delta_ale, delta_ale_const_mass, delta_ale_const_volume (seed 001 eq. 13, 23, 25)",
+                         "delta_ale, delta_ale_const_mass, delta_ale_const_volume (seed 001 eq. 13, 23, 25), "
+                         "riemann_ale (thesis eq. 5.48: Riemann fluxes, no diffusive terms; periodic domains)",
                          choices=("none", "kinematic") + FLUID_SCHEMES)
     velocity_field: str = option("taylor_green", doc="kinematic: the frozen field (thesis eq. 8.33)",
                                  choices=("taylor_green",))
@@ -134,7 +135,8 @@ class PhysicsSpec:
                             "free of the square lattice's anisotropy error (+9% effective viscosity at h/dx = 2)",
                             choices=("monaghan", "morris"))
     gravity: tuple[float, ...] = option((), doc="gravity vector (empty: none)")
-    delta: float = option(0.1, doc="coefficient of the density diffusion D^rho (seed 001 eq. 14)", ge=0.0, le=1.0)
+    delta: float = option(0.1, doc="coefficient of the density diffusion D^rho (seed 001 eq. 14; "
+                          "not in riemann_ale, whose Riemann fluxes diffuse)", ge=0.0, le=1.0)
     delta_m: float = option(0.1, doc="coefficient of the mass diffusion D^m (delta_ale; 0 switches it off)",
                             ge=0.0, le=1.0)
     free_stream: tuple[float, ...] = option((), doc="drive the fluid's mean velocity to this vector with a "
@@ -143,7 +145,15 @@ class PhysicsSpec:
     free_stream_ramp: float = option(1.0, doc="free_stream: time over which the mean velocity rises from rest, "
                                      "U (t/T - sin(2 pi t/T)/(2 pi)), with no jump in acceleration at either end",
                                      gt=0.0)
-    tensile_switch: bool = option(True, doc="use p_j - p_i where p_i < 0 (tensile-instability control)")
+    muscl_limiter: str = option("minmod", doc="riemann_ale: the MUSCL reconstruction's limiter, minmod (thesis "
+                                "eq. 5.49) or none (the gradients' own slopes: less dissipation in smooth flows)",
+                                choices=("minmod", "none"))
+    riemann_dissipation: str = option("full", doc="riemann_ale: the pressure of the Riemann solver, full "
+                                      "(linearised acoustic) or low (Zhang, Hu and Adams 2017: dissipation only "
+                                      "where particles approach, scaled by their approach speed)",
+                                      choices=("full", "low"))
+    tensile_switch: bool = option(True, doc="use p_j - p_i where p_i < 0 (tensile-instability control; "
+                                  "delta_ale family only)")
     max_density_variation: float = option(0.1, doc="stop when |rho / rho0 - 1| exceeds this (weak "
                                           "compressibility violated)", gt=0.0)
     max_volume_variation: float = option(0.5, doc="delta_ale: stop when a particle volume drifts by more than "
@@ -301,6 +311,9 @@ class Scene:
                 raise SceneError("bodies", "solid bodies are 2-D (seed 004 gives the 2-D clone particles)")
             if not fluid and self.physics.scheme != "none":
                 raise SceneError("bodies", f"bodies need a fluid scheme or a static run, not {self.physics.scheme!r}")
+            if self.physics.scheme == "riemann_ale":
+                raise SceneError("bodies", "riemann_ale has no wall model yet (the thesis' partial Riemann problem "
+                                 "at walls is not implemented): use a delta_ale scheme")
             names = [b.name for b in self.bodies]
             if len(set(names)) != len(names):
                 raise SceneError("bodies", f"body names must be unique, got {names}")
@@ -325,8 +338,13 @@ class Scene:
             raise SceneError("time.t_end", "a fluid run needs t_end > 0")
         if self.iips.update != "none" and not (fluid and method == "iips"):
             raise SceneError("iips.update", "field updates apply to fluid runs with shifting.method = iips")
-        if self.iips.update == "nfts" and self.physics.scheme != "delta_ale":
-            raise SceneError("iips.update", "nfts updates masses and volumes: it needs physics.scheme = delta_ale")
+        if self.iips.update == "nfts" and self.physics.scheme not in ("delta_ale", "riemann_ale"):
+            raise SceneError("iips.update", "nfts updates masses and volumes: it needs physics.scheme = delta_ale "
+                             "or riemann_ale")
+        for key, default in (("muscl_limiter", "minmod"), ("riemann_dissipation", "full")):
+            if getattr(self.physics, key) != default and self.physics.scheme != "riemann_ale":
+                raise SceneError(f"physics.{key}", "the Riemann fluxes belong to physics.scheme = riemann_ale, "
+                                 f"not {self.physics.scheme!r}")
         if self.physics.gravity and len(self.physics.gravity) != self.domain.dimension:
             raise SceneError("physics.gravity", f"expected {self.domain.dimension} entries (domain.dimension)")
         if self.physics.scheme == "kinematic":

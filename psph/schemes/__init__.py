@@ -1,9 +1,13 @@
 """Fluid schemes: the physics operators of a flow, composed from the scene (only declared terms run)."""
 
-FLUID_SCHEMES = ("delta_ale", "delta_ale_const_mass", "delta_ale_const_volume")
+from psph.scene.schema import FLUID_SCHEMES  # noqa: F401  (the drivers' list)
 
 
 def make_scheme(scene):
+    if scene.physics.scheme == "riemann_ale":
+        from psph.schemes.riemann_ale import RiemannALE
+
+        return RiemannALE(scene)
     from psph.schemes.delta_ale import DeltaALE
 
     return DeltaALE(scene)

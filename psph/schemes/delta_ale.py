@@ -28,7 +28,7 @@ class DeltaALE:
     def __init__(self, scene):
         phys = scene.physics
         self.name = phys.scheme
-        self.variant = VARIANTS[phys.scheme]
+        self.variant = VARIANTS.get(phys.scheme, 0)  # riemann_ale: V, m and m u evolve, as in variant 0
         self.c0, self.rho0 = phys.sound_speed, phys.density
         self.nu = phys.reference_velocity * phys.reference_length / phys.reynolds
         self.mu = self.rho0 * self.nu

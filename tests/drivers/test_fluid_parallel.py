@@ -42,6 +42,16 @@ def test_fluid_run_matches_serial(comm, mpi_tmp_path, shifting, update, viscosit
     assert_matches_serial(scene, comm, mpi_tmp_path, tol)
 
 
+@pytest.mark.parametrize("shifting,update,tol", [("neuhauser", "none", 1e-11), ("iips", "nfts", 1e-7),
+                                               ("iips", "mls2", 1e-7)])
+def test_riemann_ale_run_matches_serial(comm, mpi_tmp_path, shifting, update, tol):
+    """The Riemann SPH-ALE scheme: its MUSCL gradients of the halo particles are exchanged like the fields."""
+    scene = periodic_scene(n=16, initial={"velocity": "taylor_green"}, physics={"scheme": "riemann_ale"},
+                           time={"t_end": 0.04}, shifting={"method": shifting},
+                           iips={"update": update, "threshold": 1e-3})
+    assert_matches_serial(scene, comm, mpi_tmp_path, tol)
+
+
 @pytest.mark.parametrize("case,sets,tol", [
     ("lid_driven_cavity.toml", ["shifting.method=delta_plus"], 1e-11),
     ("lid_driven_cavity.toml", ["shifting.method=iips", "iips.threshold=0.02", "iips.update=nfts",

@@ -61,6 +61,9 @@ def test_minimal_scene_gets_defaults():
     ("extra", {}, "extra", "unknown key"),
     ("physics.free_stream", [1.0, 0.0], "physics.free_stream", "needs a fluid scheme"),
     ("physics.free_stream", [1.0], "physics.free_stream", "expected 2 entries"),
+    ("physics.muscl_limiter", "none", "physics.muscl_limiter", "belong to physics.scheme = riemann_ale"),
+    ("physics.riemann_dissipation", "low", "physics.riemann_dissipation", "belong to physics.scheme = riemann_ale"),
+    ("physics.muscl_limiter", "superbee", "physics.muscl_limiter", "not one of"),
 ])
 def test_bad_values_name_their_key(path, value, key, words):
     with pytest.raises(SceneError) as info:
@@ -153,6 +156,15 @@ def test_ghost_walls_are_refused_where_they_do_not_apply(changes, key, words):
     with pytest.raises(SceneError) as info:
         scene_from_table(ghost_cavity(**changes))
     assert info.value.key == key and words in str(info.value)
+
+
+@pytest.mark.parametrize("model", ["clone", "ghost"])
+def test_riemann_ale_refuses_bodies(model):
+    """The Riemann SPH-ALE scheme has no wall model (the thesis' partial Riemann problem): bodies are refused
+    by name instead of running without walls."""
+    with pytest.raises(SceneError) as info:
+        scene_from_table(ghost_cavity(**{"bodies.0.model": model, "physics.scheme": "riemann_ale"}))
+    assert info.value.key == "bodies" and "riemann_ale has no wall model" in str(info.value)
 
 
 @pytest.mark.parametrize("model", ["clone", "ghost"])
