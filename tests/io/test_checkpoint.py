@@ -19,10 +19,16 @@ FIELDS = ("position", "velocity", "density", "volume", "mass")
 TIMING = ("step_time_s", "iips_time_s", "shifting_time_s")
 
 
+def scheme_and_method(method):
+    """'riemann_ale:neuhauser' -> ('riemann_ale', 'neuhauser'); a bare method runs delta_ale."""
+    return method.split(":") if ":" in method else ("delta_ale", method)
+
+
 def scene(method):
     """A short Taylor-Green run with a checkpoint every 7 steps."""
+    scheme, method = scheme_and_method(method)
     iips = {"threshold": 1e-3, "update": "nfts"} if method == "iips" else {}
-    return periodic_scene(n=16, initial={"velocity": "taylor_green"}, physics={"scheme": "delta_ale"},
+    return periodic_scene(n=16, initial={"velocity": "taylor_green"}, physics={"scheme": scheme},
                           time={"t_end": 0.05}, shifting={"method": method}, iips=iips,
                           output={"checkpoint_every": 7})
 
@@ -67,7 +73,7 @@ def kill_mid_checkpoint_script(out):
         """)
 
 
-@pytest.mark.parametrize("method", ["delta_plus", "iips"])
+@pytest.mark.parametrize("method", ["delta_plus", "iips", "riemann_ale:neuhauser"])
 def test_restart_continues_bit_for_bit(tmp_path, method):
     sc = scene(method)
     whole, summary = run(sc, MPI.COMM_SELF, tmp_path / "whole")
