@@ -118,7 +118,7 @@ class PhysicsSpec:
     scheme: str = option("none", doc="what moves the particles: none (a static distribution), kinematic "
                          "(advected by a frozen analytic velocity field, thesis 8.3.2), or a fluid scheme: "
                          "delta_ale, delta_ale_const_mass, delta_ale_const_volume (seed 001 eq. 13, 23, 25), "
-                         "riemann_ale (thesis eq. 5.48: Riemann fluxes, no diffusive terms; periodic domains)",
+                         "riemann_ale (thesis eq. 5.48: Riemann fluxes, no diffusive terms; no bodies yet)",
                          choices=("none", "kinematic") + FLUID_SCHEMES)
     velocity_field: str = option("taylor_green", doc="kinematic: the frozen field (thesis eq. 8.33)",
                                  choices=("taylor_green",))
