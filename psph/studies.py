@@ -49,8 +49,10 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, on
         cmd = ["mpiexec", "-n", str(ranks), "--oversubscribe"] + cmd
     out = Path(out)
     stamp = out / "study_command.json"
-    if reuse is None or only_finished:
-        reuse = only_finished or bool(os.environ.get("PSPH_STUDY_REUSE"))
+    if only_finished:
+        reuse = True
+    elif reuse is None:
+        reuse = bool(os.environ.get("PSPH_STUDY_REUSE"))
     stopped, summary = out / "study_stopped.txt", out / "summary.json"
     key = cmd[cmd.index("-m"):]  # without the mpiexec prefix: the rank count does not change the result
     if reuse and stamp.exists() and _same_command(json.loads(stamp.read_text()), key):

@@ -131,6 +131,7 @@ def _compile(d):
         e = np.zeros(3)
         vl = np.zeros(3)
         vr = np.zeros(3)
+        v_s = np.zeros(3)
         mom = np.zeros(3)
         visc = np.zeros(3)
         for i in range(ptr.size - 1):
@@ -172,14 +173,13 @@ def _compile(d):
                 du_n = u_s - 0.5 * (u_l + u_r)
                 q = 0.0  # (v^E - v0_ij) . 2 grad_i W_ij V_j
                 for a in range(d):
-                    v_s = 0.5 * (vl[a] + vr[a]) + du_n * e[a]
-                    vl[a] = v_s  # vl now holds v^E
-                    q += (v_s - 0.5 * (v0[i, a] + v0[j, a])) * 2.0 * fv * x[a]
+                    v_s[a] = 0.5 * (vl[a] + vr[a]) + du_n * e[a]
+                    q += (v_s[a] - 0.5 * (v0[i, a] + v0[j, a])) * 2.0 * fv * x[a]
                     acc_v += (v0[j, a] - v0[i, a]) * fv * x[a]
                 acc_m -= rho_s * q
                 dvx = 0.0
                 for a in range(d):
-                    mom[a] -= rho_s * vl[a] * q + p_s * 2.0 * fv * x[a]
+                    mom[a] -= rho_s * v_s[a] * q + p_s * 2.0 * fv * x[a]
                     dvx += (vel[j, a] - vel[i, a]) * x[a]
                 for a in range(d):  # the delta-ALE family's viscous operators (psph.compute.fluid)
                     if morris:

@@ -42,8 +42,6 @@ class DeltaALE:
         self.eos = make_eos(phys)
         self.shift = make_velocity_shift(scene)
         self.pairs = PairCache()  # the support's pairs, from renormalised_gradient to delta_ale_rhs
-        self.state_names = (("position", "density", "mass", "momentum") if self.variant == 0
-                            else ("position", "density", "velocity"))
         self.walls = None
         if scene.bodies:
             from psph.boundaries.clone import WallTerms

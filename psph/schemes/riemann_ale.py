@@ -20,7 +20,6 @@ from psph.schemes.delta_ale import DeltaALE
 class RiemannALE(DeltaALE):
     def __init__(self, scene):
         super().__init__(scene)
-        self.state_names = ("position", "volume", "mass", "momentum")
         self.tait = scene.physics.eos == "tait"
         self.limited = scene.physics.muscl_limiter == "minmod"
         self.low_dissipation = scene.physics.riemann_dissipation == "low"
