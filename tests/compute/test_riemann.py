@@ -32,6 +32,13 @@ def _rhs(pos, vol, rho, vel, v0, pairs, kern, tait=False, mu=0.0, morris=False, 
     return out
 
 
+def _eos(tait, c0, rho0):
+    """p(rho): Tait with gamma = 7, or linear (psph.schemes.eos)."""
+    if tait:
+        return lambda r: c0**2 * rho0 / 7.0 * ((r / rho0) ** 7 - 1.0)
+    return lambda r: c0**2 * (r - rho0)
+
+
 @pytest.mark.parametrize("dim", [1, 2, 3])
 def test_velocity_gradient_is_exact_for_linear_fields(dim):
     rng, pos, vol, kern, pairs = _setup(dim, dim)
@@ -48,7 +55,7 @@ def test_acoustic_riemann_jump_relations_and_symmetry(tait):
     (z = rho_bar c(rho_bar)); p^E = EOS(rho^E); equal states are returned unchanged; swapping the sides and
     reversing the axis gives the same interface state."""
     c0, rho0 = 10.0, 1.0
-    eos = (lambda r: c0**2 * rho0 / 7.0 * ((r / rho0) ** 7 - 1.0)) if tait else (lambda r: c0**2 * (r - rho0))
+    eos = _eos(tait, c0, rho0)
     rng = np.random.default_rng(3)
     for _ in range(20):
         rl, rr = 1.0 + 0.03 * rng.standard_normal(2)
@@ -72,7 +79,7 @@ def test_low_dissipation_pressure(tait):
     acoustic solver's where they approach faster than c / 3, and in between a dissipation quadratic in the
     approach speed. It is symmetric like the acoustic solver."""
     c0, rho0 = 10.0, 1.0
-    eos = (lambda r: c0**2 * rho0 / 7.0 * ((r / rho0) ** 7 - 1.0)) if tait else (lambda r: c0**2 * (r - rho0))
+    eos = _eos(tait, c0, rho0)
     rl, rr = 1.01, 0.995
     centred = 0.5 * (eos(rl) + eos(rr))
     assert riemann.low_dissipation_pressure(rl, -0.2, rr, 0.3, c0, rho0, tait) == pytest.approx(centred, rel=1e-14)
