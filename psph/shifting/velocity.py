@@ -41,7 +41,7 @@ class VelocityShift:
         """Called after a completed time step (laws with memory update it here)."""
 
     def describe(self) -> str:
-        return "shifting: none (Lagrangian particles; the du-terms of the scheme are skipped)"
+        return "shifting velocity in the scheme: none (v0 = v, Lagrangian particles; no du terms)"
 
 
 class NoVelocityShift(VelocityShift):
