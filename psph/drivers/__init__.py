@@ -3,7 +3,7 @@
 from psph.drivers.fluid import FluidDriver
 from psph.drivers.kinematic import KinematicDriver
 from psph.drivers.static import StaticDriver
-from psph.schemes import FLUID_SCHEMES
+from psph.scene.schema import FLUID_SCHEMES
 
 DRIVERS = {"none": StaticDriver, "kinematic": KinematicDriver, **{name: FluidDriver for name in FLUID_SCHEMES}}
 

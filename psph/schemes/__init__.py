@@ -1,7 +1,5 @@
 """Fluid schemes: the physics operators of a flow, composed from the scene (only declared terms run)."""
 
-from psph.scene.schema import FLUID_SCHEMES  # noqa: F401  (the drivers' list)
-
 
 def make_scheme(scene):
     if scene.physics.scheme == "riemann_ale":
