@@ -6,8 +6,10 @@ from collections import defaultdict
 from contextlib import contextmanager
 
 _totals = defaultdict(float)
+_exclusive = defaultdict(float)
 _counts = defaultdict(int)
 _events = {}
+_children = []  # per open phase: time spent so far in the phases nested inside it
 
 
 def _event(name):
@@ -27,20 +29,32 @@ def phase(name: str):
     if event is not None:
         event.begin()
     start = time.perf_counter()
+    _children.append(0.0)
     try:
         yield
     finally:
-        _totals[name] += time.perf_counter() - start
+        elapsed = time.perf_counter() - start
+        _totals[name] += elapsed
+        _exclusive[name] += elapsed - _children.pop()
+        if _children:
+            _children[-1] += elapsed
         _counts[name] += 1
         if event is not None:
             event.end()
 
 
 def totals() -> dict:
-    """{phase: (seconds, calls)} accumulated in this process so far."""
+    """{phase: (seconds, calls)} accumulated in this process so far (nested phases count in their parents
+    too)."""
     return {k: (_totals[k], _counts[k]) for k in _totals}
+
+
+def exclusive() -> dict:
+    """{phase: seconds} outside the phases nested in it: parts that do not overlap."""
+    return dict(_exclusive)
 
 
 def reset() -> None:
     _totals.clear()
+    _exclusive.clear()
     _counts.clear()

@@ -167,6 +167,23 @@ def write_table(path, header, rows, title="", note="") -> str:
     return text
 
 
+def plot_histories(path, curves, xlabel, ylabel, title, logy=False, size=(7, 4)):
+    """One figure of time histories: curves = [(t, values, label, matplotlib line keywords), ...]."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=size)
+    for t, values, label, style in curves:
+        (ax.semilogy if logy else ax.plot)(t, values, label=label, **style)
+    ax.set(xlabel=xlabel, ylabel=ylabel, title=title)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def first_iteration(history, predicate):
     """(row) of the first history row satisfying predicate, or None."""
     for row in history:

@@ -12,13 +12,14 @@ right-hand side of seed 004 eq. 5-9) against the whole `fluid_step` phase, from 
 
 import argparse
 import tempfile
+from pathlib import Path
 
 from mpi4py import MPI
 
 from psph import profiling
 from psph.drivers.fluid import FluidDriver
 from psph.scene.load import load_scene
-from psph.studies import CASES
+from psph.studies import CASES, command_line, write_table
 
 SETTINGS = {"lid_driven_cavity": ["domain.dx=0.02"], "moving_square": ["domain.dx=0.05"]}
 
@@ -29,14 +30,16 @@ def main():
     parser.add_argument("--cases", nargs="+", default=list(SETTINGS))
     parser.add_argument("--shifting", default="delta_plus", help="shifting.method (iips adds its own cost)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="scene override")
+    parser.add_argument("--out", type=Path, help="also write the table to OUT/walls_{N}ranks.md and .csv")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
+    rows = []
     for case in args.cases:
         sets = SETTINGS.get(case, []) + [f"shifting.method={args.shifting}", "output.every=0", "iips.update=none",
                                          *args.set]
         with tempfile.TemporaryDirectory() as out:
             out = comm.bcast(out, root=0)
-            scene = load_scene(CASES / f"{case}.toml", sets + ["time.t_end=1e9"])
+            scene = load_scene(CASES / f"{case}.toml", sets + ["time.t_end=1.0"])  # only for its time step
             driver = FluidDriver(scene, comm, out)
             dt, _ = driver.time_step()
             short = load_scene(CASES / f"{case}.toml", sets + [f"time.t_end={10 * dt}"])
@@ -52,6 +55,13 @@ def main():
                 print(f"{case}: {run.sim.n_particles} particles, {comm.size} rank(s), {args.steps} steps: walls "
                       f"{walls:.2f} s of the step's {step:.2f} s = {100 * share:.1f}% (max over ranks), "
                       f"{1e3 * step / args.steps:.1f} ms per step", flush=True)
+                rows.append([case, run.sim.n_particles, comm.size, args.shifting, args.steps, walls, step,
+                             100 * share, 1e3 * step / args.steps])
+    if args.out is not None and comm.rank == 0:
+        write_table(args.out / f"walls_{comm.size}ranks",
+                    ["scene", "particles", "ranks", "shifting", "steps", "walls [s]", "flow step [s]",
+                     "walls, % of the step (max over ranks)", "ms per step"], rows,
+                    title=f"Cost of the clone-particle walls, {comm.size} rank(s)", note="Command: " + command_line())
 
 
 if __name__ == "__main__":

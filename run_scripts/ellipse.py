@@ -11,19 +11,37 @@ drag.png (cd_viscous, cd_pressure, cl against t U/a); variations_a{N}.png (eps_V
 eps_mi = m_i/m0 - 1 around the ellipse at t_end); volume_error.png. Seed 001 compares with the DVH
 solution of Rossi et al. (2015), which is not in ../shared/reference: the resolutions are compared with
 each other.
+
+--in-progress tabulates a run still going (or stopped before t_end) from what its directory holds: the
+history so far, and the latest checkpoint's particles for the variation fields (a column gives the time
+reached). `--in-progress` never starts a run.
 """
 
 import argparse
 from pathlib import Path
 
+import h5py
 import matplotlib
 import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+from psph.io.history import read_history  # noqa: E402
 from psph.particles import Kind  # noqa: E402
-from psph.studies import CASES, command_line, dominant_frequency, last_snapshot, run_scene, write_table  # noqa: E402
+from psph.scene.load import load_scene  # noqa: E402
+from psph.scene.validate import to_table  # noqa: E402
+from psph.studies import (  # noqa: E402
+    CASES,
+    NotRun,
+    Run,
+    command_line,
+    dominant_frequency,
+    last_snapshot,
+    plot_histories,
+    run_scene,
+    write_table,
+)
 
 
 def after(rows, key, t0, t1=np.inf):
@@ -47,8 +65,32 @@ def wake_return_time(scene):
     return float(abs(length @ u) / (u @ u))
 
 
-def plot_variations(run, n, rho0, path):
+def latest_state(run):
+    """(particle fields, time) of the run's last snapshot, or of its latest checkpoint when that is later."""
     snap, t = last_snapshot(run.out)
+    checkpoints = sorted(run.out.glob("checkpoint_*.h5"))
+    if checkpoints:
+        with h5py.File(checkpoints[-1]) as f:
+            if float(f.attrs["time"]) > t:
+                return {k: f["particles"][k][:] for k in f["particles"]}, float(f.attrs["time"])
+    return snap, t
+
+
+def in_progress(out, sets):
+    """A Run read from a directory whose run has not finished: its history so far, the scene of its
+    command, the particle count of its latest checkpoint and no wall time."""
+    scene = load_scene(CASES / "inclined_ellipse.toml", sets)
+    checkpoints = sorted(out.glob("checkpoint_*.h5"))
+    if not checkpoints or not (out / "history.csv").exists():
+        raise NotRun(f"{out}: no run in progress (no checkpoint and history)")
+    with h5py.File(checkpoints[-1]) as f:
+        n_particles = len(f["particles/gid"])
+    return Run(out, {"scene": to_table(scene), "n_particles": n_particles, "wall_time_s": float("nan")},
+               read_history(out / "history.csv"))
+
+
+def plot_variations(run, n, rho0, path):
+    snap, t = latest_state(run)
     fluid = snap["kind"] == Kind.FLUID
     pos = snap["position"][fluid]
     dx = 1.0 / n
@@ -75,13 +117,20 @@ def main():
     parser.add_argument("--ranks", type=int, default=1)
     parser.add_argument("--t-end", type=float, default=50.0)
     parser.add_argument("--resolutions", type=int, nargs="+", default=[25, 50], help="a/dx")
+    parser.add_argument("--in-progress", action="store_true",
+                        help="tabulate finished runs and, for the others, what they have written so far")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    runs, table = {}, []
+    runs, table, partial = {}, [], []
     for n in args.resolutions:
-        run = run_scene(CASES / "inclined_ellipse.toml", args.out / f"a{n}",
-                        sets=[f"domain.dx={1.0 / n}", f"time.t_end={args.t_end}", f"output.every={args.t_end / 5}",
-                              "output.history_every=20", "output.checkpoint_minutes=15"], ranks=args.ranks)
+        sets = [f"domain.dx={1.0 / n}", f"time.t_end={args.t_end}", f"output.every={args.t_end / 5}",
+                "output.history_every=20", "output.checkpoint_minutes=15"]
+        try:
+            run = run_scene(CASES / "inclined_ellipse.toml", args.out / f"a{n}", sets=sets, ranks=args.ranks,
+                            only_finished=args.in_progress)
+        except NotRun:
+            run = in_progress(args.out / f"a{n}", sets)
+            partial.append(n)
         runs[n] = run
         rows = run.history
         mass = np.array([r["total_mass"] for r in rows])
@@ -95,7 +144,7 @@ def main():
                       f"{cdv.min():.3g}-{cdv.max():.3g}" if cdv.size else "-", mean_after(rows, "cd_pressure", t0),
                       mean_after(rows, "cl", t0), dominant_frequency(after(rows, "time", t0), after(rows, "cl", t0)),
                       rows[-1]["volume_error"], eps_vi, eps_mi, float(np.abs(mass / mass[0] - 1).max()),
-                      run.summary["wall_time_s"]])
+                      run.summary["wall_time_s"], rows[-1]["time"]])
         print(f"a/dx={n}: mean cd_viscous {table[-1][2]:.4f} over {early[0]:g} <= t <= {early[1]:g}, "
               f"{table[-1][3]:.4f} over t >= {t0:g}", flush=True)
     fig, axes = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
@@ -116,22 +165,20 @@ def main():
     fig.tight_layout()
     fig.savefig(args.out / "drag.png", dpi=120)
     plt.close(fig)
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for n, run in runs.items():
-        ax.plot([r["time"] for r in run.history], [r["volume_error"] for r in run.history], label=f"a/dx = {n}")
-    ax.set(xlabel="t U / a", ylabel="eps_V", title="global volume error (seed 001 eq. 27, fig. 7)")
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(args.out / "volume_error.png", dpi=120)
-    plt.close(fig)
+    plot_histories(args.out / "volume_error.png",
+                   [([r["time"] for r in run.history], [r["volume_error"] for r in run.history], f"a/dx = {n}", {})
+                    for n, run in runs.items()],
+                   "t U / a", "eps_V", "global volume error (seed 001 eq. 27, fig. 7)", size=(6, 4))
     print(write_table(args.out / "forces",
                       ["a/dx", "particles", f"mean cd_viscous ({early[0]:g} <= t <= {early[1]:g})",
                        f"mean cd_viscous (t >= {t0:g})", "cd_viscous range", "mean cd_pressure", "mean cl",
-                       "St = f a / U (lift)", "eps_V(t_end)", "max |eps_Vi|", "max |eps_mi|", "max mass drift",
-                       "wall s"],
+                       "St = f a / U (lift)", "eps_V (last)", "max |eps_Vi|", "max |eps_mi|", "max mass drift",
+                       "wall s", "t U/a reached"],
                       table, title=f"Inclined ellipse, Re = 500, to t U/a = {args.t_end:g}",
                       note=f"t U/a = {t_wake:g}: the box's length over U, when the wake first comes back to the "
-                           "ellipse through the periodic box. Command: " + command_line()))
+                           "ellipse through the periodic box. "
+                           + (f"a/dx = {', '.join(map(str, partial))}: a run in progress, tabulated to the time it "
+                              "reached (its windows end there). " if partial else "") + "Command: " + command_line()))
 
 
 if __name__ == "__main__":

@@ -149,9 +149,11 @@ class WallTerms:
     def body_forces(self, comm) -> dict:
         """Drag and lift coefficients 2 F / (rho0 U^2 D) of every immersed body, pressure and viscous parts,
         from the last right-hand side: drag along the flow seen from the body (against a moving body's
-        velocity, along physics.free_stream or +x for a body at rest), lift 90 degrees anticlockwise from it.
-        Collective."""
+        velocity, along physics.free_stream or +x for a body at rest), lift 90 degrees anticlockwise from it;
+        and the moment coefficient 2 T / (rho0 U^2 D^2) of the torque about the body's centre, anticlockwise
+        positive (each fluid particle's wall force applied at its closest wall point). Collective."""
         force = allreduce_sum(comm, self.force.copy())
+        torque = allreduce_sum(comm, self.torque.copy())
         immersed = [b for b in self.bodies if b.kind == Kind.BODY]
         out = {}
         for b in immersed:
@@ -162,6 +164,7 @@ class WallTerms:
             for part, k in (("pressure", 0), ("viscous", 1)):
                 out[f"cd_{part}{suffix}"] = scale * float(force[b.index, k] @ drag)
                 out[f"cl_{part}{suffix}"] = scale * float(force[b.index, k] @ lift)
+                out[f"cm_{part}{suffix}"] = scale / b.reference_length * float(torque[b.index, k])
         return out
 
 

@@ -137,7 +137,7 @@ class FluidDriver:
             with phase("iips"):
                 self.update.before(system, self.scheme)
                 report = self.iips.correct(system, step=step, time=t)
-                if report.iterations:
+                if report.iterations and not report.rejected:  # a rejected call left the particles in place
                     self.update.after(system, self.scheme)
             totals["iips_time_s"] += time.perf_counter() - t0
             totals["iips_newton"] += report.iterations

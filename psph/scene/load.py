@@ -27,7 +27,8 @@ def parse_override(text: str):
 
 
 def apply_overrides(table: dict, overrides) -> dict:
-    """Set each key path in a copy of `table` (creating tables on the way)."""
+    """Set each key path in a copy of `table` (creating tables on the way). A number indexes an array of
+    tables: `bodies.1.motion.law=ramp` sets the second [[bodies]] entry's law."""
     import copy
 
     table = copy.deepcopy(table)
@@ -35,10 +36,21 @@ def apply_overrides(table: dict, overrides) -> dict:
         parts, value = parse_override(text)
         node = table
         for k, part in enumerate(parts[:-1]):
-            nxt = node.setdefault(part, {})
-            if not isinstance(nxt, dict):
-                raise SceneError(".".join(parts[: k + 1]), "is a value, not a table: cannot --set below it")
+            where = ".".join(parts[: k + 1])
+            if isinstance(node, list):
+                if not part.isdigit() or int(part) >= len(node):
+                    raise SceneError(".".join(parts[:k]), f"has {len(node)} entries: {part!r} is not an index "
+                                     f"0-{len(node) - 1}")
+                nxt = node[int(part)]
+            else:
+                nxt = node.setdefault(part, {})
+            tables = isinstance(nxt, dict) or (isinstance(nxt, list) and all(isinstance(e, dict) for e in nxt))
+            if not tables:
+                raise SceneError(where, "is a value, not a table: cannot --set below it")
             node = nxt
+        if isinstance(node, list):
+            raise SceneError(".".join(parts[:-1]), f"is an array of tables: --set one entry's key "
+                             f"({'.'.join(parts[:-1])}.N.key)")
         node[parts[-1]] = value
     return table
 

@@ -209,7 +209,8 @@ class IIPSSpec:
                          choices=("none", "nfts", "mls1", "mls2", "mls1_increment", "mls2_increment"))
     on_failure: str = option("stop", doc="KSP divergence or Newton divergence: stop the run; reject the "
                              "call (undo its displacements, report, continue); or warn (keep them, report, "
-                             "continue)", choices=("stop", "reject", "warn"))
+                             "continue; a diverged KSP solve still stops the run: its step is no correction)",
+                             choices=("stop", "reject", "warn"))
     on_stall: str = option("best", doc="threshold not reached after max_newton iterations: keep the call's "
                            "iterate of lowest Linf(grad C) and report it (best; the thesis caps the iterations "
                            "for cost, section 10.1.1), or stop, reject, warn as on_failure",
@@ -304,6 +305,15 @@ class Scene:
                 raise SceneError(key, f"along axis {a} the box leaves the domain: the fluid at the domain's "
                                  "edge would have no wall")
 
+    def free_surface_axis(self):
+        """The first axis along which the fluid's fill region stops short of the domain (a free surface
+        there), or None."""
+        d, lo, hi = self.domain, self.initial.fill_lower, self.initial.fill_upper
+        for a in range(d.dimension):
+            if (lo and lo[a] > d.lower[a] + 0.5 * d.dx) or (hi and hi[a] < d.upper[a] - 0.5 * d.dx):
+                return a
+        return None
+
     def check(self, path):
         fluid = self.physics.scheme in FLUID_SCHEMES
         if self.bodies:
@@ -318,6 +328,9 @@ class Scene:
             if len(set(names)) != len(names):
                 raise SceneError("bodies", f"body names must be unique, got {names}")
             self._check_ghost_walls(fluid)
+            from psph.boundaries.bodies import check_placement  # geometry: numpy and the body profiles
+
+            check_placement(self)
             d = self.domain
             for k, b in enumerate(self.bodies):
                 if b.lid_velocity and d.periodic[1] and b.center[1] + b.size[1] / 2.0 >= d.upper[1] - 1e-9 * d.dx:
@@ -328,6 +341,10 @@ class Scene:
             if value and len(value) != self.domain.dimension:
                 raise SceneError(f"initial.{key}", f"expected {self.domain.dimension} entries (domain.dimension)")
         method = self.shifting.method
+        if fluid and method != "none" and self.free_surface_axis() is not None:
+            raise SceneError("shifting.method", f"{method} would shift the free surface's particles outward: the "
+                             f"fluid fills only part of the domain (initial.fill_lower/fill_upper, axis "
+                             f"{self.free_surface_axis()}) and psph has no free-surface detection yet; use none")
         if fluid and method == "explicit_iterative":
             raise SceneError("shifting.method", "explicit_iterative is for static and kinematic runs; fluid "
                              "schemes take iips or an explicit law (lind, skillen, oger, delta_plus, neuhauser)")

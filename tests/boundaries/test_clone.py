@@ -2,6 +2,8 @@
 divergence velocity (eq. 6), of the Laplacian velocity (eq. 7) and of the pressure (eq. 8-9, with the full
 body-force term), checked on the particles of a real scene next to a wall and at a corner."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from mpi4py import MPI
@@ -121,3 +123,107 @@ def test_negative_pressure_is_not_pulled_into_the_wall(tmp_path, where):
     driver.scheme.tensile = False
     _, plus = wall_rates(driver, system, i, pressure=-1.0)
     assert np.allclose(plus, -push, rtol=1e-12)
+
+
+def rectangle_coefficients(tmp_path, dx, angle, pressure, velocity):
+    """Force and moment coefficients (WallTerms.body_forces) of a rectangle 1 x 0.5 centred in a periodic
+    3 x 3 box (the ellipse scene's physics), for prescribed fluid fields pressure(x', y') and velocity(r)
+    (body coordinates x', r about the centre) at t = 0."""
+    scene = load_scene(CASES / "inclined_ellipse.toml", [
+        f"domain.dx={dx}", "domain.upper=[3.0, 3.0]", "bodies.0.shape=rectangle", "bodies.0.center=[1.5, 1.5]",
+        "bodies.0.size=[1.0, 0.5]", f"bodies.0.angle={angle}"])
+    driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path)
+    system, walls = driver.system, driver.scheme.walls
+    p = system.particles
+    walls.place(system, 0.0)
+    rot = np.deg2rad(angle)
+    r = p["position"] - 1.5
+    local = r @ np.array([[np.cos(rot), -np.sin(rot)], [np.sin(rot), np.cos(rot)]])
+    fluid = p["kind"] == Kind.FLUID
+    p["pressure"][:] = pressure(local[:, 0], local[:, 1])
+    p["density"][:] = scene.physics.density
+    p["velocity"][:] = 0.0
+    p["velocity"][fluid] = velocity(r[fluid])
+    d_rho, d_mom = np.zeros(p.n_local), np.zeros((p.n_local, 2))
+    walls.add(system, driver.scheme, 0.0, d_rho, d_mom)
+    return walls.body_forces(MPI.COMM_SELF)
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0])
+def test_torque_of_a_quadratic_pressure_field_converges(tmp_path, angle):
+    """A rectangle a x b in p = G x' y' (body coordinates about its centre) feels no force and the torque
+    T = -integral(x' dp/dy' - y' dp/dx') dV = -G a b (a^2 - b^2) / 12 (divergence theorem): the history's
+    cm_pressure = 2 T / (rho0 U^2 a^2). The clones carry the particle's own pressure to the wall (seed 004
+    eq. 8), so the wall sees p a distance s_i out: the error is first order (20%, 10%, 5% at dx = 0.05,
+    0.025, 0.0125)."""
+    a, b, g = 1.0, 0.5, 2.0
+    expected = 2.0 * (-g * a * b * (a * a - b * b) / 12.0) / a ** 2
+    errors = []
+    for dx in (0.025, 0.0125):
+        coeff = rectangle_coefficients(tmp_path, dx, angle, lambda x, y: g * x * y, lambda r: 0.0 * r)
+        errors.append(abs(coeff["cm_pressure"] / expected - 1.0))
+        assert abs(coeff["cd_pressure"]) < 1e-3 * abs(expected) and abs(coeff["cl_pressure"]) < 1e-3 * abs(expected)
+    assert errors[1] < 0.07 and 1.6 < errors[0] / errors[1] < 2.5
+
+
+def test_viscous_torque_turns_the_body_with_the_fluid(tmp_path):
+    """A fluid turning anticlockwise round a body at rest drags it along: cm_viscous > 0, and < 0 the other
+    way round; no pressure torque at rest pressure."""
+    turn = {sign: rectangle_coefficients(tmp_path, 0.025, 30.0, lambda x, y: 0.0 * x,
+                                         lambda r, s=sign: s * 0.1 * np.stack([-r[:, 1], r[:, 0]], axis=1))
+            for sign in (1.0, -1.0)}
+    assert turn[1.0]["cm_viscous"] > 0.0 and turn[-1.0]["cm_viscous"] == pytest.approx(-turn[1.0]["cm_viscous"])
+    assert turn[1.0]["cm_pressure"] == 0.0
+
+
+def test_free_slip_walls_exert_no_shear(tmp_path):
+    """Free slip (seed 004: the Laplacian velocity of the clones is the particle's own): a particle
+    sliding along the bottom wall feels no wall friction and the box (whose lid moves) no viscous force;
+    with no-slip it is braked (eq. 7)."""
+    rates = {}
+    for wall in ("free_slip", "no_slip"):
+        driver, system, p = cavity(tmp_path, **{"physics.reynolds": 1.0, "bodies.0.wall": wall})
+        i = particle_at(p, 0.5 + DX / 2, DX / 2)
+        _, rates[wall] = wall_rates(driver, system, i, velocity=(1.0, 0.0))
+        rates[wall + " body"] = driver.scheme.walls.force[0, 1].copy()
+    assert rates["no_slip"][0] < 0.0 and np.abs(rates["no_slip body"]).max() > 0.0
+    assert np.abs(rates["free_slip"]).max() < 1e-12 * abs(rates["no_slip"][0])
+    assert np.abs(rates["free_slip body"]).max() == 0.0  # the lid's drag on the fluid too
+
+
+def test_shifting_velocity_is_mirrored_with_no_normal_part_at_the_wall(tmp_path):
+    """The clones carry du with its normal part reversed (du . n = 0 on the wall, seed 004 section II): a
+    particle shifted towards the bottom wall is compressed by the du terms of the continuity equation,
+    one shifted along it is not."""
+    driver, system, p = cavity(tmp_path, **{"physics.reynolds": 1e12, "shifting.method": "delta_plus"})
+    assert driver.scheme.shift.active
+    i = particle_at(p, 0.5 + DX / 2, DX / 2)
+    d_rho = {}
+    for name, du in (("towards", (0.0, -1.0)), ("along", (1.0, 0.0))):
+        p["shift_velocity"][:] = 0.0
+        p["shift_velocity"][i] = du
+        d_rho[name], _ = wall_rates(driver, system, i)
+    assert abs(d_rho["towards"]) > 0.0 and abs(d_rho["along"]) < 1e-12 * abs(d_rho["towards"])
+
+
+def test_several_bodies_get_suffixed_columns_and_their_own_forces(tmp_path):
+    """Two blocks held in the hydrostatic tank: each body's columns carry its name, and each feels its own
+    displaced weight, cl_pressure = 2 A / D (g = rho0 = U = 1): 0.6 and 0.4 (first right-hand side)."""
+    from psph.scene.load import apply_overrides, read_table, scene_from_table
+
+    table = apply_overrides(read_table(Path(__file__).parent / "buoyancy.toml"),
+                            ["bodies.1.center=[0.6, 0.5]", "bodies.1.name=first"])
+    table["bodies"].append(dict(table["bodies"][1], name="second", center=[1.4, 0.5], size=[0.4, 0.2]))
+    scene = scene_from_table(table)
+    driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path)
+    system, walls = driver.system, driver.scheme.walls
+    p = system.particles
+    walls.place(system, 0.0)
+    p["velocity"][:] = 0.0
+    walls.add(system, driver.scheme, 0.0, np.zeros(p.n_local), np.zeros((p.n_local, 2)))
+    coeff = walls.body_forces(MPI.COMM_SELF)
+    assert sorted(coeff) == sorted(f"{c}_{part}_{name}" for c in ("cd", "cl", "cm")
+                                   for part in ("pressure", "viscous") for name in ("first", "second"))
+    assert coeff["cl_pressure_first"] == pytest.approx(0.6, rel=0.05)
+    assert coeff["cl_pressure_second"] == pytest.approx(0.4, rel=0.05)
+    assert abs(coeff["cd_pressure_first"]) < 0.01 and abs(coeff["cd_pressure_second"]) < 0.01

@@ -181,3 +181,24 @@ def test_failed_step_is_retried_with_half_the_time_step_when_the_scene_allows(tm
     summary = driver.run()
     assert summary["retries"] == 1 and summary["final"]["time"] == pytest.approx(0.02)
     assert any("injected" in m and "retrying with dt x 0.5" in m for m in messages)
+
+
+def test_a_rejected_iips_call_leaves_particles_and_fields_as_without_iips(tmp_path):
+    """iips.on_stall = "reject" with an unreachable threshold: every call moves the particles back, and no
+    field update follows (an MLS remap would smooth the fields at the restored positions)."""
+    import h5py
+
+    runs = {}
+    for name, sets in (("none", ["shifting.method=none", "iips.update=none"]),
+                       ("rejected", ["shifting.method=iips", "iips.update=mls2", "iips.threshold=1e-9",
+                                     "iips.max_newton=1", "iips.on_stall=reject"])):
+        res, out = tgv(tmp_path, name, *sets, t_end=0.05)
+        assert res.returncode == 0, res.stderr
+        rows = read_history(out / "history.csv")
+        with h5py.File(sorted(out.glob("snapshot_*.h5"))[-1]) as f:
+            order = np.argsort(f["particles/gid"][:])
+            runs[name] = {k: f["particles"][k][:][order] for k in ("position", "velocity", "density")}
+        runs[name]["rejected calls"] = rows[-1]["iips_failures"]
+    assert runs["rejected"]["rejected calls"] > 0 and runs["none"]["rejected calls"] == 0
+    for key in ("position", "velocity", "density"):
+        assert np.allclose(runs["rejected"][key], runs["none"][key], rtol=0, atol=1e-12), key

@@ -65,9 +65,15 @@ def test_riemann_ale_run_matches_serial(comm, mpi_tmp_path, shifting, update, th
                                "initial.sigma_over_dx=0.05"], 1e-7),
     ("lid_driven_cavity.toml", ["shifting.method=delta_plus", "physics.viscosity=morris"], 1e-11),
     ("hydrostatic_tank.toml", [], 1e-11),
-    ("inclined_ellipse.toml", ["domain.dx=0.2", "physics.free_stream_ramp=0.05"], 1e-11)])
+    ("inclined_ellipse.toml", ["domain.dx=0.2", "physics.free_stream_ramp=0.05"], 1e-11),
+    ("moving_square.toml", ["domain.dx=0.1", "time.t_end=0.3", "bodies.1.center=[4.6, 2.5]",
+                            "bodies.1.motion.law=ramp", "bodies.1.motion.ramp_time=0.1",
+                            "bodies.1.motion.velocity=[0.3, 0.0]",
+                            "bodies.1.motion.angular_velocity=0.5"], 1e-11)])
 def test_runs_with_walls_match_serial(comm, mpi_tmp_path, case, sets, tol):
-    """Walls across ranks: solid particles in halos, the clones mirrored from each rank's own fluid rows."""
+    """Walls across ranks: solid particles in halos, the clones mirrored from each rank's own fluid rows.
+    The moving square, put across the ranks' border and turning as it translates, carries its solid
+    particles from rank to rank."""
     from psph.scene.load import load_scene
     from tests.helpers import CASES
 

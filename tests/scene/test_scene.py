@@ -9,6 +9,7 @@ from psph.errors import SceneError, UsageError
 from psph.scene.load import apply_overrides, load_scene, parse_override, read_table, scene_from_table
 from psph.scene.schema import Scene
 from psph.scene.validate import describe_keys
+from tests.helpers import CASES
 
 
 def base():
@@ -128,8 +129,6 @@ def test_every_key_is_documented():
 
 def ghost_cavity(**changes):
     """The lid-driven cavity's table with ghost walls, and `changes` as key path -> value."""
-    from tests.helpers import CASES
-
     table = read_table(CASES / "lid_driven_cavity.toml")
     table["bodies"][0]["model"] = "ghost"
     for path, value in changes.items():
@@ -176,3 +175,54 @@ def test_a_lid_on_a_periodic_y_axis_is_refused(model):
         assert info.value.key == "bodies[0].lid_velocity" and "lid would be ignored" in str(info.value)
     changes["bodies.0.lid_velocity"] = []
     scene_from_table(ghost_cavity(**changes))  # without a lid, a channel
+
+
+@pytest.mark.parametrize("sets,key,words", [
+    (["bodies.1.motion.law=fixed"], "bodies[1].motion.velocity", "a fixed body does not move"),
+    (["bodies.1.size=[0.1, 1.0]"], "bodies[1].size", "less than 2 dx"),
+    (["bodies.1.center=[9.8, 2.5]", "bodies.1.motion.law=fixed", "bodies.1.motion.velocity=[]"],
+     "bodies[1].center", "leaves the domain along axis 0"),
+    (["bodies.1.center=[1.5, 0.55]"], "bodies[1].center", "within dx of the walls of bodies[0]"),
+    (["time.t_end=9.0"], "bodies[1].center", "within dx of the walls of bodies[0] ('tank') at t = 8."),
+    (["bodies.1.motion.velocity=[0.0, 1.0]"], "bodies[1].center", "within dx of the walls"),
+    (["bodies.0.size=[10.5, 5.0]"], "bodies[0].size", "leaves the domain along bounded axis 0"),
+])
+def test_misplaced_bodies_are_refused_by_key(sets, key, words):
+    """The moving square (dx = 0.1) with one change each: a body that would be built wrongly or driven into
+    a wall before t_end is refused at load time, naming the key."""
+    load_scene(CASES / "moving_square.toml", ["domain.dx=0.1"])
+    with pytest.raises(SceneError) as info:
+        load_scene(CASES / "moving_square.toml", ["domain.dx=0.1", *sets])
+    assert info.value.key == key and words in str(info.value)
+
+
+def test_overlapping_and_wrapping_bodies_are_refused():
+    sets = ["domain.dx=0.1", "bodies.0.center=[5.0, 5.0]", "bodies.0.shape=ellipse", "bodies.0.size=[0.5, 0.5]"]
+    for extra, key, words in ((["bodies.0.center=[13.9, 5.0]"], "bodies[0].center", "straddle a periodic edge"),
+                              ([], "bodies[0].center", "overlaps bodies[1]")):
+        table = apply_overrides(read_table(CASES / "inclined_ellipse.toml"), sets + extra)
+        table["bodies"].append(dict(table["bodies"][0], name="second", center=[5.2, 5.1]))
+        if extra:
+            table["bodies"].pop()
+        with pytest.raises(SceneError) as info:
+            scene_from_table(table)
+        assert info.value.key == key and words in str(info.value)
+
+
+def test_set_indexes_arrays_of_tables():
+    table = read_table(CASES / "moving_square.toml")
+    assert apply_overrides(table, ["bodies.1.motion.law=ramp"])["bodies"][1]["motion"]["law"] == "ramp"
+    assert table["bodies"][1]["motion"]["law"] == "spheric6"  # the original is untouched
+    for bad, words in (("bodies.2.size=[1, 1]", "is not an index 0-1"), ("bodies.x.size=[1, 1]", "not an index"),
+                       ("bodies.1=3", "is an array of tables"), ("bodies.1.center.x=1", "is a value")):
+        with pytest.raises(SceneError, match=words):
+            apply_overrides(table, [bad])
+
+
+def test_shifting_is_refused_with_a_free_surface():
+    """The tank's fluid stops at y = 1 in a 1.2 high domain: psph detects no free surface, so no shifting."""
+    load_scene(CASES / "hydrostatic_tank.toml")
+    for method in ("iips", "delta_plus"):
+        with pytest.raises(SceneError) as info:
+            load_scene(CASES / "hydrostatic_tank.toml", [f"shifting.method={method}"])
+        assert info.value.key == "shifting.method" and "free surface" in str(info.value)

@@ -43,10 +43,12 @@ def test_explicit_shifting_independent_of_rank_count(comm):
 
 
 def test_iips_with_an_empty_rank(comm):
-    """All particles start on rank 0 of a non-periodic box with a tiny fluid patch: ranks without free
-    particles (or without any) take part in assembly and solve."""
+    """A tiny fluid patch in walls, all of it on rank 0 of a non-periodic box whose other ranks own empty
+    slabs (a fixed decomposition, never rebalanced): ranks without any particle take part in assembly and
+    solve, and the result is the serial one."""
     from psph.compute.smoothing import make_kernel
     from psph.domain import Domain
+    from psph.parallel.decomposition import Decomposition, Split
     from psph.particles import Kind, ParticleSet
     from psph.system import ParticleSystem
 
@@ -55,17 +57,33 @@ def test_iips_with_an_empty_rank(comm):
     lattice = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2) + 0.35
     lattice += np.random.default_rng(1).normal(0, 0.005, lattice.shape)
     kind = np.where(np.any((lattice < 0.42) | (lattice > 0.58), axis=1), Kind.WALL, Kind.FLUID).astype(np.int8)
-    mine = comm.rank == 0
-    p = ParticleSet(2)
-    p.set_owned({"gid": np.arange(len(lattice)) if mine else np.zeros(0, np.int64),
-                 "position": lattice if mine else np.zeros((0, 2)),
-                 "kind": kind if mine else np.zeros(0, np.int8),
-                 "volume": np.full(len(lattice) if mine else 0, (0.3 / n) ** 2)})
-    system = ParticleSystem(comm, Domain((0.0, 0.0), (1.0, 1.0), (False, False)),
-                            make_kernel("wendland_c6", 2, 2 * 0.3 / n), p)
-    report = ImplicitShifting(periodic_scene(n=20, iips={"max_newton": 3}).iips, comm).correct(system)
+    inf = np.inf
+    cuts = [0.9 + 0.03 * k for k in range(comm.size - 1)]  # rank 0: x < 0.9; the others: slabs beyond
+    splits = tuple(Split(k, comm.size, k + 1, 0, c) for k, c in enumerate(cuts))
+    edges = [-inf, *cuts, inf]
+    boxes = tuple((np.array([edges[r], -inf]), np.array([edges[r + 1], inf])) for r in range(comm.size))
+
+    def shifted(on):
+        mine = on.rank == 0
+        p = ParticleSet(2)
+        p.set_owned({"gid": np.arange(len(lattice)) if mine else np.zeros(0, np.int64),
+                     "position": lattice.copy() if mine else np.zeros((0, 2)),
+                     "kind": kind if mine else np.zeros(0, np.int8),
+                     "volume": np.full(len(lattice) if mine else 0, (0.3 / n) ** 2)})
+        system = ParticleSystem(on, Domain((0.0, 0.0), (1.0, 1.0), (False, False)),
+                                make_kernel("wendland_c6", 2, 2 * 0.3 / n), p, rebalance_threshold=1e30,
+                                decomposition=Decomposition(splits, boxes) if on.size > 1 else None)
+        with petsc_options(iips_ksp_rtol=1e-13, iips_ksp_atol=1e-30):
+            report = ImplicitShifting(periodic_scene(n=20, iips={"max_newton": 3}).iips, on).correct(system)
+        owned = on.allgather(system.particles.n_owned)
+        return report, gather_by_gid(on, system.particles.owned("gid"), system.particles.owned("position"))[1], owned
+
+    report, pos, owned = shifted(comm)
+    serial_report, serial_pos, _ = shifted(MPI.COMM_SELF)
+    assert comm.size == 1 or owned[1:] == [0] * (comm.size - 1)
     assert report.iterations == 3 and np.isfinite(report.L2_grad_c)
-    assert np.all(np.isfinite(system.particles["position"]))
+    assert report.L2_grad_c == pytest.approx(serial_report.L2_grad_c, rel=1e-8)
+    assert np.abs(pos - serial_pos).max() < 1e-10
 
 
 @pytest.mark.parametrize("mat_type,in_place", [("aij", True), ("baij", True), ("aij", False), ("baij", False)])

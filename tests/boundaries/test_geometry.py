@@ -1,0 +1,64 @@
+"""Body profiles and solid particles (seed 004 section III): nodes every ds = dx/4 on the profile, unit
+normals pointing out of the fluid, and solid particles filling one kernel support behind the profile."""
+
+import numpy as np
+import pytest
+
+from psph.boundaries.geometry import ellipse_profile, inside, rectangle_profile, solid_particles
+
+DX = 0.05
+
+
+def spacing(nodes):
+    """Distances between consecutive nodes round the closed profile."""
+    return np.linalg.norm(np.diff(np.vstack([nodes, nodes[:1]]), axis=0), axis=1)
+
+
+@pytest.mark.parametrize("angle", [0.0, 35.0])
+def test_ellipse_nodes_lie_on_the_profile_at_equal_arc_length(angle):
+    center, (a, b) = np.array([1.0, 2.0]), (0.5, 0.2)
+    prof = ellipse_profile(center, (a, b), angle, DX / 4)
+    c, s = np.cos(np.deg2rad(angle)), np.sin(np.deg2rad(angle))
+    local = (prof.nodes - center) @ np.array([[c, -s], [s, c]])
+    assert np.allclose((local[:, 0] / a) ** 2 + (local[:, 1] / b) ** 2, 1.0, atol=1e-12)
+    gaps = spacing(prof.nodes)
+    assert np.allclose(gaps, DX / 4, rtol=0.02)  # chords of equal arcs ds = dx/4 (the count rounded)
+    assert np.allclose(np.linalg.norm(prof.normals, axis=1), 1.0)
+    chords = np.roll(prof.nodes, -1, axis=0) - np.roll(prof.nodes, 1, axis=0)
+    chords /= np.linalg.norm(chords, axis=1)[:, None]
+    assert np.abs(np.sum(prof.normals * chords, axis=1)).max() < 0.01  # normal to the profile
+    assert np.all(np.sum(prof.normals * (center - prof.nodes), axis=1) > 0)  # into the body: out of the fluid
+    assert np.allclose(prof.tangents, np.stack([-prof.normals[:, 1], prof.normals[:, 0]], axis=1))
+
+
+@pytest.mark.parametrize("fluid_inside", [False, True])
+def test_rectangle_nodes_and_normals(fluid_inside):
+    center, size = np.array([0.0, 0.0]), (1.0, 0.5)
+    prof = rectangle_profile(center, size, 20.0, DX / 4, fluid_inside=fluid_inside)
+    assert len(prof.nodes) == int(2 * (size[0] + size[1]) / (DX / 4))
+    assert np.allclose(spacing(prof.nodes), DX / 4)
+    outward = np.sum(prof.normals * (prof.nodes - center), axis=1) > 0
+    assert np.all(outward == fluid_inside)  # a box's normals leave the box, a body's enter it
+    assert np.allclose(np.linalg.norm(prof.normals, axis=1), 1.0)
+    corners = np.abs(np.abs(prof.normals @ np.array([[np.cos(0.349066), -np.sin(0.349066)],
+                                                    [np.sin(0.349066), np.cos(0.349066)]])))
+    assert np.sum(np.isclose(corners[:, 0], np.sqrt(0.5))) == 4  # the corners take the bisecting normal
+
+
+@pytest.mark.parametrize("shape", ["ellipse", "rectangle"])
+def test_solid_particles_fill_one_support_behind_the_profile(shape):
+    """Every lattice point inside the body within one support (2h = 4 dx) of the profile is a solid
+    particle, no other; each knows its closest node and its distance to the profile."""
+    center, size, thickness = np.array([1.0, 1.0]), (0.5, 0.3), 4 * DX
+    spec = (shape, center, size, 10.0)
+    prof = (ellipse_profile(center, size, 10.0, DX / 4) if shape == "ellipse"
+            else rectangle_profile(center, size, 10.0, DX / 4, fluid_inside=False))
+    g = np.arange(0.0, 2.0, DX) + DX / 2
+    lattice = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    pos, node, dist = solid_particles(prof, spec, lattice, thickness)
+    assert np.all(inside(spec, pos)) and len(pos) > 0
+    assert np.allclose(dist, np.linalg.norm(pos - prof.nodes[node], axis=1))
+    brute = np.linalg.norm(lattice[:, None, :] - prof.nodes[None, :, :], axis=2).min(axis=1)
+    expected = inside(spec, lattice) & (brute <= thickness)
+    assert len(pos) == expected.sum()
+    assert dist.max() <= thickness
