@@ -29,13 +29,16 @@ def _compile_grad_c(d):
 
     @njit(cache=True)
     def grad_c(pos, vol, ptr, idx, kp, coeff, power, w_ref, out):
+        support2 = 4.0 * kp[1] * kp[1]
         for i in range(ptr.size - 1):
             g0 = g1 = g2 = 0.0
             for k in range(ptr[i], ptr[i + 1]):
                 j = idx[k]
                 x0, x1, x2, rr = pair2(pos, i, j, d)
+                if rr >= support2:  # a list pair in the skin adds exactly zero: skip its kernel values
+                    continue
                 r = np.sqrt(rr)
-                s = kernel_f(r, kp) * vol[j]  # zero beyond the support: no branch
+                s = kernel_f(r, kp) * vol[j]
                 if coeff != 0.0:
                     s *= 1.0 + coeff * fast_power(kernel_w(r, kp) / w_ref, power)
                 g0 += s * x0
