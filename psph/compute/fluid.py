@@ -244,3 +244,31 @@ def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, pairs, kp, c0, de
     _KERNELS[pos.shape[1]][1](pos, vol, rho, mass, vel, du, prs, grad_rho, pairs.ptr, pairs.idx, pairs.f, kp[1],
                               c0, delta, delta_m, mu, morris, gravity, variant, with_shift, tensile_switch, kind,
                               fluid_only, d_rho, d_mass, d_mom)
+
+
+@njit(cache=True)
+def fluid_momentum_totals(kind, mass, vel, d_mom, rates_are_momentum, out):
+    """out = [sum of d(m u)/dt (d entries), sum of m u (d entries), sum of m] over the owned fluid rows
+    (kind 0) of d_mom. rates_are_momentum: d_mom holds d(m u)/dt (delta-ALE-SPH), else du/dt (the variants,
+    whose rate is m du/dt)."""
+    d = vel.shape[1]
+    out[:] = 0.0
+    for i in range(d_mom.shape[0]):
+        if kind[i] != 0:
+            continue
+        m = mass[i]
+        for a in range(d):
+            out[a] += d_mom[i, a] if rates_are_momentum else m * d_mom[i, a]
+            out[d + a] += m * vel[i, a]
+        out[2 * d] += m
+
+
+@njit(cache=True)
+def add_uniform_acceleration(kind, mass, g, rates_are_momentum, d_mom):
+    """d_mom_i += m_i g (momentum rates) or g (velocity rates) on the owned fluid rows."""
+    for i in range(d_mom.shape[0]):
+        if kind[i] != 0:
+            continue
+        scale = mass[i] if rates_are_momentum else 1.0
+        for a in range(d_mom.shape[1]):
+            d_mom[i, a] += scale * g[a]

@@ -14,7 +14,13 @@ The kernels are in psph.compute.fluid.
 
 import numpy as np
 
-from psph.compute.fluid import PairCache, delta_ale_rhs, renormalised_gradient
+from psph.compute.fluid import (
+    PairCache,
+    add_uniform_acceleration,
+    delta_ale_rhs,
+    fluid_momentum_totals,
+    renormalised_gradient,
+)
 from psph.parallel.comm import allreduce_sum
 from psph.particles import FieldSpec
 from psph.profiling import phase
@@ -218,16 +224,14 @@ class DeltaALE:
         relaxes what they leave over T: the changing masses of delta_ale_const_volume and the momentum the
         IIPS field updates move between steps. Collective."""
         p = system.particles
-        fluid = p.owned("kind") == 0
-        m = p.owned("mass")[fluid]
-        rate = d_mom[fluid].sum(axis=0) if self.variant == 0 else (m[:, None] * d_mom[fluid]).sum(axis=0)
-        momentum = (m[:, None] * p.owned("velocity")[fluid]).sum(axis=0)
-        total = allreduce_sum(system.comm, np.concatenate([rate, momentum, [m.sum()]]))
-        d = len(rate)
+        kind, m, d = p.owned("kind"), p.owned("mass"), p.dim
+        local = np.empty(2 * d + 1)
+        fluid_momentum_totals(kind, m, p.owned("velocity"), d_mom, self.variant == 0, local)
+        total = allreduce_sum(system.comm, local)
         mass = total[-1]
         target, slope = self.free_stream_velocity(t)
         g = slope - total[:d] / mass + (target - total[d:2 * d] / mass) / self.free_stream_ramp
-        d_mom[fluid] += m[:, None] * g if self.variant == 0 else g
+        add_uniform_acceleration(kind, m, g, self.variant == 0, d_mom)
 
     def end_step(self, system, dt):
         self.shift.end_step(system, self, dt)
