@@ -14,7 +14,9 @@ each other.
 
 --in-progress tabulates a run still going (or stopped before t_end) from what its directory holds: the
 history so far, and the latest checkpoint's particles for the variation fields (a column gives the time
-reached). `--in-progress` never starts a run.
+reached). The runs take hours: a finished run of the study's own command is always read back, and a
+directory holding any other run (one in progress, or resumed by hand) stops the study instead of being
+run over, unless --rerun is given. `--in-progress` never starts a run.
 """
 
 import argparse
@@ -77,16 +79,26 @@ def latest_state(run):
 
 
 def in_progress(out, sets):
-    """A Run read from a directory whose run has not finished: its history so far, the scene of its
-    command, the particle count of its latest checkpoint and no wall time."""
-    scene = load_scene(CASES / "inclined_ellipse.toml", sets)
+    """A Run read from a directory whose run the study did not finish (or that was resumed by hand with
+    `psph run --restart`): its history so far, the scene of its command, the particle count of its latest
+    checkpoint, and its summary once it has one. Refuses a run of another resolution or end time."""
+    import json
+
+    scene = to_table(load_scene(CASES / "inclined_ellipse.toml", sets))
     checkpoints = sorted(out.glob("checkpoint_*.h5"))
     if not checkpoints or not (out / "history.csv").exists():
-        raise NotRun(f"{out}: no run in progress (no checkpoint and history)")
+        raise SystemExit(f"{out}: no run in progress (no checkpoint and history)")
     with h5py.File(checkpoints[-1]) as f:
         n_particles = len(f["particles/gid"])
-    return Run(out, {"scene": to_table(scene), "n_particles": n_particles, "wall_time_s": float("nan")},
-               read_history(out / "history.csv"))
+        saved = json.loads(bytes(f["state"][()]).decode())["scene"]
+    for section, key in (("domain", "dx"), ("time", "t_end")):
+        if saved[section][key] != scene[section][key]:
+            raise SystemExit(f"{out}: its run has {section}.{key} = {saved[section][key]}, the study "
+                             f"{scene[section][key]}")
+    summary = {"scene": scene, "n_particles": n_particles}
+    if (out / "summary.json").exists():  # finished (a hand restart writes no study stamp)
+        summary = json.loads((out / "summary.json").read_text())
+    return Run(out, summary, read_history(out / "history.csv"))
 
 
 def plot_variations(run, n, rho0, path):
@@ -119,18 +131,29 @@ def main():
     parser.add_argument("--resolutions", type=int, nargs="+", default=[25, 50], help="a/dx")
     parser.add_argument("--in-progress", action="store_true",
                         help="tabulate finished runs and, for the others, what they have written so far")
+    parser.add_argument("--rerun", action="store_true",
+                        help="run every resolution again, over what its directory holds")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     runs, table, partial = {}, [], []
     for n in args.resolutions:
         sets = [f"domain.dx={1.0 / n}", f"time.t_end={args.t_end}", f"output.every={args.t_end / 5}",
                 "output.history_every=20", "output.checkpoint_minutes=15"]
-        try:
-            run = run_scene(CASES / "inclined_ellipse.toml", args.out / f"a{n}", sets=sets, ranks=args.ranks,
-                            only_finished=args.in_progress)
+        out = args.out / f"a{n}"
+        try:  # a finished run of this very command is read back, never run again (unless --rerun)
+            run = run_scene(CASES / "inclined_ellipse.toml", out, sets=sets, ranks=args.ranks,
+                            only_finished=not args.rerun)
         except NotRun:
-            run = in_progress(args.out / f"a{n}", sets)
-            partial.append(n)
+            if args.in_progress:
+                run = in_progress(out, sets)
+                if run.history[-1]["time"] < args.t_end * (1.0 - 1e-12):
+                    partial.append(n)
+            elif any(out.glob("checkpoint_*.h5")) or (out / "history.csv").exists():
+                raise SystemExit(f"{out} holds a run that is not a finished run of this study's command (one "
+                                 "in progress, or resumed by hand): tabulate it with --in-progress, or replace "
+                                 "it with --rerun") from None
+            else:
+                run = run_scene(CASES / "inclined_ellipse.toml", out, sets=sets, ranks=args.ranks, reuse=False)
         runs[n] = run
         rows = run.history
         mass = np.array([r["total_mass"] for r in rows])
@@ -144,7 +167,7 @@ def main():
                       f"{cdv.min():.3g}-{cdv.max():.3g}" if cdv.size else "-", mean_after(rows, "cd_pressure", t0),
                       mean_after(rows, "cl", t0), dominant_frequency(after(rows, "time", t0), after(rows, "cl", t0)),
                       rows[-1]["volume_error"], eps_vi, eps_mi, float(np.abs(mass / mass[0] - 1).max()),
-                      run.summary["wall_time_s"], rows[-1]["time"]])
+                      rows[-1]["step_time_s"], rows[-1]["time"]])
         print(f"a/dx={n}: mean cd_viscous {table[-1][2]:.4f} over {early[0]:g} <= t <= {early[1]:g}, "
               f"{table[-1][3]:.4f} over t >= {t0:g}", flush=True)
     fig, axes = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
@@ -173,7 +196,7 @@ def main():
                       ["a/dx", "particles", f"mean cd_viscous ({early[0]:g} <= t <= {early[1]:g})",
                        f"mean cd_viscous (t >= {t0:g})", "cd_viscous range", "mean cd_pressure", "mean cl",
                        "St = f a / U (lift)", "eps_V (last)", "max |eps_Vi|", "max |eps_mi|", "max mass drift",
-                       "wall s", "t U/a reached"],
+                       "time-step loop s (all segments)", "t U/a reached"],
                       table, title=f"Inclined ellipse, Re = 500, to t U/a = {args.t_end:g}",
                       note=f"t U/a = {t_wake:g}: the box's length over U, when the wake first comes back to the "
                            "ellipse through the periodic box. "

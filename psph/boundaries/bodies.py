@@ -14,6 +14,7 @@ from psph.boundaries.geometry import ellipse_profile, inside, rectangle_profile,
 from psph.particles import Kind
 
 SPHERIC6 = (2.8209512, 0.525652151, 0.14142151)  # amplitude, centre, width of the benchmark acceleration
+MOTION_SAMPLES = 5000  # check_placement: most times at which a prescribed motion is checked
 
 
 class MotionLaw:
@@ -142,51 +143,60 @@ def check_placement(scene) -> None:
     """Refuse bodies that psph would build wrongly, with a SceneError naming the body's key: a fixed body
     given a velocity, a body thinner than 2 dx (no solid particle would fill it), a box leaving the domain
     along a bounded axis, and, at t = 0 and along its prescribed motion to t_end, an immersed body leaving
-    the domain (or straddling a periodic edge: shapes do not wrap), coming within dx of a box's walls, or
-    overlapping another immersed body."""
+    the domain or coming within one kernel support of a periodic edge (shapes and their nearest-node
+    search do not wrap), coming within dx of a box's walls, or overlapping another immersed body. The
+    motion is sampled so that no point of a body moves more than dx between samples (at most
+    MOTION_SAMPLES samples)."""
     from psph.errors import SceneError
 
     d, dx = scene.domain, scene.domain.dx
     lower, upper = np.asarray(d.lower, dtype=float), np.asarray(d.upper, dtype=float)
+    margin = np.where(d.periodic, d.support, 0.0)
     boxes = [(k, b) for k, b in enumerate(scene.bodies) if b.shape == "box"]
     immersed = []
     for k, b in enumerate(scene.bodies):
         path = f"bodies[{k}]"
-        if b.motion.law == "fixed" and (b.motion.velocity or b.motion.angular_velocity):
-            key = "velocity" if b.motion.velocity else "angular_velocity"
+        if b.motion.law == "fixed" and (any(b.motion.velocity) or b.motion.angular_velocity):
+            key = "velocity" if any(b.motion.velocity) else "angular_velocity"
             raise SceneError(f"{path}.motion.{key}", "a fixed body does not move: give motion.law (constant, "
                              "ramp, spheric6) or drop the velocity")
         extent = 2.0 * min(b.size) if b.shape == "ellipse" else min(b.size)
         if extent < 2.0 * dx:
             raise SceneError(f"{path}.size", f"{b.name!r} is {extent:g} thick, less than 2 dx = {2 * dx:g}: no "
                              "solid particle would fill it")
-        if b.shape == "box":
-            half = _half_extent(b)
-            for a in range(2):
-                if not d.periodic[a] and (b.center[a] - half[a] < lower[a] - 1e-9 * dx
-                                          or b.center[a] + half[a] > upper[a] + 1e-9 * dx):
-                    raise SceneError(f"{path}.size", f"box {b.name!r} leaves the domain along bounded axis {a}: "
-                                     "the fluid at the domain's edge would have no wall")
-        else:
+        half = _half_extent(b)
+        for a in range(2):  # before any profile is built (a mistyped huge size would take long)
+            bounded = not d.periodic[a] or b.shape != "box"
+            lo, hi = b.center[a] - half[a], b.center[a] + half[a]
+            if bounded and (lo < lower[a] - 1e-9 * dx or hi > upper[a] + 1e-9 * dx):
+                raise SceneError(f"{path}.size" if b.shape == "box" else f"{path}.center",
+                                 f"{b.name!r} leaves the domain along axis {a}"
+                                 + (": the fluid at the domain's edge would have no wall" if b.shape == "box" else ""))
+        if b.shape != "box":
             immersed.append((k, Body(b, k, 4.0 * dx, (1.0, 0.0))))  # nodes every dx are enough here
     if not immersed:
         return
-    moving = any(body.moves for _, body in immersed)
-    for t in np.linspace(0.0, scene.time.t_end, 201) if moving else (0.0,):
+    times = [0.0]
+    if any(body.moves for _, body in immersed):
+        reach = max(np.linalg.norm(body.velocity) + abs(body.omega) * np.linalg.norm(
+            body.profile.nodes - body.center0, axis=1).max() for _, body in immersed)
+        times = np.linspace(0.0, scene.time.t_end, min(MOTION_SAMPLES, int(reach * scene.time.t_end / dx) + 2))
+    for t in times:
         nodes = {k: body.nodes(t)[0] for k, body in immersed}
         for k, body in immersed:
             x = nodes[k]
             for a in range(2):
-                if x[:, a].min() < lower[a] or x[:, a].max() > upper[a]:
+                if x[:, a].min() < lower[a] + margin[a] or x[:, a].max() > upper[a] - margin[a]:
                     raise SceneError(f"bodies[{k}].center", f"{body.name!r} leaves the domain along axis {a} "
-                                     f"at t = {t:g} (a body may not straddle a periodic edge either)")
+                                     f"at t = {t:g}" + (f" (or comes within a kernel support, {margin[a]:g}, of "
+                                                        "its periodic edge)" if d.periodic[a] else ""))
             for j, box in boxes:
                 local = np.abs((x - np.asarray(box.center)) @ _rot(box.angle))
                 if np.any(local > _half_size(box) - dx):
                     raise SceneError(f"bodies[{k}].center", f"{body.name!r} comes within dx of the walls of "
                                      f"bodies[{j}] ({box.name!r}) at t = {t:g}")
             for j, other in immersed:
-                if j > k and np.any(_inside(other, t, x)):
+                if j != k and np.any(_inside(other, t, x)):
                     raise SceneError(f"bodies[{k}].center", f"{body.name!r} overlaps bodies[{j}] "
                                      f"({other.name!r}) at t = {t:g}")
 
@@ -196,8 +206,11 @@ def _half_size(spec):
 
 
 def _half_extent(spec):
-    """Half the axis-aligned extent of a (possibly rotated) rectangle."""
+    """Half the axis-aligned extent of a (possibly rotated) rectangle or ellipse (size: its semi-axes)."""
     c, s = abs(math.cos(math.radians(spec.angle))), abs(math.sin(math.radians(spec.angle)))
+    if spec.shape == "ellipse":
+        a, b = spec.size
+        return np.array([math.hypot(a * c, b * s), math.hypot(a * s, b * c)])
     w, h = _half_size(spec)
     return np.array([w * c + h * s, w * s + h * c])
 

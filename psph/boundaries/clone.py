@@ -151,7 +151,7 @@ class WallTerms:
         from the last right-hand side: drag along the flow seen from the body (against a moving body's
         velocity, along physics.free_stream or +x for a body at rest), lift 90 degrees anticlockwise from it;
         and the moment coefficient 2 T / (rho0 U^2 D^2) of the torque about the body's centre, anticlockwise
-        positive (each fluid particle's wall force applied at its closest wall point). Collective."""
+        positive (each pair's force applied at the solid particle's node on the profile). Collective."""
         force = allreduce_sum(comm, self.force.copy())
         torque = allreduce_sum(comm, self.torque.copy())
         immersed = [b for b in self.bodies if b.kind == Kind.BODY]

@@ -120,7 +120,7 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
     no_slip: per body; eos_b > 0 selects Tait (p = eos_b ((rho/rho0)^gamma - 1)), else linear.
     tensile_switch: p_j - p_i instead of p_j + p_i in the particle's pressure force where p_i < 0 (eq. 3).
     force: (n_bodies, 2, 2) pressure and viscous force of the fluid on each body; torque: (n_bodies, 2), about
-    centers, each particle's wall force applied at its closest wall point x_i + s_i n_i.
+    centers, each pair's force applied at the solid particle's wall node x_j - s_j n_j.
     """
     support = 2.0 * kp[1]
     g0, g1 = gravity[0], gravity[1]
@@ -196,8 +196,10 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
             force[b, 0, 1] += fp1
             force[b, 1, 0] += fv0
             force[b, 1, 1] += fv1
-            cx = xi0 + s_i_all[r] * ni0 - centers[b, 0]  # applied at the wall point closest to the particle
-            cy = xi1 + s_i_all[r] * ni1 - centers[b, 1]
+            # applied at the solid particle's own wall node x_j - s_j n_j (on body b, whichever body the
+            # fluid particle's closest node is on)
+            cx = pos[j, 0] - wall_dist[j] * normal[j, 0] - centers[b, 0]
+            cy = pos[j, 1] - wall_dist[j] * normal[j, 1] - centers[b, 1]
             torque[b, 0] += cx * fp1 - cy * fp0
             torque[b, 1] += cx * fv1 - cy * fv0
         _add_rates(i, rho_i, v_i, mu, variant, cont, gp0, gp1, vs0, vs1, sh0, sh1, d_rho, d_mom)

@@ -137,7 +137,9 @@ class FluidDriver:
             with phase("iips"):
                 self.update.before(system, self.scheme)
                 report = self.iips.correct(system, step=step, time=t)
-                if report.iterations and not report.rejected:  # a rejected call left the particles in place
+                # no update where the particles stayed in place: a rejected call, or a stalled one whose
+                # best iterate was its start (on_stall = "best")
+                if report.iterations and not report.rejected and self.iips.max_shift(system) > 0.0:
                     self.update.after(system, self.scheme)
             totals["iips_time_s"] += time.perf_counter() - t0
             totals["iips_newton"] += report.iterations

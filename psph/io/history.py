@@ -15,7 +15,9 @@ SUMMARY_NAME = "summary.json"
 class History:
     """Diagnostics rows with a `time` column; the file is rewritten whole (temporary file + rename).
 
-    Columns are fixed by the first row; later rows may not add columns (a programming error). By default
+    Columns are fixed by the first row; later rows may not add columns (a programming error), except after
+    a restart: a checkpoint written by an older psph may lack columns that this one writes, and its rows
+    get empty cells there. By default
     the file is rewritten at most every `interval` seconds of wall time (and on `flush()`), so a run of
     many short iterations does not spend its time rewriting the file.
     """
@@ -27,6 +29,7 @@ class History:
         self.rows = []
         self.interval = interval
         self._last_flush = -math.inf
+        self._restored = False
 
     def append(self, row: dict, flush=None) -> None:
         """Add a row; flush=True writes now, False never, None when `interval` has passed."""
@@ -35,7 +38,9 @@ class History:
         if self.columns is None:
             self.columns = ["time"] + [k for k in row if k != "time"]
         elif set(row) - set(self.columns):
-            raise KeyError(f"history columns {sorted(set(row) - set(self.columns))} not in the first row")
+            if not self._restored:
+                raise KeyError(f"history columns {sorted(set(row) - set(self.columns))} not in the first row")
+            self.columns += [k for k in row if k not in self.columns]
         self.rows.append(dict(row))
         if flush or (flush is None and time.monotonic() - self._last_flush >= self.interval):
             self.flush()
@@ -44,8 +49,10 @@ class History:
         """Continue from the rows of a checkpoint (restart)."""
         self.columns = None
         self.rows = []
+        self._restored = False
         for row in rows:
             self.append(row, flush=False)
+        self._restored = True
 
     def flush(self) -> None:
         """Rewrite history.csv with every row so far (rank 0; others return)."""

@@ -341,10 +341,15 @@ class Scene:
             if value and len(value) != self.domain.dimension:
                 raise SceneError(f"initial.{key}", f"expected {self.domain.dimension} entries (domain.dimension)")
         method = self.shifting.method
-        if fluid and method != "none" and self.free_surface_axis() is not None:
-            raise SceneError("shifting.method", f"{method} would shift the free surface's particles outward: the "
-                             f"fluid fills only part of the domain (initial.fill_lower/fill_upper, axis "
-                             f"{self.free_surface_axis()}) and psph has no free-surface detection yet; use none")
+        if fluid and self.free_surface_axis() is not None:
+            why = (f"the fluid fills only part of the domain (initial.fill_lower/fill_upper, axis "
+                   f"{self.free_surface_axis()}) and psph has no free-surface detection yet")
+            if method != "none":
+                raise SceneError("shifting.method", f"{method} would shift the free surface's particles outward: "
+                                 f"{why}; use none")
+            if self.iips.pre_newton > 0:
+                raise SceneError("iips.pre_newton", f"the IIPS pre-procedure would shift the free surface's "
+                                 f"particles outward: {why}; use 0")
         if fluid and method == "explicit_iterative":
             raise SceneError("shifting.method", "explicit_iterative is for static and kinematic runs; fluid "
                              "schemes take iips or an explicit law (lind, skillen, oger, delta_plus, neuhauser)")

@@ -185,7 +185,8 @@ def test_a_lid_on_a_periodic_y_axis_is_refused(model):
     (["bodies.1.center=[1.5, 0.55]"], "bodies[1].center", "within dx of the walls of bodies[0]"),
     (["time.t_end=9.0"], "bodies[1].center", "within dx of the walls of bodies[0] ('tank') at t = 8."),
     (["bodies.1.motion.velocity=[0.0, 1.0]"], "bodies[1].center", "within dx of the walls"),
-    (["bodies.0.size=[10.5, 5.0]"], "bodies[0].size", "leaves the domain along bounded axis 0"),
+    (["bodies.0.size=[10.5, 5.0]"], "bodies[0].size", "leaves the domain along axis 0: the fluid"),
+    (["bodies.1.size=[1e12, 1.0]"], "bodies[1].center", "leaves the domain along axis 0"),
 ])
 def test_misplaced_bodies_are_refused_by_key(sets, key, words):
     """The moving square (dx = 0.1) with one change each: a body that would be built wrongly or driven into
@@ -196,17 +197,38 @@ def test_misplaced_bodies_are_refused_by_key(sets, key, words):
     assert info.value.key == key and words in str(info.value)
 
 
-def test_overlapping_and_wrapping_bodies_are_refused():
-    sets = ["domain.dx=0.1", "bodies.0.center=[5.0, 5.0]", "bodies.0.shape=ellipse", "bodies.0.size=[0.5, 0.5]"]
-    for extra, key, words in ((["bodies.0.center=[13.9, 5.0]"], "bodies[0].center", "straddle a periodic edge"),
-                              ([], "bodies[0].center", "overlaps bodies[1]")):
-        table = apply_overrides(read_table(CASES / "inclined_ellipse.toml"), sets + extra)
-        table["bodies"].append(dict(table["bodies"][0], name="second", center=[5.2, 5.1]))
-        if extra:
-            table["bodies"].pop()
-        with pytest.raises(SceneError) as info:
-            scene_from_table(table)
-        assert info.value.key == key and words in str(info.value)
+def ellipse_with(*sets, second=None):
+    """The inclined ellipse's table (dx = 0.1) with overrides, and optionally a second body (a dict of keys
+    replacing the first body's)."""
+    table = apply_overrides(read_table(CASES / "inclined_ellipse.toml"), ["domain.dx=0.1", *sets])
+    if second is not None:
+        table["bodies"].append(dict(table["bodies"][0], name="second", **second))
+    return table
+
+
+@pytest.mark.parametrize("sets,second,key,words", [
+    (["bodies.0.center=[13.9, 5.0]"], None, "bodies[0].center", "leaves the domain along axis 0"),
+    (["bodies.0.center=[13.3, 5.0]"], None, "bodies[0].center", "within a kernel support, 0.4, of its periodic"),
+    (["bodies.0.center=[5.0, 5.0]"], {"center": [5.2, 5.1]}, "bodies[0].center", "overlaps bodies[1]"),
+    # a small body inside a larger one, in either order
+    (["bodies.0.center=[5.0, 5.0]", "bodies.0.size=[1.0, 0.8]", "bodies.0.angle=0"],
+     {"center": [5.0, 5.0], "size": [0.3, 0.2]}, "bodies[1].center", "overlaps bodies[0]"),
+    (["bodies.0.center=[5.0, 5.0]", "bodies.0.size=[0.3, 0.2]", "bodies.0.angle=0"],
+     {"center": [5.0, 5.0], "size": [1.0, 0.8]}, "bodies[0].center", "overlaps bodies[1]"),
+])
+def test_overlapping_and_wrapping_bodies_are_refused(sets, second, key, words):
+    with pytest.raises(SceneError) as info:
+        scene_from_table(ellipse_with(*sets, second=second))
+    assert info.value.key == key and words in str(info.value)
+
+
+def test_well_placed_bodies_are_accepted():
+    """Two bodies apart, a fixed body with an explicit zero velocity, a turning body far from the walls."""
+    scene_from_table(ellipse_with("bodies.0.center=[5.0, 5.0]", second={"center": [8.0, 5.0]}))
+    scene_from_table(ellipse_with("bodies.0.motion.velocity=[0.0, 0.0]"))
+    load_scene(CASES / "moving_square.toml", ["domain.dx=0.1", "bodies.1.center=[5.0, 2.5]",
+                                              "bodies.1.motion.law=ramp", "bodies.1.motion.velocity=[]",
+                                              "bodies.1.motion.angular_velocity=1.0", "time.t_end=1000"])
 
 
 def test_set_indexes_arrays_of_tables():
@@ -226,3 +248,9 @@ def test_shifting_is_refused_with_a_free_surface():
         with pytest.raises(SceneError) as info:
             load_scene(CASES / "hydrostatic_tank.toml", [f"shifting.method={method}"])
         assert info.value.key == "shifting.method" and "free surface" in str(info.value)
+
+
+def test_pre_procedure_is_refused_with_a_free_surface():
+    with pytest.raises(SceneError) as info:
+        load_scene(CASES / "hydrostatic_tank.toml", ["iips.pre_newton=10"])
+    assert info.value.key == "iips.pre_newton" and "free surface" in str(info.value)
