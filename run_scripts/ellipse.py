@@ -20,6 +20,7 @@ run over, unless --rerun is given. `--in-progress` never starts a run.
 """
 
 import argparse
+import json
 from pathlib import Path
 
 import h5py
@@ -82,8 +83,6 @@ def in_progress(out, sets):
     """A Run read from a directory whose run the study did not finish (or that was resumed by hand with
     `psph run --restart`): its history so far, the scene of its command, the particle count of its latest
     checkpoint, and its summary once it has one. Refuses a run of another resolution or end time."""
-    import json
-
     scene = to_table(load_scene(CASES / "inclined_ellipse.toml", sets))
     checkpoints = sorted(out.glob("checkpoint_*.h5"))
     if not checkpoints or not (out / "history.csv").exists():

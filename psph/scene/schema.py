@@ -341,9 +341,10 @@ class Scene:
             if value and len(value) != self.domain.dimension:
                 raise SceneError(f"initial.{key}", f"expected {self.domain.dimension} entries (domain.dimension)")
         method = self.shifting.method
-        if fluid and self.free_surface_axis() is not None:
-            why = (f"the fluid fills only part of the domain (initial.fill_lower/fill_upper, axis "
-                   f"{self.free_surface_axis()}) and psph has no free-surface detection yet")
+        surface_axis = self.free_surface_axis()
+        if fluid and surface_axis is not None:
+            why = (f"the fluid fills only part of the domain (initial.fill_lower/fill_upper, axis {surface_axis}) "
+                   "and psph has no free-surface detection yet")
             if method != "none":
                 raise SceneError("shifting.method", f"{method} would shift the free surface's particles outward: "
                                  f"{why}; use none")
