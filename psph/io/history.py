@@ -17,7 +17,7 @@ class History:
 
     Columns are fixed by the first row; later rows may not add columns (a programming error), except after
     a restart: a checkpoint written by an older psph may lack columns that this one writes, and its rows
-    get empty cells there. By default
+    get empty cells there (also when that checkpoint was itself written after such a restart). By default
     the file is rewritten at most every `interval` seconds of wall time (and on `flush()`), so a run of
     many short iterations does not spend its time rewriting the file.
     """
@@ -46,13 +46,13 @@ class History:
             self.flush()
 
     def restore(self, rows) -> None:
-        """Continue from the rows of a checkpoint (restart)."""
+        """Continue from the rows of a checkpoint (restart); its own rows may already widen (a checkpoint
+        written after an earlier restart from an older psph)."""
         self.columns = None
         self.rows = []
-        self._restored = False
+        self._restored = True
         for row in rows:
             self.append(row, flush=False)
-        self._restored = True
 
     def flush(self) -> None:
         """Rewrite history.csv with every row so far (rank 0; others return)."""
