@@ -33,7 +33,7 @@ def _parser() -> argparse.ArgumentParser:
     scene_args(run, optional=True)
     run.add_argument("--restart", metavar="CHECKPOINT",
                      help="continue the run saved in CHECKPOINT (OUT/checkpoint_NNNNNN.h5) instead of a scene; "
-                          "--set may change time.* and output.* keys only")
+                          "--set may change time.*, output.* and neighbours.* keys only")
     run.add_argument("--checkpoint-every", type=int, metavar="STEPS",
                      help="same as --set output.checkpoint_every=STEPS")
     run.add_argument("--checkpoint-minutes", type=float, metavar="T",
@@ -141,7 +141,7 @@ def _toml_value(v):
     return repr(v)
 
 
-RESTART_KEYS = ("time.", "output.")
+RESTART_KEYS = ("time.", "output.", "neighbours.")  # the neighbour lists' skin and balance: round-off only
 
 
 def _scene_and_restart(args, comm):
@@ -162,7 +162,7 @@ def _scene_and_restart(args, comm):
             raise UsageError("give a scene or --restart CHECKPOINT, not both (the checkpoint holds its scene)")
         for item in sets:
             if not item.startswith(RESTART_KEYS):
-                raise UsageError(f"--set {item!r}: a restart may change only time.* and output.* keys")
+                raise UsageError(f"--set {item!r}: a restart may change only time.*, output.* and neighbours.* keys")
         restart = read_checkpoint(comm, args.restart)
         scene = scene_from_table(apply_overrides(restart[0]["scene"], sets))
     elif args.scene:

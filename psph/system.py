@@ -19,6 +19,15 @@ from psph.profiling import phase
 BASE_HALO_FIELDS = ("position", "gid", "kind", "volume")
 
 
+class ListsExpired(Exception):
+    """Some owned particle moved more than half the skin since the last rebuild while the particle order had
+    to stay fixed (inside a time step): the lists may miss pairs. Carries the largest displacement."""
+
+    def __init__(self, moved, gid, position):
+        self.moved, self.gid, self.position = moved, gid, position
+        super().__init__(f"a particle moved {moved:.3g} since the neighbour lists were built")
+
+
 class ParticleSystem:
     """Owned + halo particles of one rank with the data every SPH sum needs.
 
@@ -109,6 +118,20 @@ class ParticleSystem:
         with phase("halo_exchange"):
             halo_exchange(self.comm, p, self.pattern, ["position"])
         return False
+
+    def check_lists(self) -> None:
+        """Raise ListsExpired on every rank if some owned particle moved more than half the skin since the
+        last rebuild (the lists may then miss pairs); for moves that cannot rebuild, such as the stages of a
+        time step. Collective."""
+        p = self.particles
+        moved = max_displacement(p["position"], self._reference, p.n_owned)
+        worst = allreduce_max(self.comm, moved)
+        if 2.0 * worst > self.skin:
+            gid, position = None, None
+            if moved == worst and p.n_owned:
+                k = int(np.argmax(((p.owned("position") - self._reference) ** 2).sum(axis=1)))
+                gid, position = int(p.owned("gid")[k]), p.owned("position")[k].copy()
+            raise ListsExpired(worst, gid, position)
 
     def prepare_step(self, reach: float) -> bool:
         """Rebuild now if a step moving particles by up to `reach` could take one past half the skin, so

@@ -28,6 +28,7 @@ from psph.schemes.integrators import INTEGRATORS, STAGE_REACH
 from psph.shifting.field_update import make_field_update
 from psph.shifting.iips import pre_procedure
 from psph.simulation import Simulation
+from psph.system import ListsExpired
 
 DT_COLLAPSE = 1e-6  # a time step below this fraction of the first one is a breakdown
 
@@ -123,12 +124,14 @@ class FluidDriver:
         t = state["time"]
         with phase("fluid_step"):
             system.prepare_step(self.reach * dt * vmax)
-            self.integrate(self.scheme, system, t, dt)
+            totals["steps_redone"] += self._integrate(t, dt, state["step"] + 1)
             self.scheme.end_step(system, dt)
             if self.scheme.walls is not None:  # solids exactly where their bodies are at t + dt
                 self.scheme.walls.place(system, t + dt)
-            # V = m / rho changed: IIPS and diagnostics read halo volumes (and positions)
-            system.refresh(["position", "volume"])
+            # V = m / rho changed: IIPS and diagnostics read halo volumes and positions (an end of step
+            # past half the skin rebuilds the lists, which carries every halo field)
+            if not system.update():
+                system.refresh(["volume"])
         state["step"] += 1
         state["time"] = t = t + dt
         step = state["step"]
@@ -150,6 +153,29 @@ class FluidDriver:
                 sim.log(f"step {step}, t = {t:.4g}: {report.message}")
         system.check_escaped()
         self.check(step, t, dt)
+
+    def _integrate(self, t, dt, step) -> int:
+        """Integrate one step from t; if a stage went further than the neighbour lists hold, rebuild them at
+        the step's start and take the step again. Returns the number of steps taken again (0 or 1).
+        Collective."""
+        system, scheme = self.system, self.scheme
+        y0 = scheme.state(system)
+        try:
+            self.integrate(scheme, system, t, dt, y0)
+            return 0
+        except ListsExpired:
+            scheme.set_state(system, y0)
+        system.rebuild()
+        try:
+            self.integrate(scheme, system, t, dt)
+        except ListsExpired as err:
+            error = None
+            if err.gid is not None:
+                error = NumericalError(f"a particle moved {err.moved:.3g} within one time step, more than half "
+                                       f"the neighbour-list skin ({0.5 * system.skin:.3g}; neighbours.skin)",
+                                       step=step, time=t, gid=err.gid, position=err.position)
+            raise_if_any(self.sim.comm, error)
+        return 1
 
     def restore(self, arrays, t) -> None:
         """Put back the owned particles saved before a failed step (time.retries); fields the step
@@ -243,7 +269,7 @@ class FluidDriver:
         every = scene.output.every
         next_output = every if every > 0 else math.inf
         totals = {"iips_time_s": 0.0, "iips_newton": 0, "iips_linear": 0, "iips_calls": 0, "iips_failures": 0,
-                  "retries": 0, "step_time_s": 0.0}
+                  "retries": 0, "steps_redone": 0, "step_time_s": 0.0}
         state = {"step": 0, "time": 0.0}
         if self.resumed:
             state = {"step": self.resumed["step"], "time": self.resumed["time"]}

@@ -193,7 +193,7 @@ def test_free_slip_walls_exert_no_shear(tmp_path):
 def test_shifting_towards_a_wall_compresses_and_along_it_does_not(tmp_path):
     """The walls' du terms of the continuity equation: a particle shifted towards the bottom wall is
     compressed, one shifted along it is not. (With rho_j = rho_i these terms reduce to the particle's own
-    du, so this does not tell the clones' mirrored du from an unmirrored one.)"""
+    du, so this does not tell the clones' mirrored du from an unmirrored one; the next test does.)"""
     driver, system, p = cavity(tmp_path, **{"physics.reynolds": 1e12, "shifting.method": "delta_plus"})
     assert driver.scheme.shift.active
     i = particle_at(p, 0.5 + DX / 2, DX / 2)
@@ -203,6 +203,24 @@ def test_shifting_towards_a_wall_compresses_and_along_it_does_not(tmp_path):
         p["shift_velocity"][i] = du
         d_rho[name], _ = wall_rates(driver, system, i)
     assert abs(d_rho["towards"]) > 0.0 and abs(d_rho["along"]) < 1e-12 * abs(d_rho["towards"])
+
+
+def test_the_clones_shifting_velocity_is_mirrored(tmp_path):
+    """The momentum's du term sees the clones' own du_j, mirrored (du . n reversed): a particle sliding along
+    a free-slip wall (u tangential; the clones' divergence velocity is then u_i) and shifted into it gets
+    u_i rho (du_j + du_i) . grad W V_j = 0 from every clone, where an unmirrored du_j = du_i would give
+    2 u_i rho du_i . grad W V_j. With no pressure and no shear (free slip), the walls' whole x-momentum
+    rate is that term; the y-rate the same particle gets without the tangential velocity shows its size."""
+    driver, system, p = cavity(tmp_path, **{"physics.reynolds": 1e12, "shifting.method": "delta_plus",
+                                            "bodies.0.wall": "free_slip"})
+    assert driver.scheme.variant == 0
+    i = particle_at(p, 0.5 + DX / 2, DX / 2)
+    p["shift_velocity"][:] = 0.0
+    p["shift_velocity"][i] = (0.0, -1.0)
+    d_rho, sliding = wall_rates(driver, system, i, velocity=(1.0, 0.0))
+    size = abs(d_rho) * DX  # rho du . sum grad W V_j times a length: a momentum rate of the term's size
+    assert size > 0.0
+    assert abs(sliding[0]) < 1e-12 * size
 
 
 def test_several_bodies_get_suffixed_columns_and_their_own_forces(tmp_path):

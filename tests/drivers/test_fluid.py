@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from psph.io.history import read_history
+from psph.schemes.integrators import STAGE_REACH
 from tests.helpers import CASES, run_psph
 
 TGV = CASES / "taylor_green.toml"
@@ -202,3 +203,51 @@ def test_a_rejected_iips_call_leaves_particles_and_fields_as_without_iips(tmp_pa
     assert runs["rejected"]["rejected calls"] > 0 and runs["none"]["rejected calls"] == 0
     for key in ("position", "velocity", "density"):
         assert np.allclose(runs["rejected"][key], runs["none"][key], rtol=0, atol=1e-12), key
+
+
+def _taylor_green_driver(tmp_path, name, skin, reach):
+    """A delta-plus Taylor-Green run to t = 0.05 whose driver expects stages to reach `reach` dt max|u|."""
+    from mpi4py import MPI
+
+    from psph.drivers.fluid import FluidDriver
+    from tests.conftest import periodic_scene
+
+    scene = periodic_scene(n=16, initial={"velocity": "taylor_green"}, physics={"scheme": "delta_ale"},
+                           time={"t_end": 0.05}, shifting={"method": "delta_plus"}, neighbours={"skin": skin})
+    driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path / name, log=lambda message: None)
+    driver.reach = reach
+    return driver
+
+
+def _final_fields(driver):
+    p = driver.system.particles
+    order = np.argsort(p.owned("gid"))
+    return {name: p.owned(name)[order] for name in ("position", "velocity", "density", "mass")}
+
+
+def test_a_stage_past_the_neighbour_lists_is_taken_again_after_a_rebuild(tmp_path):
+    """With no reach expected (no rebuild ahead of a step), stages leave the lists' skin: each such step is
+    taken again from its start after a rebuild, and the run ends as one that rebuilt before every step (to
+    round-off: the rebuilt lists sum in another order). Without the check, the stages would run on lists
+    that miss pairs."""
+    guarded = _taylor_green_driver(tmp_path, "guarded", skin=0.02, reach=0.0)
+    summary = guarded.run()
+    assert summary["steps_redone"] > 0
+    eager = _taylor_green_driver(tmp_path, "eager", skin=0.02, reach=1e6)
+    assert eager.run()["steps_redone"] == 0
+    a, b = _final_fields(guarded), _final_fields(eager)
+    for name in a:
+        assert np.abs(a[name] - b[name]).max() < 1e-12 * max(1.0, np.abs(b[name]).max()), name
+    default = _taylor_green_driver(tmp_path, "default", skin=0.1, reach=STAGE_REACH["rk3"])
+    assert default.run()["steps_redone"] == 0 and default.system.rebuilds < summary["steps"] / 2
+
+
+def test_a_step_longer_than_the_skin_stops_the_run_naming_the_key(tmp_path):
+    """A skin thinner than one stage's travel: the step taken again after a rebuild still leaves it, and the
+    run stops with the step, the particle and neighbours.skin named."""
+    from psph.errors import NumericalError
+
+    driver = _taylor_green_driver(tmp_path, "thin", skin=1e-5, reach=STAGE_REACH["rk3"])
+    with pytest.raises(NumericalError, match=r"within one time step, more than half the neighbour-list skin "
+                                             r"\(.*neighbours\.skin\) \[step 1, t = 0, particle gid \d+"):
+        driver.run()

@@ -143,7 +143,7 @@ def test_restart_errors_are_one_line(tmp_path):
     assert done.returncode == 2 and done.stderr.startswith("psph: error: cannot restart from") \
         and "Traceback" not in done.stderr
     done = run_psph("run", "--restart", bad, "--set", "domain.dx=0.1")
-    assert done.returncode == 2 and "may change only time.* and output.*" in done.stderr
+    assert done.returncode == 2 and "may change only time.*, output.* and neighbours.*" in done.stderr
     done = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "s", "--checkpoint-every", "5")
     assert done.returncode == 2 and "checkpoint_every: checkpoints are written by time-dependent runs" in done.stderr
     assert not (tmp_path / "s").exists()
