@@ -171,9 +171,12 @@ class FluidDriver:
         except ListsExpired as err:
             error = None
             if err.gid is not None:
+                # the first stage that can catch it is half a step in (RK3 and RK4): a step goes twice as far
+                needed = 4.0 * err.moved / system.kernel.support
                 error = NumericalError(f"a particle moved {err.moved:.3g} within one time step, more than half "
-                                       f"the neighbour-list skin ({0.5 * system.skin:.3g}; neighbours.skin)",
-                                       step=step, time=t, gid=err.gid, position=err.position)
+                                       f"the neighbour-list skin ({0.5 * system.skin:.3g}); a neighbours.skin "
+                                       f"of {needed:.2g} would hold the step", step=step, time=t, gid=err.gid,
+                                       position=err.position)
             raise_if_any(self.sim.comm, error)
         return 1
 

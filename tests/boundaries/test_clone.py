@@ -210,7 +210,8 @@ def test_the_clones_shifting_velocity_is_mirrored(tmp_path):
     a free-slip wall (u tangential; the clones' divergence velocity is then u_i) and shifted into it gets
     u_i rho (du_j + du_i) . grad W V_j = 0 from every clone, where an unmirrored du_j = du_i would give
     2 u_i rho du_i . grad W V_j. With no pressure and no shear (free slip), the walls' whole x-momentum
-    rate is that term; the y-rate the same particle gets without the tangential velocity shows its size."""
+    rate is that term; the walls' density rate of the same particle, 2 rho du_i . sum_j grad W V_j, times
+    dx gives its size (unmirrored, the x-rate is 5% of that)."""
     driver, system, p = cavity(tmp_path, **{"physics.reynolds": 1e12, "shifting.method": "delta_plus",
                                             "bodies.0.wall": "free_slip"})
     assert driver.scheme.variant == 0

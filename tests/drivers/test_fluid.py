@@ -2,6 +2,7 @@
 converge with resolution, and the extremes either run stably or stop with a diagnosis."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -244,10 +245,15 @@ def test_a_stage_past_the_neighbour_lists_is_taken_again_after_a_rebuild(tmp_pat
 
 def test_a_step_longer_than_the_skin_stops_the_run_naming_the_key(tmp_path):
     """A skin thinner than one stage's travel: the step taken again after a rebuild still leaves it, and the
-    run stops with the step, the particle and neighbours.skin named."""
+    run stops with the step, the particle and the neighbours.skin that would hold the step named."""
     from psph.errors import NumericalError
 
     driver = _taylor_green_driver(tmp_path, "thin", skin=1e-5, reach=STAGE_REACH["rk3"])
     with pytest.raises(NumericalError, match=r"within one time step, more than half the neighbour-list skin "
-                                             r"\(.*neighbours\.skin\) \[step 1, t = 0, particle gid \d+"):
+                                             r"\(.*\); a neighbours.skin of (\S+) would hold the step \[step 1, t = 0, "
+                                             r"particle gid \d+") as err:
         driver.run()
+    needed = float(re.search(r"neighbours.skin of (\S+) would", str(err.value)).group(1))
+    assert 1e-5 < needed < 0.1
+    driver = _taylor_green_driver(tmp_path, "enough", skin=needed, reach=STAGE_REACH["rk3"])
+    assert driver.run()["final"]["time"] == pytest.approx(0.05)
