@@ -141,7 +141,7 @@ def _toml_value(v):
     return repr(v)
 
 
-RESTART_KEYS = ("time.", "output.", "neighbours.")  # the neighbour lists' skin and balance: round-off only
+RESTART_KEYS = ("time.", "output.", "neighbours.")  # skin and balance: results change as with the rank count
 
 
 def _scene_and_restart(args, comm):
