@@ -27,7 +27,8 @@ those pairs only, without a distance test or a kernel evaluation (2.5x faster th
 import numpy as np
 from numba import njit
 
-from psph.compute.smoothing import kernel_f
+from psph.compute.shift_velocity import fast_power
+from psph.compute.smoothing import kernel_f, kernel_w
 from psph.compute.sums import dot, load, pair2, store
 
 
@@ -96,6 +97,58 @@ def _compile(d):
             cptr[i + 1] = c
             r0, r1, r2 = _solve_sym(m00, m01, m02, m11, m12, m22, g0, g1, g2, d, 1e-6)
             store(out, i, d, r0, r1, r2)
+
+    @njit(cache=True)
+    def renormalised_gradient_and_grad_c(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, cptr, cidx, cf,
+                                         coeff, power, w_ref, grad_c):
+        """renormalised_gradient and, in the same pass over the lists, compute.shift_velocity's corrected
+        grad C of every row over every neighbour (solids included): the same sums in the same order as the
+        two kernels apart, so the same values to the last bit."""
+        s2 = 4.0 * kp[1] * kp[1]
+        c = 0
+        for i in range(ptr.size - 1):
+            m00 = m01 = m02 = m11 = m12 = m22 = 0.0
+            g0 = g1 = g2 = 0.0
+            c0_ = c1_ = c2_ = 0.0
+            row = not (fluid_only and kind[i] != 0)
+            for k in range(ptr[i], ptr[i + 1]):
+                j = idx[k]
+                x0, x1, x2, rr = pair2(pos, i, j, d)
+                if rr >= s2:  # beyond the support: nothing in either sum (f = 0 there)
+                    continue
+                r = np.sqrt(rr)
+                f = kernel_f(r, kp)
+                sc = f * vol[j]
+                if coeff != 0.0:
+                    sc *= 1.0 + coeff * fast_power(kernel_w(r, kp) / w_ref, power)
+                c0_ += sc * x0
+                if d > 1:
+                    c1_ += sc * x1
+                if d > 2:
+                    c2_ += sc * x2
+                if not row or (fluid_only and kind[j] != 0):
+                    continue
+                s = f * vol[j]
+                cidx[c] = j
+                cf[c] = f
+                c += rr > 0.0
+                m00 -= s * x0 * x0
+                dphi = s * (phi[j] - phi[i])
+                g0 += dphi * x0
+                if d > 1:
+                    m01 -= s * x0 * x1
+                    m11 -= s * x1 * x1
+                    g1 += dphi * x1
+                if d > 2:
+                    m02 -= s * x0 * x2
+                    m12 -= s * x1 * x2
+                    m22 -= s * x2 * x2
+                    g2 += dphi * x2
+            cptr[i + 1] = c
+            store(grad_c, i, d, c0_, c1_, c2_)
+            if row:
+                r0, r1, r2 = _solve_sym(m00, m01, m02, m11, m12, m22, g0, g1, g2, d, 1e-6)
+                store(out, i, d, r0, r1, r2)
 
     @njit(cache=True)
     def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, ptr, idx, cf, h, c0, delta, delta_m, mu,
@@ -195,7 +248,7 @@ def _compile(d):
                       (-gp1 + mu * vs1) / rho_i + g1_ + sh1 - ui1 * div_du,
                       (-gp2 + mu * vs2) / rho_i + g2_ + sh2 - ui2 * div_du)
 
-    return renormalised_gradient, delta_ale_rhs
+    return renormalised_gradient, delta_ale_rhs, renormalised_gradient_and_grad_c
 
 
 _KERNELS = {d: _compile(d) for d in (1, 2, 3)}
@@ -221,12 +274,20 @@ class PairCache:
         return self
 
 
-def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pairs=None):
+def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pairs=None, grad_c=None):
     """<grad phi>^L_i = L_i sum_j (phi_j - phi_i) grad_i W_ij V_j (seed 001 eq. 15), fused in one pass, for
     the rows of ptr. fluid_only: sum over fluid particles (kind 0) only, and only for fluid rows (walls carry
-    no field). pairs: a PairCache to fill with the summed pairs inside the support (for delta_ale_rhs)."""
+    no field). pairs: a PairCache to fill with the summed pairs inside the support (for delta_ale_rhs).
+    grad_c = (coeff, power, w_ref, g): also fill g (rows of ptr) with the corrected grad C of
+    compute.shift_velocity.corrected_grad_c in the same pass (the same values, one walk of the lists)."""
     pairs = (pairs or PairCache()).fit(ptr, idx)
-    _KERNELS[pos.shape[1]][0](pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pairs.ptr, pairs.idx, pairs.f)
+    kernels = _KERNELS[pos.shape[1]]
+    if grad_c is None:
+        kernels[0](pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pairs.ptr, pairs.idx, pairs.f)
+    else:
+        coeff, power, w_ref, g = grad_c
+        kernels[2](pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pairs.ptr, pairs.idx, pairs.f,
+                   float(coeff), float(power), float(w_ref), g)
 
 
 def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, pairs, kp, c0, delta, delta_m, mu,

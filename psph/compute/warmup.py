@@ -49,5 +49,7 @@ def warm_up(dim: int, kernel_name: str) -> None:
     kind = np.zeros(n, dtype=np.int8)
     pairs = fluid.PairCache()
     fluid.renormalised_gradient(pos, vol, field, ptr, idx, kp, kind, False, vector, pairs)
+    fluid.renormalised_gradient(pos, vol, field, ptr, idx, kp, kind, False, vector, pairs,
+                                grad_c=(0.2, 4.0, 1.0, vector.copy()))
     fluid.delta_ale_rhs(pos, vol, field, field, vector, vector, field, vector, pairs, kp, 1.0, 0.1, 0.1, 0.01,
                         np.zeros(dim), 0, True, True, kind, False, scalar, scalar.copy(), vector.copy())

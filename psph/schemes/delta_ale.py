@@ -31,6 +31,10 @@ VARIANTS = {"delta_ale": 0, "delta_ale_const_mass": 1, "delta_ale_const_volume":
 
 
 class DeltaALE:
+    # a shifting law's corrected grad C from the renormalised gradient's pass (False: the law's own pass,
+    # for the tests that compare the two)
+    fuse_grad_c = True
+
     def __init__(self, scene):
         phys = scene.physics
         self.name = phys.scheme
@@ -176,16 +180,10 @@ class DeltaALE:
                 self.walls.place(system, t, positions=False)
                 system.refresh(["normal", "wall_accel", "wall_velocity"])
         system.refresh(["density", "mass", "velocity", "volume", "pressure"])
-        if self.shift.active:
-            self.shift.velocity(system, self, dt)
-            system.refresh(["shift_velocity"])
-            du = p["shift_velocity"]
-        else:
-            du = p["velocity"]  # not read
-        kp = system.kernel.params
-        renormalised_gradient(p["position"], p["volume"], p["density"], system.nbr_ptr, system.nbr_idx, kp,
-                              p["kind"], walls, p["grad_rho"], self.pairs)
+        self.shift_and_density_gradient(system, dt, fluid_only=walls)
+        du = p["shift_velocity"] if self.shift.active else p["velocity"]  # (not read without a shift)
         system.refresh(["grad_rho"])
+        kp = system.kernel.params
         n, d = p.n_owned, p.dim
         d_rho = np.zeros(n)
         d_mass = np.zeros(n)
@@ -207,6 +205,21 @@ class DeltaALE:
         else:
             out["velocity"] = d_mom
         return out
+
+    def shift_and_density_gradient(self, system, dt, fluid_only) -> None:
+        """The shifting velocity (owned rows, then their halo copies) and the renormalised density gradient
+        with the pair cache (owned rows; the caller refreshes the halo). A law built on the corrected grad C
+        gets it from the gradient's own pass over the lists (compute.fluid.renormalised_gradient), which
+        spares a second pass. Collective."""
+        p, law = system.particles, self.shift
+        grad_c = None
+        if law.active and law.grad_c_weights is not None and self.fuse_grad_c:
+            grad_c = (*law.grad_c_weights, law.reference_w(system), np.zeros((p.n_owned, p.dim)))
+        renormalised_gradient(p["position"], p["volume"], p["density"], system.nbr_ptr, system.nbr_idx,
+                              system.kernel.params, p["kind"], fluid_only, p["grad_rho"], self.pairs, grad_c=grad_c)
+        if law.active:
+            law.velocity(system, self, dt, grad=None if grad_c is None else grad_c[3])
+            system.refresh(["shift_velocity"])
 
     def free_stream_velocity(self, t):
         """The mean velocity U(t) = U (t/T - sin(2 pi t/T) / (2 pi)) up to T, then U, and its derivative."""

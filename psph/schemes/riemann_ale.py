@@ -11,7 +11,6 @@ condition of eq. 5.52 and the viscous limit).
 
 import numpy as np
 
-from psph.compute.fluid import renormalised_gradient
 from psph.compute.riemann import riemann_ale_rhs, velocity_gradient
 from psph.particles import FieldSpec
 from psph.schemes.delta_ale import DeltaALE
@@ -64,13 +63,8 @@ class RiemannALE(DeltaALE):
         """d(state)/dt of the owned particles. Collective (halo exchanges)."""
         p = system.particles
         system.refresh(["density", "mass", "velocity", "volume", "pressure"])
-        v0 = p["velocity"]
-        if self.shift.active:
-            self.shift.velocity(system, self, dt)
-            system.refresh(["shift_velocity"])
-            v0 = v0 + p["shift_velocity"]
-        renormalised_gradient(p["position"], p["volume"], p["density"], system.nbr_ptr, system.nbr_idx,
-                              system.kernel.params, p["kind"], False, p["grad_rho"], self.pairs)
+        self.shift_and_density_gradient(system, dt, fluid_only=False)
+        v0 = p["velocity"] + p["shift_velocity"] if self.shift.active else p["velocity"]
         velocity_gradient(p["position"], p["volume"], p["velocity"], self.pairs, p["grad_velocity"])
         system.refresh(["grad_rho", "grad_velocity"])
         n, d = p.n_owned, p.dim

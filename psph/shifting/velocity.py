@@ -25,17 +25,26 @@ TAIT_GAMMA = 7.0
 
 
 class VelocityShift:
-    """Base: `velocity(system, scheme, dt)` fills the owned rows of field 'shift_velocity'."""
+    """Base: `velocity(system, scheme, dt, grad)` fills the owned rows of field 'shift_velocity'.
+
+    A law built on the corrected grad C (compute.shift_velocity.corrected_grad_c) names its (coeff, power) in
+    `grad_c_weights`; the scheme may then compute that grad C in its own pass over the lists and hand it
+    over as `grad` (the fluid part only: the law adds the ghost walls' images)."""
 
     name = "none"
     active = False
     fields = ()
+    grad_c_weights = None
 
     def __init__(self, scene=None):
         self.dx = scene.domain.dx if scene is not None else None
 
-    def velocity(self, system, scheme, dt):
+    def velocity(self, system, scheme, dt, grad=None):
         return None
+
+    def reference_w(self, system):
+        """W(dx), the reference of the corrected grad C's weights."""
+        return float(system.kernel.value(np.array([self.dx]))[0])
 
     def end_step(self, system, scheme, dt):
         """Called after a completed time step (laws with memory update it here)."""
@@ -48,14 +57,17 @@ class NoVelocityShift(VelocityShift):
     pass
 
 
-def _grad_c_hat(system, scheme, coeff, power, dx):
-    """grad C corrected with [1 + coeff (W_ij / W(dx))^power] (coeff = 0: plain grad C), the ghost walls'
-    images included."""
+def _grad_c_hat(law, system, scheme, grad):
+    """grad C corrected with [1 + coeff (W_ij / W(dx))^power] (law.grad_c_weights; coeff = 0: plain grad C),
+    the ghost walls' images included; `grad`: its particles' part, if the scheme computed it already."""
     p, k = system.particles, system.kernel
-    w_ref = float(k.value(np.array([dx]))[0])
-    out = np.zeros((p.n_owned, p.dim))
-    corrected_grad_c(p["position"], p["volume"], system.nbr_ptr, system.nbr_idx, k.params, coeff, power,
-                     w_ref, out)
+    coeff, power = law.grad_c_weights
+    w_ref = law.reference_w(system)
+    out = grad
+    if out is None:
+        out = np.zeros((p.n_owned, p.dim))
+        corrected_grad_c(p["position"], p["volume"], system.nbr_ptr, system.nbr_idx, k.params, coeff, power,
+                         w_ref, out)
     if scheme.walls is not None:
         scheme.walls.add_ghost_grad_c(system, coeff, power, w_ref, out)
     return out
@@ -72,10 +84,11 @@ class DeltaPlus(VelocityShift):
     def __init__(self, scene):
         super().__init__(scene)
         self.coeff, self.power = scene.shifting.delta_plus_r, scene.shifting.delta_plus_n
+        self.grad_c_weights = (self.coeff, self.power)
         self.u_max = scene.physics.reference_velocity
 
-    def velocity(self, system, scheme, dt):
-        grad = _grad_c_hat(system, scheme, self.coeff, self.power, self.dx)
+    def velocity(self, system, scheme, dt, grad=None):
+        grad = _grad_c_hat(self, system, scheme, grad)
         raw = -self.u_max * 2.0 * system.kernel.h * grad  # Ma (2h) c0 = U_max 2h
         out = system.particles.owned("shift_velocity")
         limit_magnitude(raw, np.full(len(raw), 0.5 * self.u_max), out)
@@ -89,10 +102,11 @@ class DeltaPlus(VelocityShift):
 class Lind(VelocityShift):
     name = "lind"
     active = True
+    grad_c_weights = (0.2, 4.0)
 
-    def velocity(self, system, scheme, dt):
+    def velocity(self, system, scheme, dt, grad=None):
         h = system.kernel.h
-        grad = _grad_c_hat(system, scheme, 0.2, 4.0, self.dx)
+        grad = _grad_c_hat(self, system, scheme, grad)
         raw = -0.5 * h * h * grad / dt
         out = system.particles.owned("shift_velocity")
         limit_magnitude(raw, np.full(len(raw), 0.2 * h / dt), out)
@@ -105,14 +119,15 @@ class Lind(VelocityShift):
 class Skillen(VelocityShift):
     name = "skillen"
     active = True
+    grad_c_weights = (0.0, 1.0)
 
     def __init__(self, scene):
         super().__init__(scene)
         self.a = scene.shifting.skillen_a
 
-    def velocity(self, system, scheme, dt):
+    def velocity(self, system, scheme, dt, grad=None):
         p = system.particles
-        grad = _grad_c_hat(system, scheme, 0.0, 1.0, self.dx)
+        grad = _grad_c_hat(self, system, scheme, grad)
         speed = np.sqrt((p.owned("velocity") ** 2).sum(axis=1))[:, None]
         p.owned("shift_velocity")[:] = -self.a * system.kernel.h * speed * grad * _free(system)
 
@@ -123,14 +138,15 @@ class Skillen(VelocityShift):
 class Oger(VelocityShift):
     name = "oger"
     active = True
+    grad_c_weights = (0.0, 1.0)
 
     def __init__(self, scene):
         super().__init__(scene)
         self.u_char = scene.physics.reference_velocity
 
-    def velocity(self, system, scheme, dt):
+    def velocity(self, system, scheme, dt, grad=None):
         p = system.particles
-        grad = _grad_c_hat(system, scheme, 0.0, 1.0, self.dx)
+        grad = _grad_c_hat(self, system, scheme, grad)
         raw = -self.u_char * 2.0 * self.dx * grad
         limit = 0.25 * np.sqrt((p.owned("velocity") ** 2).sum(axis=1))
         out = p.owned("shift_velocity")
@@ -156,7 +172,7 @@ class Neuhauser(VelocityShift):
         self.rho0 = physics.density
         self.p_ref = physics.density * physics.sound_speed ** 2 / TAIT_GAMMA
 
-    def velocity(self, system, scheme, dt):
+    def velocity(self, system, scheme, dt, grad=None):
         p = system.particles
         if self.fictitious:  # P^F / rho0 = p_ref / rho0 (V0 / V)^gamma (eq. 7.3)
             pref = self.p_ref / self.rho0 * (scheme.initial_volume(system) / p["volume"]) ** TAIT_GAMMA
