@@ -103,7 +103,9 @@ def _compile(d):
                                          coeff, power, w_ref, grad_c):
         """renormalised_gradient and, in the same pass over the lists, compute.shift_velocity's corrected
         grad C of every row over every neighbour (solids included): the same sums in the same order as the
-        two kernels apart, so the same values to the last bit."""
+        two kernels apart, so the same values to the last bit, but for one case: a pair within rounding of
+        the support's edge may have f of order 1e-42 rather than 0; renormalised_gradient adds it, this
+        pass skips it, which shows only in a row with no other neighbour inside the support."""
         s2 = 4.0 * kp[1] * kp[1]
         c = 0
         for i in range(ptr.size - 1):

@@ -46,3 +46,31 @@ def test_neuhauser_acceleration_matches_brute_force(dim):
     got = np.zeros_like(pos)
     shift_velocity.neuhauser_acceleration(pos, vol, v0, pref, ptr, idx, kern.params, c0, alpha, got)
     assert np.abs(got - want).max() < 1e-10 * np.abs(want).max()
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+@pytest.mark.parametrize("fluid_only", [False, True])
+def test_grad_c_from_the_gradient_pass_is_the_same(dim, fluid_only):
+    """compute.fluid.renormalised_gradient with grad_c: the corrected grad C over every neighbour, the
+    renormalised gradient and the pair cache over the fluid ones (fluid_only), bit for bit as the two
+    kernels apart; rows of solids keep their gradient untouched."""
+    from psph.compute import fluid
+
+    rng, dx, pos, vol, kern, ptr, idx, *_ = cloud(dim, 10 + dim)
+    kind = np.where(rng.random(len(pos)) < 0.3, 1, 0).astype(np.int8)
+    phi = rng.random(len(pos))
+    w_ref = float(kern.value(np.array([dx]))[0])
+    apart, fused = np.full_like(pos, 7.0), np.full_like(pos, 7.0)
+    pairs_apart, pairs_fused = fluid.PairCache(), fluid.PairCache()
+    fluid.renormalised_gradient(pos, vol, phi, ptr, idx, kern.params, kind, fluid_only, apart, pairs_apart)
+    grad_apart, grad_fused = np.zeros_like(pos), np.zeros_like(pos)
+    shift_velocity.corrected_grad_c(pos, vol, ptr, idx, kern.params, 0.2, 4.0, w_ref, grad_apart)
+    fluid.renormalised_gradient(pos, vol, phi, ptr, idx, kern.params, kind, fluid_only, fused, pairs_fused,
+                                grad_c=(0.2, 4.0, w_ref, grad_fused))
+    assert np.array_equal(apart, fused) and np.array_equal(grad_apart, grad_fused)
+    assert np.array_equal(pairs_apart.ptr, pairs_fused.ptr)
+    n = pairs_apart.ptr[-1]
+    assert np.array_equal(pairs_apart.idx[:n], pairs_fused.idx[:n]) and np.array_equal(pairs_apart.f[:n],
+                                                                                      pairs_fused.f[:n])
+    if fluid_only:
+        assert (fused[kind != 0] == 7.0).all() and (fused[kind == 0] != 7.0).all()
