@@ -368,6 +368,9 @@ class Scene:
             if getattr(self.physics, key) != default and self.physics.scheme != "riemann_ale":
                 raise SceneError(f"physics.{key}", "the Riemann fluxes belong to physics.scheme = riemann_ale, "
                                  f"not {self.physics.scheme!r}")
+        if fluid and self.neighbours.skin == 0.0:
+            raise SceneError("neighbours.skin", "a flow needs a skin: with 0 the neighbour lists cannot hold a time "
+                             "step's stages (the default is 0.1)")
         if self.physics.gravity and len(self.physics.gravity) != self.domain.dimension:
             raise SceneError("physics.gravity", f"expected {self.domain.dimension} entries (domain.dimension)")
         if self.physics.scheme == "kinematic":

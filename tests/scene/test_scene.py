@@ -254,3 +254,12 @@ def test_pre_procedure_is_refused_with_a_free_surface():
     with pytest.raises(SceneError) as info:
         load_scene(CASES / "hydrostatic_tank.toml", ["iips.pre_newton=10"])
     assert info.value.key == "iips.pre_newton" and "free surface" in str(info.value)
+
+
+def test_a_flow_without_a_skin_is_refused():
+    """With neighbours.skin = 0 no stage of a time step could move: refused for flows, kept for static runs
+    (whose every move rebuilds the lists)."""
+    load_scene(CASES / "static_perturbed.toml", ["neighbours.skin=0.0"])
+    with pytest.raises(SceneError) as info:
+        load_scene(CASES / "taylor_green.toml", ["neighbours.skin=0.0"])
+    assert info.value.key == "neighbours.skin" and "a flow needs a skin" in str(info.value)
