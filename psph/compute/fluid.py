@@ -20,7 +20,8 @@ L_i = [sum_j x_ji (x) grad_i W_ij V_j]^-1 (identity where that matrix is near-si
 Variants (`variant`): 0 delta-ALE-SPH (eq. 13: rho, m and m u evolve), 1 constant mass (eq. 23: rho and u;
 V = m / rho), 2 constant volume (eq. 25: rho and u; the operators use the initial volumes V0, m = V0 rho).
 Two passes per right-hand side: renormalised_gradient visits the neighbour lists (with their skin) and also
-writes the pairs inside the kernel support with their f(r) to a PairCache; delta_ale_rhs then loops over
+writes the pairs inside the kernel support with their f(r) to a PairCache (and, for a shifting law, the
+corrected grad C); delta_ale_rhs then loops over
 those pairs only, without a distance test or a kernel evaluation (2.5x faster than over the lists).
 """
 
@@ -63,49 +64,11 @@ def _compile(d):
     padded zero components."""
 
     @njit(cache=True)
-    def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, cptr, cidx, cf):
-        s2 = 4.0 * kp[1] * kp[1]
-        c = 0
-        for i in range(ptr.size - 1):
-            m00 = m01 = m02 = m11 = m12 = m22 = 0.0
-            g0 = g1 = g2 = 0.0
-            if fluid_only and kind[i] != 0:
-                cptr[i + 1] = c
-                continue
-            for k in range(ptr[i], ptr[i + 1]):
-                j = idx[k]
-                if fluid_only and kind[j] != 0:
-                    continue
-                x0, x1, x2, rr = pair2(pos, i, j, d)
-                f = kernel_f(np.sqrt(rr), kp)
-                s = f * vol[j]  # zero beyond the support: no branch
-                cidx[c] = j  # kept (c advances) inside the support only
-                cf[c] = f
-                c += (rr < s2) & (rr > 0.0)
-                m00 -= s * x0 * x0
-                dphi = s * (phi[j] - phi[i])
-                g0 += dphi * x0
-                if d > 1:
-                    m01 -= s * x0 * x1
-                    m11 -= s * x1 * x1
-                    g1 += dphi * x1
-                if d > 2:
-                    m02 -= s * x0 * x2
-                    m12 -= s * x1 * x2
-                    m22 -= s * x2 * x2
-                    g2 += dphi * x2
-            cptr[i + 1] = c
-            r0, r1, r2 = _solve_sym(m00, m01, m02, m11, m12, m22, g0, g1, g2, d, 1e-6)
-            store(out, i, d, r0, r1, r2)
-
-    @njit(cache=True)
-    def renormalised_gradient_and_grad_c(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, cptr, cidx, cf,
-                                         coeff, power, w_ref, grad_c):
-        """renormalised_gradient and, in the same pass over the lists, compute.shift_velocity's corrected
-        grad C of every row over every neighbour (solids included): the same sums in the same order as the
-        two kernels apart, so the same values to the last bit, but for one case: a pair within rounding of
-        the support's edge may have f of order 1e-42 rather than 0; renormalised_gradient adds it, this
-        pass skips it, which shows only in a row with no other neighbour inside the support."""
+    def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, cptr, cidx, cf, with_grad_c,
+                              coeff, power, w_ref, grad_c):
+        """The renormalised gradient of phi with the pair cache (see the wrapper below) and, with_grad_c, in
+        the same pass over the lists, compute.shift_velocity's corrected grad C of every row over every
+        neighbour (solids included), in the same sums and order as corrected_grad_c (the same bits)."""
         s2 = 4.0 * kp[1] * kp[1]
         c = 0
         for i in range(ptr.size - 1):
@@ -120,14 +83,15 @@ def _compile(d):
                     continue
                 r = np.sqrt(rr)
                 f = kernel_f(r, kp)
-                sc = f * vol[j]
-                if coeff != 0.0:
-                    sc *= 1.0 + coeff * fast_power(kernel_w(r, kp) / w_ref, power)
-                c0_ += sc * x0
-                if d > 1:
-                    c1_ += sc * x1
-                if d > 2:
-                    c2_ += sc * x2
+                if with_grad_c:
+                    sc = f * vol[j]
+                    if coeff != 0.0:
+                        sc *= 1.0 + coeff * fast_power(kernel_w(r, kp) / w_ref, power)
+                    c0_ += sc * x0
+                    if d > 1:
+                        c1_ += sc * x1
+                    if d > 2:
+                        c2_ += sc * x2
                 if not row or (fluid_only and kind[j] != 0):
                     continue
                 s = f * vol[j]
@@ -147,7 +111,8 @@ def _compile(d):
                     m22 -= s * x2 * x2
                     g2 += dphi * x2
             cptr[i + 1] = c
-            store(grad_c, i, d, c0_, c1_, c2_)
+            if with_grad_c:
+                store(grad_c, i, d, c0_, c1_, c2_)
             if row:
                 r0, r1, r2 = _solve_sym(m00, m01, m02, m11, m12, m22, g0, g1, g2, d, 1e-6)
                 store(out, i, d, r0, r1, r2)
@@ -250,7 +215,7 @@ def _compile(d):
                       (-gp1 + mu * vs1) / rho_i + g1_ + sh1 - ui1 * div_du,
                       (-gp2 + mu * vs2) / rho_i + g2_ + sh2 - ui2 * div_du)
 
-    return renormalised_gradient, delta_ale_rhs, renormalised_gradient_and_grad_c
+    return renormalised_gradient, delta_ale_rhs
 
 
 _KERNELS = {d: _compile(d) for d in (1, 2, 3)}
@@ -281,15 +246,13 @@ def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pa
     the rows of ptr. fluid_only: sum over fluid particles (kind 0) only, and only for fluid rows (walls carry
     no field). pairs: a PairCache to fill with the summed pairs inside the support (for delta_ale_rhs).
     grad_c = (coeff, power, w_ref, g): also fill g (rows of ptr) with the corrected grad C of
-    compute.shift_velocity.corrected_grad_c in the same pass (the same values, one walk of the lists)."""
+    compute.shift_velocity.corrected_grad_c in the same pass (the same values, one walk of the lists).
+    Pairs beyond the support are skipped (f = 0 there, but for pairs within rounding of its edge, whose
+    f of order 1e-42 the gradient left out as well)."""
     pairs = (pairs or PairCache()).fit(ptr, idx)
-    kernels = _KERNELS[pos.shape[1]]
-    if grad_c is None:
-        kernels[0](pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pairs.ptr, pairs.idx, pairs.f)
-    else:
-        coeff, power, w_ref, g = grad_c
-        kernels[2](pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pairs.ptr, pairs.idx, pairs.f,
-                   float(coeff), float(power), float(w_ref), g)
+    coeff, power, w_ref, g = grad_c if grad_c is not None else (0.0, 1.0, 1.0, np.zeros((0, pos.shape[1])))
+    _KERNELS[pos.shape[1]][0](pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pairs.ptr, pairs.idx, pairs.f,
+                              grad_c is not None, float(coeff), float(power), float(w_ref), g)
 
 
 def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, pairs, kp, c0, delta, delta_m, mu,
