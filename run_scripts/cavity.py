@@ -24,7 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 from psph.compute.smoothing import make_kernel  # noqa: E402
 from psph.particles import Kind  # noqa: E402
 from psph.scene.load import load_scene  # noqa: E402
-from psph.studies import cavity_scene, command_line, last_snapshot, run_scene, shepard_sample, write_table  # noqa: E402
+from psph.studies import CAVITY, CAVITY_WALLS, command_line, last_snapshot, run_scene, shepard_sample, write_table  # noqa: E402
 
 GHIA = Path(__file__).resolve().parent / "reference" / "ghia1982_Re100_Re1000.csv"
 
@@ -59,7 +59,6 @@ def main():
                         help="scene override for every run (e.g. physics.viscosity=morris)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    scenes = {walls: cavity_scene(walls, args.out) for walls in args.walls}
     table, histories = [], {}
     for re in args.re:
         gy, gu, gx, gv = ghia(re)
@@ -70,11 +69,12 @@ def main():
             for n in (args.ghost_resolutions or args.resolutions) if walls == "ghost" else args.resolutions:
                 dx = 1.0 / n
                 name = f"Re{re}_L{n}" + ("" if walls == "clone" else f"_{walls}")
-                ratio = args.h_over_dx or load_scene(scenes[walls]).domain.h_over_dx
+                ratio = args.h_over_dx or load_scene(CAVITY).domain.h_over_dx
                 sets = [f"domain.dx={dx}", f"domain.h_over_dx={ratio}", f"physics.reynolds={re}",
-                        f"time.t_end={args.t_end}", f"output.every={args.t_end}", "output.history_every=50", *args.set]
-                run = run_scene(scenes[walls], args.out / name, sets=sets, ranks=args.ranks)
-                sample, _, _ = centrelines(run, load_scene(scenes[walls], sets).domain.h_over_dx, dx)
+                        f"time.t_end={args.t_end}", f"output.every={args.t_end}", "output.history_every=50",
+                        *CAVITY_WALLS[walls], *args.set]
+                run = run_scene(CAVITY, args.out / name, sets=sets, ranks=args.ranks)
+                sample, _, _ = centrelines(run, load_scene(CAVITY, sets).domain.h_over_dx, dx)
                 inner_y, inner_x = (gy > 0) & (gy < 1), (gx > 0) & (gx < 1)  # the walls' values are boundary data
                 u = sample(np.stack([np.full(inner_y.sum(), 0.5), gy[inner_y]], 1))[:, 0]
                 v = sample(np.stack([gx[inner_x], np.full(inner_x.sum(), 0.5)], 1))[:, 1]

@@ -30,7 +30,7 @@ from psph.errors import PsphError
 from psph.parallel.comm import allreduce_sum
 from psph.particles import FieldSpec
 from psph.scene.load import load_scene
-from psph.studies import cavity_scene, command_line, write_table
+from psph.studies import CAVITY, CAVITY_WALLS, command_line, write_table
 
 PARTS = ("fluid pairs, u", "fluid pairs, du", "walls, u", "walls, du", "IIPS field update")
 REGIONS = ("top-left corner", "top-right corner", "lid", "other walls", "interior")
@@ -155,8 +155,8 @@ def main():
     scenes = {}
     for walls in args.walls:  # every scene is checked before the first run starts
         try:
-            scenes[walls] = load_scene(cavity_scene(walls, args.out), [f"domain.dx={args.dx}", f"time.t_end={args.t1}",
-                                                                       "output.every=0", *args.set])
+            scenes[walls] = load_scene(CAVITY, [f"domain.dx={args.dx}", f"time.t_end={args.t1}", "output.every=0",
+                                                 *CAVITY_WALLS[walls], *args.set])
         except PsphError as err:
             parser.error(f"{walls} walls: {err}")
     rows = []

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from psph import studies
+from psph.scene.load import load_scene
 
 SETS = ["domain.dx=0.1", "time.t_end=0.02", "shifting.method=none", "iips.update=none", "output.every=0"]
 
@@ -72,6 +73,7 @@ def test_a_tables_command_line_is_the_study_as_typed(monkeypatch):
     ([], 2.0),                                     # the scene's h/dx, passed explicitly (earlier runs' key)
     (["--h-over-dx", "1.5"], 1.5),
     (["--set", "domain.h_over_dx=1.5"], 1.5),      # a --set comes last and wins, in the run and the sampling
+    (["--walls", "ghost"], 2.0),
 ])
 def test_the_cavity_study_samples_with_the_kernel_of_its_runs(tmp_path, monkeypatch, argv, expected):
     """run_scripts/cavity.py interpolates the centrelines with the h/dx its run used."""
@@ -100,3 +102,6 @@ def test_the_cavity_study_samples_with_the_kernel_of_its_runs(tmp_path, monkeypa
         cavity.main()
     assert seen["ratio"] == expected
     assert seen["sets"][1] == f"domain.h_over_dx={1.5 if '--h-over-dx' in argv else 2.0}"
+    # the wall model is an override of the scene's box, not a scene copy written into the results
+    assert load_scene(studies.CAVITY, seen["sets"]).bodies[0].model == ("ghost" if "ghost" in argv else "clone")
+    assert not list(tmp_path.glob("*.toml"))
