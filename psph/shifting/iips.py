@@ -40,6 +40,7 @@ from psph.profiling import phase
 from psph.shifting.base import ShiftReport, measure
 from psph.solvers.aij import FixedPatternMatrix
 from psph.solvers.linear import LinearSolver, petsc_errors
+from psph.solvers.petsc import petsc
 
 SHIFT_FIELD = FieldSpec("iips_shift", ("d",))
 # the call's displacement at its iterate of lowest Linf(grad C) (a field: it migrates with the particles)
@@ -141,9 +142,12 @@ class ImplicitShifting:
         return its
 
     def _start_from(self, guess) -> None:
-        """Start the solve from `guess` where its residual is smaller than zero's (|b - A g| < |b|), as after
-        a pre-procedure, whose large first step is no guess for a flow's small corrections. Collective."""
+        """Start the solve from `guess` if it is not zero (a static run's one call has none) and its residual
+        is smaller than zero's (|b - A g| < |b|; not so after a pre-procedure, whose large first step is no
+        guess for a flow's small corrections). Collective."""
         self.dx.setArray(guess)
+        if self.dx.norm(petsc().NormType.INFINITY) == 0.0:
+            return
         self.mat.mult(self.dx, self.residual)
         self.residual.aypx(-1.0, self.rhs)
         if self.residual.norm() >= self.rhs.norm():
