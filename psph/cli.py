@@ -248,6 +248,11 @@ def main(argv=None) -> int:
         print(f"psph: error on rank {comm.rank}: {err}", file=sys.stderr, flush=True)
         _append_log(f"psph: error on rank {comm.rank}: {err}")
         comm.Abort(err.exit_code)
+    except BrokenPipeError:  # the reader of the output left (psph info ... | head): stop quietly, as Unix tools do
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # the exit's flush has nowhere to fail
+        if comm.size > 1:
+            comm.Abort(141)
+        return 141  # 128 + SIGPIPE
     except KeyboardInterrupt:
         print("psph: interrupted", file=sys.stderr, flush=True)
         if comm.size > 1:

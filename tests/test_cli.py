@@ -68,6 +68,31 @@ def test_info_lists_the_model_terms():
     assert "estimated particles: 6400" in res.stdout
 
 
+def test_a_reader_that_leaves_early_stops_psph_quietly(tmp_path, monkeypatch, capsys):
+    """`psph info scene | head -1`: a write into the closed pipe ends psph with 128 + SIGPIPE, no traceback."""
+    import sys
+
+    from psph import cli
+
+    sink = open(tmp_path / "stdout", "w")
+
+    class ClosedPipe:  # what a pipe whose reader left gives every write
+        def write(self, text):
+            raise BrokenPipeError(32, "Broken pipe")
+
+        def flush(self):
+            pass
+
+        def fileno(self):
+            return sink.fileno()
+
+    monkeypatch.setattr(sys, "stdout", ClosedPipe())
+    assert cli.main(["info", str(SCENE)]) == 141
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "internal error" not in err, err
+    sink.close()
+
+
 def test_info_estimates_the_time_step():
     res = run_psph("info", CASES / "taylor_green.toml", "--set", "domain.dx=0.05")
     assert res.returncode == 0, res.stderr

@@ -180,24 +180,26 @@ def check_placement(scene) -> None:
     if any(body.moves for _, body in immersed):
         reach = max(np.linalg.norm(body.velocity) + abs(body.omega) * np.linalg.norm(
             body.profile.nodes - body.center0, axis=1).max() for _, body in immersed)
-        times = np.linspace(0.0, scene.time.t_end, min(MOTION_SAMPLES, int(reach * scene.time.t_end / dx) + 2))
+        samples = min(MOTION_SAMPLES, reach * scene.time.t_end / dx + 2.0)  # float: a huge velocity is no overflow
+        times = np.linspace(0.0, scene.time.t_end, int(samples))
     for t in times:
         nodes = {k: body.nodes(t)[0] for k, body in immersed}
         for k, body in immersed:
             x = nodes[k]
+            key = f"bodies[{k}].center" if t == 0.0 else f"bodies[{k}].motion"  # later: the motion took it there
             for a in range(2):
                 if x[:, a].min() < lower[a] + margin[a] or x[:, a].max() > upper[a] - margin[a]:
-                    raise SceneError(f"bodies[{k}].center", f"{body.name!r} leaves the domain along axis {a} "
+                    raise SceneError(key, f"{body.name!r} leaves the domain along axis {a} "
                                      f"at t = {t:g}" + (f" (or comes within a kernel support, {margin[a]:g}, of "
                                                         "its periodic edge)" if d.periodic[a] else ""))
             for j, box in boxes:
                 local = np.abs((x - np.asarray(box.center)) @ _rot(box.angle))
                 if np.any(local > _half_size(box) - dx):
-                    raise SceneError(f"bodies[{k}].center", f"{body.name!r} comes within dx of the walls of "
+                    raise SceneError(key, f"{body.name!r} comes within dx of the walls of "
                                      f"bodies[{j}] ({box.name!r}) at t = {t:g}")
             for j, other in immersed:
                 if j != k and np.any(_inside(other, t, x)):
-                    raise SceneError(f"bodies[{k}].center", f"{body.name!r} overlaps bodies[{j}] "
+                    raise SceneError(key, f"{body.name!r} overlaps bodies[{j}] "
                                      f"({other.name!r}) at t = {t:g}")
 
 

@@ -82,15 +82,23 @@ class BodySpec:
                                      "width for rectangles, the major axis for ellipses)", ge=0.0)
 
     def check(self, path):
+        if not self.name.strip():
+            raise SceneError(f"{path}.name", "give the body a name (its force columns carry it)")
         if self.lid_velocity and (self.shape != "box" or len(self.lid_velocity) != 2):
             raise SceneError(f"{path}.lid_velocity", "a lid is the top side of a box: give 2 entries")
+        if self.lid_velocity and self.lid_velocity[1] != 0.0:
+            raise SceneError(f"{path}.lid_velocity", "a lid slides along the box's top side: give [U, 0] (the "
+                             "second entry, normal to the lid, must be 0)")
         if self.model == "ghost" and (self.shape != "box" or self.angle != 0.0):
             raise SceneError(f"{path}.model", "ghost walls mirror across straight walls: an axis-aligned box "
                              "(shape = box, angle = 0)")
         if self.motion.law != "fixed" and self.shape == "box":
             raise SceneError(f"{path}.motion.law", "boxes stay fixed (give the lid a velocity instead)")
-        if self.motion.law not in ("fixed",) and len(self.motion.velocity) != 2 and not self.motion.angular_velocity:
-            raise SceneError(f"{path}.motion.velocity", "a moving body needs a velocity (2 entries) or a rotation")
+        if self.motion.velocity and len(self.motion.velocity) != 2:
+            raise SceneError(f"{path}.motion.velocity", f"give 2 entries, got {len(self.motion.velocity)}")
+        if self.motion.law != "fixed" and not any(self.motion.velocity) and not self.motion.angular_velocity:
+            raise SceneError(f"{path}.motion.velocity", f"a body moving by law {self.motion.law!r} needs a "
+                             "non-zero velocity (2 entries) or angular_velocity")
 
 
 @dataclass(frozen=True)

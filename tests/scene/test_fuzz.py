@@ -16,7 +16,8 @@ from psph.simulation import check_resources
 from tests.helpers import CASES
 
 BASES = [read_table(CASES / name) for name in ("static_perturbed.toml", "taylor_green.toml",
-                                               "lid_driven_cavity.toml", "kinematic_tgv.toml")]
+                                               "lid_driven_cavity.toml", "kinematic_tgv.toml",
+                                               "moving_square.toml", "inclined_ellipse.toml")]
 
 text = st.text(alphabet=st.characters(min_codepoint=32, max_codepoint=126), max_size=12)
 scalars = st.one_of(st.integers(min_value=-10**30, max_value=10**30), st.floats(), st.booleans(), text,

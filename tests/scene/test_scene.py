@@ -183,10 +183,22 @@ def test_a_lid_on_a_periodic_y_axis_is_refused(model):
     (["bodies.1.center=[9.8, 2.5]", "bodies.1.motion.law=fixed", "bodies.1.motion.velocity=[]"],
      "bodies[1].center", "leaves the domain along axis 0"),
     (["bodies.1.center=[1.5, 0.55]"], "bodies[1].center", "within dx of the walls of bodies[0]"),
-    (["time.t_end=9.0"], "bodies[1].center", "within dx of the walls of bodies[0] ('tank') at t = 8."),
-    (["bodies.1.motion.velocity=[0.0, 1.0]"], "bodies[1].center", "within dx of the walls"),
+    # driven into a wall by its motion: the motion is named
+    (["time.t_end=9.0"], "bodies[1].motion", "within dx of the walls of bodies[0] ('tank') at t = 8."),
+    (["bodies.1.motion.velocity=[0.0, 1.0]"], "bodies[1].motion", "within dx of the walls"),
     (["bodies.0.size=[10.5, 5.0]"], "bodies[0].size", "leaves the domain along axis 0: the fluid"),
     (["bodies.1.size=[1e12, 1.0]"], "bodies[1].center", "leaves the domain along axis 0"),
+    # a huge velocity (once an OverflowError in the motion's sampling)
+    (["bodies.1.motion.velocity=[1e300, 0.0]"], "bodies[1].motion", "leaves the domain along axis 0"),
+    (["bodies.1.motion.velocity=[1e308, 1e308]"], "bodies[1].motion", "leaves the domain"),
+    # a velocity of the wrong length beside a rotation (once a ValueError in the motion)
+    (["bodies.1.motion.velocity=[1.0, 0.0, 0.0]", "bodies.1.motion.angular_velocity=1.0"],
+     "bodies[1].motion.velocity", "give 2 entries, got 3"),
+    (["bodies.1.motion.velocity=[1.0]", "bodies.1.motion.angular_velocity=1.0"],
+     "bodies[1].motion.velocity", "give 2 entries, got 1"),
+    (["bodies.1.motion.velocity=[0.0, 0.0]"], "bodies[1].motion.velocity", "by law 'spheric6' needs a non-zero"),
+    (["bodies.0.lid_velocity=[0.0, 1.0]"], "bodies[0].lid_velocity", "must be 0"),
+    (["bodies.1.name=' '"], "bodies[1].name", "give the body a name"),
 ])
 def test_misplaced_bodies_are_refused_by_key(sets, key, words):
     """The moving square (dx = 0.1) with one change each: a body that would be built wrongly or driven into
