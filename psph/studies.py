@@ -178,6 +178,16 @@ def plot_histories(path, curves, xlabel, ylabel, title, logy=False, size=(7, 4))
     plt.close(fig)
 
 
+def write_histories(path, labels, runs, columns) -> None:
+    """The plotted time histories as data: a CSV of the label columns `labels` (each run's labels), then
+    time and `columns`, one line per history row of each run. runs = [(label values, Run), ...]."""
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow([*labels, "time", *columns])
+        for label, run in runs:
+            writer.writerows([*label, r["time"], *(r[c] for c in columns)] for r in run.history)
+
+
 def first_iteration(history, predicate):
     """(row) of the first history row satisfying predicate, or None."""
     for row in history:

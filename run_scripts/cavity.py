@@ -24,7 +24,16 @@ import matplotlib.pyplot as plt  # noqa: E402
 from psph.compute.smoothing import make_kernel  # noqa: E402
 from psph.particles import Kind  # noqa: E402
 from psph.scene.load import load_scene  # noqa: E402
-from psph.studies import CAVITY, CAVITY_WALLS, command_line, last_snapshot, run_scene, shepard_sample, write_table  # noqa: E402
+from psph.studies import (  # noqa: E402
+    CAVITY,
+    CAVITY_WALLS,
+    command_line,
+    last_snapshot,
+    run_scene,
+    shepard_sample,
+    write_histories,
+    write_table,
+)
 
 GHIA = Path(__file__).resolve().parent / "reference" / "ghia1982_Re100_Re1000.csv"
 
@@ -90,15 +99,18 @@ def main():
                 label = f"psph {walls}, L/dx = {n}"
                 ax_u.plot(sample(np.stack([np.full_like(line, 0.5), line], 1))[:, 0], line, label=label)
                 ax_v.plot(line, sample(np.stack([line, np.full_like(line, 0.5)], 1))[:, 1], label=label)
-                histories[(re, walls, n)] = ([r["time"] for r in rows], eps)
+                histories[(re, walls, n)] = run
         ax_u.set(xlabel="u / U", ylabel="y / L", title=f"u on x = 0.5, Re = {re}")
         ax_v.set(xlabel="x / L", ylabel="v / U", title=f"v on y = 0.5, Re = {re}")
         ax_u.legend()
         fig.tight_layout()
         fig.savefig(args.out / f"centrelines_Re{re}.png", dpi=120)
         plt.close(fig)
+    write_histories(args.out / "histories.csv", ["Re", "walls", "L/dx"], histories.items(),
+                    ["volume_error", "total_mass", "kinetic_energy"])
     fig, ax = plt.subplots(figsize=(6, 4))
-    for (re, walls, n), (t, eps) in histories.items():
+    for (re, walls, n), run in histories.items():
+        t, eps = [r["time"] for r in run.history], [r["volume_error"] for r in run.history]
         ax.plot(t, eps, label=f"Re = {re}, {walls}, L/dx = {n}")
     ax.set(xlabel="t U / L", ylabel="eps_V", title="global volume error (seed 001 eq. 27)")
     ax.legend()

@@ -43,6 +43,7 @@ from psph.studies import (  # noqa: E402
     last_snapshot,
     plot_histories,
     run_scene,
+    write_histories,
     write_table,
 )
 
@@ -169,6 +170,8 @@ def main():
                       rows[-1]["step_time_s"], rows[-1]["time"]])
         print(f"a/dx={n}: mean cd_viscous {table[-1][2]:.4f} over {early[0]:g} <= t <= {early[1]:g}, "
               f"{table[-1][3]:.4f} over t >= {t0:g}", flush=True)
+    write_histories(args.out / "histories.csv", ["a/dx"], [((n,), run) for n, run in runs.items()],
+                    ["cd_viscous", "cd_pressure", "cl_viscous", "cl_pressure", "volume_error", "total_mass"])
     fig, axes = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
     for n, run in runs.items():
         t = [r["time"] for r in run.history]

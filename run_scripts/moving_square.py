@@ -12,7 +12,6 @@ drag.png and grad_c.png.
 """
 
 import argparse
-import csv
 from pathlib import Path
 
 import matplotlib
@@ -21,7 +20,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from psph.studies import CASES, command_line, run_scene, stop_message, write_table  # noqa: E402
+from psph.studies import CASES, command_line, run_scene, stop_message, write_histories, write_table  # noqa: E402
 
 METHODS = {
     "explicit P_S=10": ["shifting.method=neuhauser", "shifting.neuhauser_ps=10", "iips.update=none"],
@@ -69,12 +68,8 @@ def main():
                                           "max Linf(grad C)", "IIPS stalls", "IIPS share of the step"], table,
                       title=f"Moving square, D/dx = {1 / args.dx:g}, t = {args.t_end}",
                       note="Command: " + command_line()))
-    with open(args.out / "histories.csv", "w", newline="") as f:  # the plotted histories, as data
-        writer = csv.writer(f)
-        writer.writerow(["method", "ranks", "time", "cd_pressure", "cd_viscous", "Linf_grad_c"])
-        for (name, ranks), run in runs.items():
-            writer.writerows([name, ranks, r["time"], r["cd_pressure"], r["cd_viscous"], r["Linf_grad_c"]]
-                             for r in run.history)
+    write_histories(args.out / "histories.csv", ["method", "ranks"], runs.items(),
+                    ["cd_pressure", "cd_viscous", "Linf_grad_c"])
     fig, (ax_p, ax_v) = plt.subplots(1, 2, figsize=(11, 4))
     fig2, ax_g = plt.subplots(figsize=(6, 4))
     for (name, ranks), run in runs.items():
