@@ -2,8 +2,9 @@
 
 A body's material points follow x(t) = c0 + d(t) + R(theta(t)) (x_ref - c0), with velocity
 v(t) + omega e_z x (x - c) and acceleration a(t) + alpha e_z x r - omega^2 r (r = x - c). The translation
-and rotation follow the body's motion law (MotionSpec). A box body may have a lid: its top side moves
-tangentially with `lid_velocity` while the particles stay in place (a cavity).
+follows the body's motion law, the rotation its rotation_law (the same law unless given; MotionSpec). A
+box body may have a lid: its top side moves tangentially with `lid_velocity` while the particles stay in
+place (a cavity).
 """
 
 import math
@@ -18,10 +19,11 @@ MOTION_SAMPLES = 5000  # check_placement: most times at which a prescribed motio
 
 
 class MotionLaw:
-    """Scalar law s(t), s'(t), s''(t) scaled so that s'(t) reaches 1 (times the body's velocity vector)."""
+    """Scalar law s(t), s'(t), s''(t) scaled so that s'(t) reaches 1 (times the body's velocity vector, or
+    its angular velocity). law: another law than spec.law with spec's parameters (the rotation's)."""
 
-    def __init__(self, spec):
-        self.law, self.ramp = spec.law, spec.ramp_time
+    def __init__(self, spec, law=None):
+        self.law, self.ramp, self.period = law or spec.law, spec.ramp_time, spec.period
         if self.law == "spheric6":  # tabulate the integral of the benchmark velocity once
             t = np.linspace(0.0, 1.0, 20001)
             v = self._spheric_velocity(t)
@@ -41,6 +43,9 @@ class MotionLaw:
             return 0.0, 0.0, 0.0
         if self.law == "constant":
             return t, 1.0, 0.0
+        if self.law == "oscillate":
+            k = 2.0 * math.pi / self.period
+            return math.sin(k * t) / k, math.cos(k * t), -k * math.sin(k * t)
         if self.law == "ramp":
             tau = t / self.ramp
             if tau >= 1.0:
@@ -78,6 +83,7 @@ class Body:
         self.drag_direction = -self.velocity / speed if speed > 0 else stream / np.linalg.norm(stream)
         self.omega = spec.motion.angular_velocity
         self.law = MotionLaw(spec.motion)
+        self.turning = MotionLaw(spec.motion, spec.motion.turning_law)
         self.kind = Kind.WALL if spec.shape == "box" else Kind.BODY
         self.no_slip = spec.wall == "no_slip"
         self.lid = np.zeros(len(self.profile.nodes), dtype=bool)
@@ -93,14 +99,14 @@ class Body:
 
     @property
     def moves(self) -> bool:
-        return self.spec.motion.law != "fixed"
+        return self.spec.motion.law != "fixed" or self.spec.motion.turning_law != "fixed"
 
     def rigid(self, t):
         """(centre, rotation matrix, velocity, omega, acceleration, alpha) at time t."""
         s, ds, dds = self.law(t)
-        theta = self.omega * s
-        return (self.center0 + self.velocity * s, _rot_rad(theta), self.velocity * ds, self.omega * ds,
-                self.velocity * dds, self.omega * dds)
+        q, dq, ddq = self.turning(t)
+        return (self.center0 + self.velocity * s, _rot_rad(self.omega * q), self.velocity * ds, self.omega * dq,
+                self.velocity * dds, self.omega * ddq)
 
     def material(self, x_ref, t):
         """Positions, velocities and accelerations at time t of points with reference positions x_ref."""
@@ -140,13 +146,13 @@ def make_bodies(scene):
 
 
 def check_placement(scene) -> None:
-    """Refuse bodies that psph would build wrongly, with a SceneError naming the body's key: a fixed body
-    given a velocity, a body thinner than 2 dx (no solid particle would fill it), a box leaving the domain
-    along a bounded axis, and, at t = 0 and along its prescribed motion to t_end, an immersed body leaving
-    the domain or coming within one kernel support of a periodic edge (shapes and their nearest-node
-    search do not wrap), coming within dx of a box's walls, or overlapping another immersed body. The
-    motion is sampled so that no point of a body moves more than dx between samples (at most
-    MOTION_SAMPLES samples)."""
+    """Refuse bodies that psph would build wrongly, with a SceneError naming the body's key: a body thinner
+    than 2 dx (no solid particle would fill it), a box leaving the domain along a bounded axis, and, at
+    t = 0 and along its prescribed motion to t_end, an immersed body leaving the domain or coming within
+    one kernel support of a periodic edge (shapes and their nearest-node search do not wrap), coming
+    within dx of a box's walls, or overlapping another immersed body. The motion is sampled so that no
+    point of a body moves more than dx between samples (at most MOTION_SAMPLES samples; every law's
+    speed stays within its velocity and angular velocity)."""
     from psph.errors import SceneError
 
     d, dx = scene.domain, scene.domain.dx
@@ -156,10 +162,6 @@ def check_placement(scene) -> None:
     immersed = []
     for k, b in enumerate(scene.bodies):
         path = f"bodies[{k}]"
-        if b.motion.law == "fixed" and (any(b.motion.velocity) or b.motion.angular_velocity):
-            key = "velocity" if any(b.motion.velocity) else "angular_velocity"
-            raise SceneError(f"{path}.motion.{key}", "a fixed body does not move: give motion.law (constant, "
-                             "ramp, spheric6) or drop the velocity")
         extent = 2.0 * min(b.size) if b.shape == "ellipse" else min(b.size)
         if extent < 2.0 * dx:
             raise SceneError(f"{path}.size", f"{b.name!r} is {extent:g} thick, less than 2 dx = {2 * dx:g}: no "

@@ -17,6 +17,9 @@ from psph.parallel.comm import allreduce_sum
 from psph.particles import Kind
 from psph.schemes.eos import GAMMA
 
+MOTIONS = {"fixed": "fixed", "constant": "constant velocity", "ramp": "ramped velocity",
+           "spheric6": "SPHERIC 6 acceleration law", "oscillate": "oscillating"}
+
 
 class WallTerms:
     def __init__(self, scene):
@@ -37,8 +40,8 @@ class WallTerms:
     def describe(self) -> list:
         out = []
         for b in self.bodies:
-            how = {"fixed": "fixed", "constant": "constant velocity", "ramp": "ramped velocity",
-                   "spheric6": "SPHERIC 6 acceleration law"}[b.spec.motion.law]
+            m = b.spec.motion
+            how = MOTIONS[m.law] if m.turning_law == m.law else f"{MOTIONS[m.law]}, turning: {MOTIONS[m.turning_law]}"
             lid = f", lid velocity {tuple(b.lid_velocity)}" if b.lid.any() else ""
             model = ("clone particles with local mirroring (seed 004 eq. 5-9)" if b.spec.model == "clone" else
                      "fixed ghost particles, mirror images of the fluid (seed 001 section 6.2)")

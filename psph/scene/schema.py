@@ -51,16 +51,29 @@ class DomainSpec:
         return math.prod(self.lattice_shape())
 
 
+MOTION_LAWS = ("fixed", "constant", "ramp", "spheric6", "oscillate")
+
+
 @dataclass(frozen=True)
 class MotionSpec:
-    law: str = option("fixed", doc="rigid motion: fixed; constant (velocity from t = 0); ramp (velocity reached "
+    law: str = option("fixed", doc="rigid motion's law (the translation's, and the rotation's unless "
+                      "rotation_law is given): fixed; constant (velocity from t = 0); ramp (velocity reached "
                       "smoothly over ramp_time, tau^2 (3 - 2 tau)); spheric6 (the SPHERIC benchmark 6 "
-                      "acceleration a(t) = 2.8209512 exp(-(t - 0.525652151)^2 / (2 0.14142151^2)) up to t = 1)",
-                      choices=("fixed", "constant", "ramp", "spheric6"))
+                      "acceleration a(t) = 2.8209512 exp(-(t - 0.525652151)^2 / (2 0.14142151^2)) up to t = 1); "
+                      "oscillate (velocity times cos(2 pi t / period), from rest at the centre: amplitude "
+                      "|velocity| period / (2 pi))", choices=MOTION_LAWS)
     velocity: tuple[float, ...] = option((), doc="translation velocity reached (spheric6: its direction and "
-                                         "size are scaled to this vector)")
+                                         "size are scaled to this vector; oscillate: the peak velocity)")
     angular_velocity: float = option(0.0, doc="rotation rate reached [rad per time unit], about the centre")
+    rotation_law: str = option("", doc="the rotation's own law (same choices as law; empty: the rotation "
+                               "follows law)", choices=("",) + MOTION_LAWS)
     ramp_time: float = option(1.0, doc="ramp: time to reach the velocity", gt=0.0)
+    period: float = option(1.0, doc="oscillate: period of the motion", gt=0.0)
+
+    @property
+    def turning_law(self) -> str:
+        """The rotation's law."""
+        return self.rotation_law or self.law
 
 
 @dataclass(frozen=True)
@@ -92,13 +105,26 @@ class BodySpec:
         if self.model == "ghost" and (self.shape != "box" or self.angle != 0.0):
             raise SceneError(f"{path}.model", "ghost walls mirror across straight walls: an axis-aligned box "
                              "(shape = box, angle = 0)")
-        if self.motion.law != "fixed" and self.shape == "box":
-            raise SceneError(f"{path}.motion.law", "boxes stay fixed (give the lid a velocity instead)")
-        if self.motion.velocity and len(self.motion.velocity) != 2:
-            raise SceneError(f"{path}.motion.velocity", f"give 2 entries, got {len(self.motion.velocity)}")
-        if self.motion.law != "fixed" and not any(self.motion.velocity) and not self.motion.angular_velocity:
-            raise SceneError(f"{path}.motion.velocity", f"a body moving by law {self.motion.law!r} needs a "
-                             "non-zero velocity (2 entries) or angular_velocity")
+        m = self.motion
+        if self.shape == "box" and (m.law != "fixed" or m.turning_law != "fixed"):
+            key = "law" if m.law != "fixed" else "rotation_law"
+            raise SceneError(f"{path}.motion.{key}", "boxes stay fixed (give the lid a velocity instead)")
+        if m.velocity and len(m.velocity) != 2:
+            raise SceneError(f"{path}.motion.velocity", f"give 2 entries, got {len(m.velocity)}")
+        turns = m.turning_law != "fixed" and m.angular_velocity
+        if m.law != "fixed" and not any(m.velocity) and not turns:
+            raise SceneError(f"{path}.motion.velocity", f"a body moving by law {m.law!r} needs a non-zero "
+                             "velocity (2 entries)" + ("" if m.rotation_law else " or angular_velocity"))
+        if m.rotation_law not in ("", "fixed") and not m.angular_velocity:
+            raise SceneError(f"{path}.motion.angular_velocity", f"a body turning by rotation_law "
+                             f"{m.rotation_law!r} needs a non-zero angular_velocity")
+        if m.law == "fixed" and any(m.velocity):
+            raise SceneError(f"{path}.motion.velocity", "a fixed body does not move: give motion.law (constant, "
+                             "ramp, spheric6, oscillate) or drop the velocity")
+        if m.turning_law == "fixed" and m.angular_velocity:
+            raise SceneError(f"{path}.motion.angular_velocity", "the rotation's law is fixed: give motion."
+                             + ("rotation_law" if m.rotation_law else "law or motion.rotation_law")
+                             + " or drop the angular velocity")
 
 
 @dataclass(frozen=True)

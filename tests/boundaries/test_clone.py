@@ -245,3 +245,34 @@ def test_several_bodies_get_suffixed_columns_and_their_own_forces(tmp_path):
     assert coeff["cl_pressure_first"] == pytest.approx(0.6, rel=0.05)
     assert coeff["cl_pressure_second"] == pytest.approx(0.4, rel=0.05)
     assert abs(coeff["cd_pressure_first"]) < 0.01 and abs(coeff["cd_pressure_second"]) < 0.01
+
+
+def test_at_a_convex_corner_the_clones_take_the_particles_own_normal(tmp_path):
+    """Eq. 5 (sign corrected) at a body's convex corner: a fluid particle just above the top face of a
+    free-slip rectangle, a few spacings from its corner, lies behind solid particles of the side face (their
+    normals, -x, see it on their solid side), so all its clones use its own normal (-y). Sliding along the
+    top face, it then sees its own velocity in every clone (free slip mirrors only u . n = 0) and no
+    density rate from the wall, while approaching the face it does. With each solid particle's own normal,
+    the side face's clones would mirror u_x and compress it."""
+    scene = load_scene(CASES / "inclined_ellipse.toml", [
+        f"domain.dx={DX}", "domain.upper=[3.0, 3.0]", "bodies.0.shape=rectangle", "bodies.0.center=[1.5, 1.5]",
+        "bodies.0.size=[1.0, 0.5]", "bodies.0.angle=0", "bodies.0.wall=free_slip", "shifting.method=none"])
+    driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path)
+    system = driver.system
+    p = system.particles
+    p["velocity"][:] = 0.0
+    p["pressure"][:] = 0.0
+    p["density"][:] = scene.physics.density
+    driver.scheme.walls.place(system, 0.0)
+    i = particle_at(p, 2.0 - 3.5 * DX, 1.75 + DX / 2)
+    assert p["position"][i, 1] > 1.75 and p["position"][i, 0] < 2.0 - 3 * DX
+    # the branch is taken: some solid neighbour within the support sees the particle behind its wall
+    nbrs = system.nbr_idx[system.nbr_ptr[i]:system.nbr_ptr[i + 1]]
+    solid = nbrs[p["kind"][nbrs] != Kind.FLUID]
+    r = p["position"][i] - p["position"][solid]
+    behind = (np.einsum("ij,ij->i", p["normal"][solid], r) > 0) & (np.hypot(*r.T) < system.kernel.support)
+    assert behind.any() and np.allclose(p["normal"][solid[behind]], [-1.0, 0.0])
+    d_rho_approach, _ = wall_rates(driver, system, i, velocity=(0.0, -1.0))
+    d_rho_slide, _ = wall_rates(driver, system, i, velocity=(1.0, 0.0))
+    assert d_rho_approach > 0.0
+    assert abs(d_rho_slide) < 1e-12 * d_rho_approach

@@ -77,3 +77,50 @@ def test_solid_layer_has_the_area_of_one_support():
     theta = np.linspace(0.0, 2.0 * np.pi, 4096, endpoint=False)  # a periodic integrand: the mean is spectral
     perimeter = 2.0 * np.pi * np.hypot(a * np.sin(theta), b * np.cos(theta)).mean()
     assert len(pos) * dx * dx == pytest.approx(t * perimeter - np.pi * t * t, rel=0.01)
+
+
+@pytest.mark.parametrize("law", ["constant", "ramp", "spheric6", "oscillate"])
+def test_motion_laws_are_their_own_derivatives(law):
+    """s'(t) and s''(t) of every law are the derivatives of s(t) and s'(t) (central differences), s'
+    reaches 1 (its velocity) and never exceeds it, and s(0) = s'(0) = 0 except where the law starts moving
+    at once (constant, oscillate: s'(0) = 1)."""
+    from psph.boundaries.bodies import MotionLaw
+    from psph.scene.schema import MotionSpec
+
+    unit = MotionLaw(MotionSpec(law=law, ramp_time=0.4, period=0.7))
+    t = np.linspace(0.01, 2.5, 400)
+    e = 1e-3 if law == "spheric6" else 1e-6  # spheric6's s and s' are tabulated every 5e-5: difference across
+    s, ds, dds = (np.array(v) for v in zip(*(unit(x) for x in t)))
+    plus, minus = (np.array([unit(x)[:2] for x in t + sign * e]) for sign in (1.0, -1.0))
+    tol = 1e-3 if law == "spheric6" else 1e-6
+    assert np.allclose((plus[:, 0] - minus[:, 0]) / (2 * e), ds, atol=tol)
+    assert np.allclose((plus[:, 1] - minus[:, 1]) / (2 * e), dds, atol=tol)
+    assert np.abs(ds).max() <= 1.0 + 1e-12 and np.isclose(np.abs(ds).max(), 1.0, atol=1e-4)
+    assert unit(0.0)[0] == 0.0 and unit(0.0)[1] == (1.0 if law in ("constant", "oscillate") else 0.0)
+
+
+def test_translation_and_rotation_follow_their_own_laws():
+    """A body translating at constant velocity while its rotation oscillates: centre c0 + v t, angle
+    omega P / (2 pi) sin(2 pi t / P), and the material velocity and acceleration of a point of the body are
+    the time derivatives of its position."""
+    from psph.boundaries.bodies import Body
+    from psph.scene.schema import BodySpec, MotionSpec
+
+    motion = MotionSpec(law="constant", velocity=(0.5, 0.25), angular_velocity=2.0, rotation_law="oscillate",
+                        period=0.8)
+    body = Body(BodySpec(name="b", shape="rectangle", center=(1.0, 2.0), size=(1.0, 0.5), motion=motion), 0, 0.1,
+                (1.0, 0.0))
+    t = 0.3
+    c, rot, v, omega, a, alpha = body.rigid(t)
+    theta = 2.0 * 0.8 / (2 * np.pi) * np.sin(2 * np.pi * t / 0.8)
+    assert np.allclose(c, [1.0 + 0.5 * t, 2.0 + 0.25 * t]) and np.allclose(v, [0.5, 0.25]) and np.allclose(a, 0.0)
+    assert np.allclose(rot, [[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
+    assert np.isclose(omega, 2.0 * np.cos(2 * np.pi * t / 0.8))
+    assert np.isclose(alpha, -2.0 * 2 * np.pi / 0.8 * np.sin(2 * np.pi * t / 0.8))
+    x_ref = np.array([[1.4, 2.2], [0.7, 1.8]])
+    e = 1e-6
+    x, u, acc = body.material(x_ref, t)
+    (xp, up, _), (xm, um, _) = body.material(x_ref, t + e), body.material(x_ref, t - e)
+    assert np.allclose((xp - xm) / (2 * e), u, atol=1e-7) and np.allclose((up - um) / (2 * e), acc, atol=1e-6)
+    assert Body(BodySpec(name="b", shape="ellipse", center=(1.0, 2.0), size=(1.0, 0.5),
+                         motion=MotionSpec(rotation_law="oscillate", angular_velocity=1.0)), 0, 0.1, (1.0, 0.0)).moves

@@ -198,6 +198,17 @@ def test_a_lid_on_a_periodic_y_axis_is_refused(model):
      "bodies[1].motion.velocity", "give 2 entries, got 1"),
     (["bodies.1.motion.velocity=[0.0, 0.0]"], "bodies[1].motion.velocity", "by law 'spheric6' needs a non-zero"),
     (["bodies.0.lid_velocity=[0.0, 1.0]"], "bodies[0].lid_velocity", "must be 0"),
+    # the rotation's own law
+    (["bodies.1.motion.rotation_law=ramp"], "bodies[1].motion.angular_velocity", "by rotation_law 'ramp' needs"),
+    (["bodies.1.motion.law=fixed", "bodies.1.motion.velocity=[]", "bodies.1.motion.angular_velocity=1.0"],
+     "bodies[1].motion.angular_velocity", "the rotation's law is fixed: give motion.law or motion.rotation_law"),
+    (["bodies.1.motion.rotation_law=fixed", "bodies.1.motion.angular_velocity=1.0"],
+     "bodies[1].motion.angular_velocity", "the rotation's law is fixed: give motion.rotation_law"),
+    (["bodies.0.motion.rotation_law=oscillate", "bodies.0.motion.angular_velocity=1.0"],
+     "bodies[0].motion.rotation_law", "boxes stay fixed"),
+    (["bodies.1.motion.law=oscillate", "bodies.1.motion.velocity=[-1.0, 0.0]", "bodies.1.motion.period=10.0"],
+     "bodies[1].motion",
+     "within dx of the walls of bodies[0]"),
     (["bodies.1.name=' '"], "bodies[1].name", "give the body a name"),
 ])
 def test_misplaced_bodies_are_refused_by_key(sets, key, words):
@@ -241,6 +252,12 @@ def test_well_placed_bodies_are_accepted():
     load_scene(CASES / "moving_square.toml", ["domain.dx=0.1", "bodies.1.center=[5.0, 2.5]",
                                               "bodies.1.motion.law=ramp", "bodies.1.motion.velocity=[]",
                                               "bodies.1.motion.angular_velocity=1.0", "time.t_end=1000"])
+    # turning in place by its own law; oscillating across the box for good (amplitude 1 / pi)
+    load_scene(CASES / "moving_square.toml", ["domain.dx=0.1", "bodies.1.motion.law=fixed",
+                                              "bodies.1.motion.velocity=[]", "bodies.1.motion.rotation_law=oscillate",
+                                              "bodies.1.motion.angular_velocity=3.0", "time.t_end=1000"])
+    load_scene(CASES / "moving_square.toml", ["domain.dx=0.1", "bodies.1.motion.law=oscillate",
+                                              "bodies.1.motion.period=2.0", "time.t_end=1000"])
 
 
 def test_set_indexes_arrays_of_tables():
