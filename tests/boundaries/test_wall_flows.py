@@ -20,15 +20,9 @@ from psph.scene.load import load_scene
 from tests.helpers import CASES, run_psph
 
 
-def with_walls(tmp_path, case, model):
-    """The case file, or a copy whose walls (every body) use `model` (clone or ghost)."""
-    if model == "clone":
-        return CASES / case
-    path = tmp_path / f"{model}_{case}"
-    text = (CASES / case).read_text()
-    assert 'wall = "no_slip"' in text, case
-    path.write_text(text.replace('wall = "no_slip"', f'wall = "no_slip"\nmodel = "{model}"'))
-    return path
+def walls(model):
+    """The override giving a case's walls (its first body, the box) `model` (clone or ghost)."""
+    return [f"bodies.0.model={model}"]
 
 
 def run(tmp_path, case, name, *sets):
@@ -71,6 +65,24 @@ def test_couette_startup_follows_the_analytic_transient(tmp_path):
     assert v_max < 5e-3 and morris < 0.25 * errors[2.0]
 
 
+@pytest.mark.parametrize("model", ["clone", "ghost"])
+def test_a_free_slip_lid_drags_nothing(tmp_path, model):
+    """The Couette plates with free-slip walls: the moving lid passes no shear to the fluid, which stays at
+    rest (free slip mirrors the velocity's normal part only, and the lid moves along itself), while with
+    no-slip walls the layer under the lid moves at about 0.6 U after t = 0.2; with clone particles and with
+    the fixed-ghost baseline."""
+    speeds = {}
+    for wall in ("free_slip", "no_slip"):
+        out = run(tmp_path, "couette.toml", wall, f"bodies.0.wall={wall}", "time.t_end=0.2", "output.every=0.2",
+                  *walls(model))
+        snap, _ = last_snapshot(out)
+        fluid = snap["kind"] == Kind.FLUID
+        top = fluid & (snap["position"][:, 1] > 0.95)
+        speeds[wall] = np.abs(snap["velocity"][fluid]).max(), snap["velocity"][top, 0].mean()
+    assert speeds["no_slip"][1] > 0.4
+    assert speeds["free_slip"][0] < 1e-10
+
+
 def test_couette_with_iips_next_to_the_walls(tmp_path):
     """IIPS with the thesis' bounded-flow threshold (0.08/h, section 10.1.1) from a perturbed start: solid
     particles are fixed neighbours, never moved; the NFTS update treats them as clones (the steps mirrored:
@@ -109,8 +121,7 @@ def test_hydrostatic_tank_stays_at_rest(tmp_path, model):
     """Water at rest under gravity stays at rest: the spurious velocity after t sqrt(g/H) = 3 is below
     1e-3 sqrt(gH) at dx = H/20, mass is conserved to round-off, and the bottom pressure is rho g H; with
     clone particles and with the fixed-ghost baseline (images carry p_j + rho_j g . (x_g - x_j))."""
-    out = run(tmp_path, with_walls(tmp_path, "hydrostatic_tank.toml", model), "tank", "domain.dx=0.05",
-              "time.t_end=3.0")
+    out = run(tmp_path, "hydrostatic_tank.toml", "tank", "domain.dx=0.05", "time.t_end=3.0", *walls(model))
     rows = read_history(out / "history.csv")
     assert max(r["max_speed"] for r in rows[len(rows) // 2:]) < 1e-3
     mass = np.array([r["total_mass"] for r in rows])
@@ -127,8 +138,8 @@ def test_lid_driven_cavity_conserves_mass_and_turns(tmp_path, model):
     """A short Re = 100 cavity run: mass to round-off; the lid drags the top layer forward and the fluid
     returns below (the primary vortex forms); with clone particles and with ghost walls. (Total mass is a
     check of the scheme, not of the walls: no wall pair changes a mass.)"""
-    out = run(tmp_path, with_walls(tmp_path, "lid_driven_cavity.toml", model), "cavity", "domain.dx=0.04",
-              "time.t_end=1.0", "output.every=1.0", "output.history_every=10")
+    out = run(tmp_path, "lid_driven_cavity.toml", "cavity", "domain.dx=0.04", "time.t_end=1.0", "output.every=1.0",
+              "output.history_every=10", *walls(model))
     rows = read_history(out / "history.csv")
     mass = np.array([r["total_mass"] for r in rows])
     assert np.abs(mass / mass[0] - 1.0).max() < 1e-12
