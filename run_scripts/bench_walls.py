@@ -1,6 +1,6 @@
 """Cost of the clone-particle walls as a fraction of the flow step (issue: walls and bodies, "Speed").
 
-    .venv/bin/python run_scripts/bench_walls.py [--steps 200] [--cases lid_driven_cavity moving_square]
+    .venv/bin/python run_scripts/bench_walls.py [--steps 200] [--cases lid_driven_cavity moving_square inclined_ellipse]
                                                 [--set domain.h_over_dx=1.5]
     mpiexec -n 2 .venv/bin/python run_scripts/bench_walls.py      # per rank on 2 ranks
 
@@ -21,7 +21,8 @@ from psph.drivers.fluid import FluidDriver
 from psph.scene.load import load_scene
 from psph.studies import CASES, command_line, write_table
 
-SETTINGS = {"lid_driven_cavity": ["domain.dx=0.02"], "moving_square": ["domain.dx=0.05"]}
+SETTINGS = {"lid_driven_cavity": ["domain.dx=0.02"], "moving_square": ["domain.dx=0.05"],
+            "inclined_ellipse": ["domain.dx=0.04"]}  # a/dx = 25
 
 
 def main():
