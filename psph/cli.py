@@ -248,7 +248,10 @@ def main(argv=None) -> int:
         print(f"psph: error on rank {comm.rank}: {err}", file=sys.stderr, flush=True)
         _append_log(f"psph: error on rank {comm.rank}: {err}")
         comm.Abort(err.exit_code)
-    except BrokenPipeError:  # the reader of the output left (psph info ... | head): stop quietly, as Unix tools do
+    except BrokenPipeError:
+        if not _reader_left():
+            return _internal_error(comm)
+        # the reader of the output left (psph info ... | head): stop quietly, as Unix tools do
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # the exit's flush has nowhere to fail
         if comm.size > 1:
             comm.Abort(141)
@@ -258,9 +261,26 @@ def main(argv=None) -> int:
         if comm.size > 1:
             comm.Abort(130)
         return 130
-    except Exception:  # a bug: show it, and never leave other ranks waiting in a collective
-        traceback.print_exc()
-        print(f"psph: internal error on rank {comm.rank} (a bug; please report it)", file=sys.stderr, flush=True)
-        if comm.size > 1:
-            comm.Abort(1)
-        return 1
+    except Exception:
+        return _internal_error(comm)
+
+
+def _internal_error(comm) -> int:
+    """A bug: show it, and never leave other ranks waiting in a collective."""
+    traceback.print_exc()
+    print(f"psph: internal error on rank {comm.rank} (a bug; please report it)", file=sys.stderr, flush=True)
+    if comm.size > 1:
+        comm.Abort(1)
+    return 1
+
+
+def _reader_left() -> bool:
+    """Whether standard output is a pipe whose reader has closed it (poll reports an error on it)."""
+    import select
+
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLERR)
+        return any(event & select.POLLERR for _, event in poller.poll(0))
+    except (OSError, ValueError, AttributeError):
+        return False

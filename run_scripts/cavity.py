@@ -31,6 +31,7 @@ from psph.studies import (  # noqa: E402
     last_snapshot,
     run_scene,
     shepard_sample,
+    stop_message,
     write_histories,
     write_table,
 )
@@ -82,7 +83,13 @@ def main():
                 sets = [f"domain.dx={dx}", f"domain.h_over_dx={ratio}", f"physics.reynolds={re}",
                         f"time.t_end={args.t_end}", f"output.every={args.t_end}", "output.history_every=50",
                         *CAVITY_WALLS[walls], *args.set]
-                run = run_scene(CAVITY, args.out / name, sets=sets, ranks=args.ranks)
+                try:
+                    run = run_scene(CAVITY, args.out / name, sets=sets, ranks=args.ranks)
+                except RuntimeError as err:  # psph's diagnosis stopped the run (its state and history are kept)
+                    print(f"Re={re} {walls} L/dx={n}: stopped: {stop_message(err)}", flush=True)
+                    table.append([re, walls, n, f"stopped: {stop_message(err).removeprefix('psph: error: ')}",
+                                  *["-"] * 5])
+                    continue
                 sample, _, _ = centrelines(run, load_scene(CAVITY, sets).domain.h_over_dx, dx)
                 inner_y, inner_x = (gy > 0) & (gy < 1), (gx > 0) & (gx < 1)  # the walls' values are boundary data
                 u = sample(np.stack([np.full(inner_y.sum(), 0.5), gy[inner_y]], 1))[:, 0]

@@ -85,6 +85,7 @@ def test_the_cavity_study_samples_with_the_kernel_of_its_runs(tmp_path, monkeypa
     seen = {}
 
     def fake_run(scene, out, sets, ranks):
+        assert scene == studies.CAVITY
         seen["sets"] = sets
         return None
 
@@ -105,3 +106,13 @@ def test_the_cavity_study_samples_with_the_kernel_of_its_runs(tmp_path, monkeypa
     # the wall model is an override of the scene's box, not a scene copy written into the results
     assert load_scene(studies.CAVITY, seen["sets"]).bodies[0].model == ("ghost" if "ghost" in argv else "clone")
     assert not list(tmp_path.glob("*.toml"))
+
+
+def test_histories_are_written_as_data(tmp_path):
+    """write_histories: one CSV line per history row of each run, its labels first."""
+    first = [{"time": 0.0, "x": 1.0, "y": 5.0}, {"time": 0.5, "x": 2.0, "y": 6.0}]
+    runs = [(("a", 1), studies.Run(tmp_path, {}, first)),
+            (("b", 2), studies.Run(tmp_path, {}, [{"time": 0.0, "x": 3.0, "y": 7.0}]))]
+    studies.write_histories(tmp_path / "h.csv", ["name", "n"], runs, ["x"])
+    lines = (tmp_path / "h.csv").read_text().splitlines()
+    assert lines == ["name,n,time,x", "a,1,0.0,1.0", "a,1,0.5,2.0", "b,2,0.0,3.0"]

@@ -16,6 +16,7 @@ from psph.particles import Kind
 
 SPHERIC6 = (2.8209512, 0.525652151, 0.14142151)  # amplitude, centre, width of the benchmark acceleration
 MOTION_SAMPLES = 5000  # check_placement: most times at which a prescribed motion is checked
+PERIOD_STEPS = 20  # check_placement: fewest time steps an oscillation's period may span
 
 
 class MotionLaw:
@@ -151,8 +152,10 @@ def check_placement(scene) -> None:
     t = 0 and along its prescribed motion to t_end, an immersed body leaving the domain or coming within
     one kernel support of a periodic edge (shapes and their nearest-node search do not wrap), coming
     within dx of a box's walls, or overlapping another immersed body. The motion is sampled so that no
-    point of a body moves more than dx between samples (at most MOTION_SAMPLES samples; every law's
-    speed stays within its velocity and angular velocity)."""
+    point of a body moves more than dx between samples (every law's speed stays within its velocity and
+    angular velocity), over one period when every moving body oscillates with the same period, and with
+    at most MOTION_SAMPLES samples (coarser for a longer motion). An oscillation shorter than
+    PERIOD_STEPS time steps (cfl h / c0, the largest a run takes) is refused: it would not be resolved."""
     from psph.errors import SceneError
 
     d, dx = scene.domain, scene.domain.dx
@@ -174,21 +177,32 @@ def check_placement(scene) -> None:
                 raise SceneError(f"{path}.size" if b.shape == "box" else f"{path}.center",
                                  f"{b.name!r} leaves the domain along axis {a}"
                                  + (": the fluid at the domain's edge would have no wall" if b.shape == "box" else ""))
+        dt = scene.time.cfl * d.h / scene.physics.sound_speed
+        if "oscillate" in (b.motion.law, b.motion.turning_law) and b.motion.period < PERIOD_STEPS * dt:
+            raise SceneError(f"{path}.motion.period", f"{b.motion.period:g} is shorter than {PERIOD_STEPS} time "
+                             f"steps (cfl h / c0 = {dt:.3g}): the oscillation would not be resolved")
         if b.shape != "box":
             immersed.append((k, Body(b, k, 4.0 * dx, (1.0, 0.0))))  # nodes every dx are enough here
     if not immersed:
         return
     times = [0.0]
-    if any(body.moves for _, body in immersed):
+    moving = [body for _, body in immersed if body.moves]
+    if moving:
         reach = max(np.linalg.norm(body.velocity) + abs(body.omega) * np.linalg.norm(
-            body.profile.nodes - body.center0, axis=1).max() for _, body in immersed)
-        samples = min(MOTION_SAMPLES, reach * scene.time.t_end / dx + 2.0)  # float: a huge velocity is no overflow
-        times = np.linspace(0.0, scene.time.t_end, int(samples))
+            body.profile.nodes - body.center0, axis=1).max() for body in moving)
+        horizon = scene.time.t_end
+        periods = {body.spec.motion.period for body in moving}
+        if all({body.spec.motion.law, body.spec.motion.turning_law} <= {"fixed", "oscillate"} for body in moving) \
+                and len(periods) == 1:  # the whole motion repeats after one period
+            horizon = min(horizon, periods.pop())
+        samples = min(MOTION_SAMPLES, reach * horizon / dx + 2.0)  # float: a huge velocity is no overflow
+        times = np.linspace(0.0, horizon, int(samples))
     for t in times:
         nodes = {k: body.nodes(t)[0] for k, body in immersed}
         for k, body in immersed:
             x = nodes[k]
-            key = f"bodies[{k}].center" if t == 0.0 else f"bodies[{k}].motion"  # later: the motion took it there
+            # later than t = 0, the motion took it there (its own, or the other body's in an overlap)
+            key = f"bodies[{k}].center" if t == 0.0 or not body.moves else f"bodies[{k}].motion"
             for a in range(2):
                 if x[:, a].min() < lower[a] + margin[a] or x[:, a].max() > upper[a] - margin[a]:
                     raise SceneError(key, f"{body.name!r} leaves the domain along axis {a} "
@@ -201,8 +215,8 @@ def check_placement(scene) -> None:
                                      f"bodies[{j}] ({box.name!r}) at t = {t:g}")
             for j, other in immersed:
                 if j != k and np.any(_inside(other, t, x)):
-                    raise SceneError(key, f"{body.name!r} overlaps bodies[{j}] "
-                                     f"({other.name!r}) at t = {t:g}")
+                    culprit = f"bodies[{j}].motion" if t > 0.0 and other.moves and not body.moves else key
+                    raise SceneError(culprit, f"{body.name!r} overlaps bodies[{j}] ({other.name!r}) at t = {t:g}")
 
 
 def _half_size(spec):

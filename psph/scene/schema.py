@@ -60,8 +60,10 @@ class MotionSpec:
                       "rotation_law is given): fixed; constant (velocity from t = 0); ramp (velocity reached "
                       "smoothly over ramp_time, tau^2 (3 - 2 tau)); spheric6 (the SPHERIC benchmark 6 "
                       "acceleration a(t) = 2.8209512 exp(-(t - 0.525652151)^2 / (2 0.14142151^2)) up to t = 1); "
-                      "oscillate (velocity times cos(2 pi t / period), from rest at the centre: amplitude "
-                      "|velocity| period / (2 pi))", choices=MOTION_LAWS)
+                      "oscillate (velocity times cos(2 pi t / period): it starts at the centre at full speed, "
+                      "as constant does, and swings |velocity| period / (2 pi) either side; drag stays "
+                      "measured against the velocity given, so it changes sign with the motion)",
+                      choices=MOTION_LAWS)
     velocity: tuple[float, ...] = option((), doc="translation velocity reached (spheric6: its direction and "
                                          "size are scaled to this vector; oscillate: the peak velocity)")
     angular_velocity: float = option(0.0, doc="rotation rate reached [rad per time unit], about the centre")
@@ -111,7 +113,7 @@ class BodySpec:
             raise SceneError(f"{path}.motion.{key}", "boxes stay fixed (give the lid a velocity instead)")
         if m.velocity and len(m.velocity) != 2:
             raise SceneError(f"{path}.motion.velocity", f"give 2 entries, got {len(m.velocity)}")
-        turns = m.turning_law != "fixed" and m.angular_velocity
+        turns = not m.rotation_law and m.law != "fixed" and m.angular_velocity  # the law moves the rotation
         if m.law != "fixed" and not any(m.velocity) and not turns:
             raise SceneError(f"{path}.motion.velocity", f"a body moving by law {m.law!r} needs a non-zero "
                              "velocity (2 entries)" + ("" if m.rotation_law else " or angular_velocity"))

@@ -18,6 +18,11 @@ from tests.helpers import CASES
 BASES = [read_table(CASES / name) for name in ("static_perturbed.toml", "taylor_green.toml",
                                                "lid_driven_cavity.toml", "kinematic_tgv.toml",
                                                "moving_square.toml", "inclined_ellipse.toml")]
+# the moving square towed while it rocks: every motion key present, for the mutations to reach
+BASES.append(json.loads(json.dumps(BASES[4])))
+BASES[-1]["bodies"][1]["motion"].update(law="constant", rotation_law="oscillate", angular_velocity=1.0, period=2.0,
+                                        ramp_time=0.5)
+BASES[-1]["domain"]["dx"] = 0.1
 
 text = st.text(alphabet=st.characters(min_codepoint=32, max_codepoint=126), max_size=12)
 scalars = st.one_of(st.integers(min_value=-10**30, max_value=10**30), st.floats(), st.booleans(), text,

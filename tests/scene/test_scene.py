@@ -210,6 +210,14 @@ def test_a_lid_on_a_periodic_y_axis_is_refused(model):
      "bodies[1].motion",
      "within dx of the walls of bodies[0]"),
     (["bodies.1.name=' '"], "bodies[1].name", "give the body a name"),
+    # a translation law with nothing to translate beside the rotation's own law
+    (["bodies.1.motion.law=constant", "bodies.1.motion.velocity=[0.0, 0.0]", "bodies.1.motion.rotation_law=ramp",
+      "bodies.1.motion.angular_velocity=0.1"], "bodies[1].motion.velocity", "needs a non-zero velocity (2 entries)"),
+    (["bodies.1.motion.law=oscillate", "bodies.1.motion.period=0.01"], "bodies[1].motion.period",
+     "shorter than 20 time steps"),
+    (["bodies.1.motion.law=fixed", "bodies.1.motion.velocity=[]", "bodies.1.motion.rotation_law=oscillate",
+      "bodies.1.motion.angular_velocity=1.0", "bodies.1.motion.period=1e-300"], "bodies[1].motion.period",
+     "shorter than 20 time steps"),
 ])
 def test_misplaced_bodies_are_refused_by_key(sets, key, words):
     """The moving square (dx = 0.1) with one change each: a body that would be built wrongly or driven into
@@ -238,6 +246,11 @@ def ellipse_with(*sets, second=None):
      {"center": [5.0, 5.0], "size": [0.3, 0.2]}, "bodies[1].center", "overlaps bodies[0]"),
     (["bodies.0.center=[5.0, 5.0]", "bodies.0.size=[0.3, 0.2]", "bodies.0.angle=0"],
      {"center": [5.0, 5.0], "size": [1.0, 0.8]}, "bodies[0].center", "overlaps bodies[1]"),
+    # a moving body runs into a fixed one: the moving body's motion is named, whichever is listed first
+    (["bodies.0.center=[5.0, 5.0]"], {"center": [8.0, 5.0], "motion": {"law": "constant", "velocity": [-1.0, 0.0]}},
+     "bodies[1].motion", "overlaps bodies[1]"),
+    (["bodies.0.center=[8.0, 5.0]", "bodies.0.motion.law=constant", "bodies.0.motion.velocity=[-1.0, 0.0]"],
+     {"center": [5.0, 5.0], "motion": {}}, "bodies[0].motion", "overlaps bodies[1]"),
 ])
 def test_overlapping_and_wrapping_bodies_are_refused(sets, second, key, words):
     with pytest.raises(SceneError) as info:
