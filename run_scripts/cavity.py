@@ -22,11 +22,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from psph.compute.smoothing import make_kernel  # noqa: E402
+from psph.io.history import read_history  # noqa: E402
 from psph.particles import Kind  # noqa: E402
 from psph.scene.load import load_scene  # noqa: E402
 from psph.studies import (  # noqa: E402
     CAVITY,
     CAVITY_WALLS,
+    Run,
     command_line,
     last_snapshot,
     run_scene,
@@ -89,6 +91,9 @@ def main():
                     print(f"Re={re} {walls} L/dx={n}: stopped: {stop_message(err)}", flush=True)
                     table.append([re, walls, n, f"stopped: {stop_message(err).removeprefix('psph: error: ')}",
                                   *["-"] * 5])
+                    if (args.out / name / "history.csv").exists():  # its histories up to the stop
+                        histories[(re, walls, n)] = Run(args.out / name, {}, read_history(args.out / name /
+                                                                                          "history.csv"))
                     continue
                 sample, _, _ = centrelines(run, load_scene(CAVITY, sets).domain.h_over_dx, dx)
                 inner_y, inner_x = (gy > 0) & (gy < 1), (gx > 0) & (gx < 1)  # the walls' values are boundary data
