@@ -113,10 +113,10 @@ class BodySpec:
             raise SceneError(f"{path}.motion.{key}", "boxes stay fixed (give the lid a velocity instead)")
         if m.velocity and len(m.velocity) != 2:
             raise SceneError(f"{path}.motion.velocity", f"give 2 entries, got {len(m.velocity)}")
-        turns = not m.rotation_law and m.law != "fixed" and m.angular_velocity  # the law moves the rotation
+        turns = m.turning_law == m.law and m.angular_velocity  # the law moves the rotation
         if m.law != "fixed" and not any(m.velocity) and not turns:
             raise SceneError(f"{path}.motion.velocity", f"a body moving by law {m.law!r} needs a non-zero "
-                             "velocity (2 entries)" + ("" if m.rotation_law else " or angular_velocity"))
+                             "velocity (2 entries)" + ("" if m.turning_law != m.law else " or angular_velocity"))
         if m.rotation_law not in ("", "fixed") and not m.angular_velocity:
             raise SceneError(f"{path}.motion.angular_velocity", f"a body turning by rotation_law "
                              f"{m.rotation_law!r} needs a non-zero angular_velocity")

@@ -271,6 +271,10 @@ def test_well_placed_bodies_are_accepted():
                                               "bodies.1.motion.angular_velocity=3.0", "time.t_end=1000"])
     load_scene(CASES / "moving_square.toml", ["domain.dx=0.1", "bodies.1.motion.law=oscillate",
                                               "bodies.1.motion.period=2.0", "time.t_end=1000"])
+    # the rotation's law named although it is the translation's, which then moves only the rotation
+    load_scene(CASES / "moving_square.toml", ["domain.dx=0.1", "bodies.1.motion.law=ramp",
+                                              "bodies.1.motion.velocity=[]", "bodies.1.motion.rotation_law=ramp",
+                                              "bodies.1.motion.angular_velocity=1.0"])
 
 
 def test_set_indexes_arrays_of_tables():
