@@ -70,12 +70,16 @@ def test_info_lists_the_model_terms():
 
 def test_a_reader_that_leaves_early_stops_psph_quietly(tmp_path, monkeypatch, capsys):
     """`psph info scene | head -1`: a write into a pipe whose reader has left ends psph with 128 + SIGPIPE
-    and no traceback. A broken pipe elsewhere (stdout still open) is a bug, reported as one."""
+    and no traceback, PETSc initialised or not (its signal handler would abort the process). A broken pipe
+    elsewhere (stdout still open) is a bug, reported as one."""
     import io
     import os
     import sys
 
     from psph import cli
+    from psph.solvers.petsc import petsc
+
+    petsc()
 
     read, write = os.pipe()
     os.close(read)  # the reader leaves before psph writes
@@ -94,6 +98,21 @@ def test_a_reader_that_leaves_early_stops_psph_quietly(tmp_path, monkeypatch, ca
     assert cli.main(["info", str(SCENE)]) == 1
     assert "internal error" in capsys.readouterr().err
     sys.stdout.close()
+
+
+def test_a_run_whose_reader_left_ends_quietly(tmp_path):
+    """`psph run scene | head` with the reader gone before psph writes: exit 141, no PETSc signal error."""
+    import subprocess
+    import sys
+
+    from tests.helpers import ROOT, mpi_environment
+
+    proc = subprocess.Popen([sys.executable, "-m", "psph", "run", str(SCENE), "--out", str(tmp_path / "out"),
+                             "--set", "domain.dx=0.05"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT,
+                            env=mpi_environment())
+    proc.stdout.close()  # before psph has imported anything, let alone written
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 141 and b"PETSC ERROR" not in err and b"Traceback" not in err, err
 
 
 def test_info_estimates_the_time_step():

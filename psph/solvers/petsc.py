@@ -40,8 +40,21 @@ def initialize(options=()) -> None:
     if _state["argv"] is None:
         petsc4py.init(argv)
         _state["argv"] = argv
+        _ignore_sigpipe()
     elif _state["argv"] != argv:
         raise RuntimeError("PETSc is already initialised with other options")
+
+
+def _ignore_sigpipe() -> None:
+    """Give SIGPIPE back to Python. PETSc's signal handler (installed by PetscInitialize) aborts the run
+    with "Caught signal number 13 Broken Pipe" when the reader of psph's output leaves (`psph run ... |
+    head`); ignored, as Python has it, a write into the closed pipe raises BrokenPipeError, which the
+    command line ends quietly (psph.cli)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGPIPE, signal.SIG_IGN)
 
 
 def petsc():
