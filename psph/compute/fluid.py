@@ -28,8 +28,8 @@ those pairs only, without a distance test or a kernel evaluation (2.5x faster th
 import numpy as np
 from numba import njit
 
-from psph.compute.shift_velocity import fast_power
-from psph.compute.smoothing import kernel_f, kernel_w
+from psph.compute.shift_velocity import grad_c_weight
+from psph.compute.smoothing import kernel_f
 from psph.compute.sums import dot, load, pair2, store
 
 
@@ -84,9 +84,7 @@ def _compile(d):
                 r = np.sqrt(rr)
                 f = kernel_f(r, kp)
                 if with_grad_c:
-                    sc = f * vol[j]
-                    if coeff != 0.0:
-                        sc *= 1.0 + coeff * fast_power(kernel_w(r, kp) / w_ref, power)
+                    sc = grad_c_weight(r, f, vol[j], kp, coeff, power, w_ref)
                     c0_ += sc * x0
                     if d > 1:
                         c1_ += sc * x1

@@ -24,6 +24,16 @@ def fast_power(x, n):
     return x ** n
 
 
+@njit(cache=True, inline="always")
+def grad_c_weight(r, f, vol_j, kp, coeff, power, w_ref):
+    """The pair weight of the corrected grad C (thesis eq. 6.15): [1 + coeff (W_ij / W(dx))^power] F_ij V_j,
+    grad_i W_ij = F_ij (x_i - x_j). Shared by corrected_grad_c and the fused pass of compute.fluid."""
+    s = f * vol_j
+    if coeff != 0.0:
+        s *= 1.0 + coeff * fast_power(kernel_w(r, kp) / w_ref, power)
+    return s
+
+
 def _compile_grad_c(d):
     """corrected_grad_c for dimension d, a compile-time constant (as in compute.fluid)."""
 
@@ -38,9 +48,7 @@ def _compile_grad_c(d):
                 if rr >= support2:  # a list pair in the skin adds exactly zero: skip its kernel values
                     continue
                 r = np.sqrt(rr)
-                s = kernel_f(r, kp) * vol[j]
-                if coeff != 0.0:
-                    s *= 1.0 + coeff * fast_power(kernel_w(r, kp) / w_ref, power)
+                s = grad_c_weight(r, kernel_f(r, kp), vol[j], kp, coeff, power, w_ref)
                 g0 += s * x0
                 if d > 1:
                     g1 += s * x1
