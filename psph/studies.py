@@ -93,10 +93,18 @@ def _same_command(a, b) -> bool:
     return key(a) == key(b)
 
 
-# the lid-driven cavity scene, and the overrides of each wall model: clone particles (the scene's), or the
-# fixed ghost particles of a straight wall (bodies[0].model = "ghost", seed 001 section 6.2)
+# the lid-driven cavity scene, and the overrides of each wall model: clone particles with IIPS + NFTS (the
+# scene's), or seed 001's setting (section 6.2): the fixed ghost particles of a straight wall
+# (bodies[0].model = "ghost") with delta+ shifting (IIPS needs clone walls)
 CAVITY = CASES / "lid_driven_cavity.toml"
-CAVITY_WALLS = {"clone": [], "ghost": ["bodies.0.model=ghost"]}
+CAVITY_DELTA_PLUS = ["shifting.method=delta_plus", "iips.update=none"]
+CAVITY_WALLS = {"clone": [], "ghost": ["bodies.0.model=ghost", *CAVITY_DELTA_PLUS]}
+
+
+def shifting_label(scene) -> str:
+    """The shifting of a fluid scene as a table cell: "delta_plus", or "iips + nfts" with IIPS's update."""
+    method = scene.shifting.method
+    return f"{method} + {scene.iips.update}" if method == "iips" and scene.iips.update != "none" else method
 
 
 def rate(e_coarse, e_fine, ratio=2.0) -> float:

@@ -3,16 +3,17 @@
     .venv/bin/python run_scripts/volume_budget.py [--walls clone ghost] [--dx 0.04] [--t0 2] [--t1 6]
         [--set physics.reynolds=1000 --set shifting.method=iips --set iips.update=nfts] [--out DIR]
 
-With V_i = m_i / rho_i (seed 001 eq. 13), dV_i/dt = V_i (dm_i/dt / m_i - drho_i/dt / rho_i). After every
-time step the right-hand side is split into the fluid pairs' and the walls' parts, each with and without
-its shifting (du) terms, summed over regions of the lid-driven cavity (the two top corners, the rest of the
-lid, the other walls, the interior), and integrated over t0..t1 (one evaluation per step, at its end). For
-the fluid pairs, the du terms of the continuity equation (eq. 12: div du as a difference, div(rho du) as a
-sum) add up over all particles to -2 sum_i V_i du_i . grad C_i (grad C over the fluid pairs), and with
-clone walls, whose du mirrors the particle's own, to the same with the walls' part of grad C included:
-printed as "-2 V du.grad C" to check. With IIPS (no du terms) the field update after each IIPS call is a
-part of its own, measured as the change of each particle's volume over the call (NFTS sweeps volume with
-its fictitious time step; seed 000 eq. 9.7), by region of the particle's final position. Writes
+Both wall models run with delta+ shifting (seed 001's; the cavity scene's own is IIPS + NFTS) unless --set
+says otherwise. With V_i = m_i / rho_i (seed 001 eq. 13), dV_i/dt = V_i (dm_i/dt / m_i - drho_i/dt / rho_i).
+After every time step the right-hand side is split into the fluid pairs' and the walls' parts, each with and
+without its shifting (du) terms, summed over regions of the lid-driven cavity (the two top corners, the rest
+of the lid, the other walls, the interior), and integrated over t0..t1 (one evaluation per step, at its end).
+For the fluid pairs, the du terms of the continuity equation (eq. 12: div du as a difference, div(rho du) as a
+sum) add up over all particles to -2 sum_i V_i du_i . grad C_i (grad C over the fluid pairs), and with clone
+walls, whose du mirrors the particle's own, to the same with the walls' part of grad C included: printed as
+"-2 V du.grad C" to check. With IIPS (no du terms) the field update after each IIPS call is a part of its own,
+measured as the change of each particle's volume over the call (NFTS sweeps volume with its fictitious time
+step; seed 000 eq. 9.7), by region of the particle's final position. Writes
 results/volume_budget/budget.{md,csv}.
 """
 
@@ -30,7 +31,7 @@ from psph.errors import PsphError
 from psph.parallel.comm import allreduce_sum
 from psph.particles import FieldSpec
 from psph.scene.load import load_scene
-from psph.studies import CAVITY, CAVITY_WALLS, command_line, write_table
+from psph.studies import CAVITY, CAVITY_DELTA_PLUS, CAVITY_WALLS, command_line, write_table
 
 PARTS = ("fluid pairs, u", "fluid pairs, du", "walls, u", "walls, du", "IIPS field update")
 REGIONS = ("top-left corner", "top-right corner", "lid", "other walls", "interior")
@@ -156,7 +157,7 @@ def main():
     for walls in args.walls:  # every scene is checked before the first run starts
         try:
             scenes[walls] = load_scene(CAVITY, [f"domain.dx={args.dx}", f"time.t_end={args.t1}", "output.every=0",
-                                                 *CAVITY_WALLS[walls], *args.set])
+                                                 *CAVITY_DELTA_PLUS, *CAVITY_WALLS[walls], *args.set])
         except PsphError as err:
             parser.error(f"{walls} walls: {err}")
     rows = []

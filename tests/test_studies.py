@@ -69,6 +69,16 @@ def test_a_tables_command_line_is_the_study_as_typed(monkeypatch):
     assert studies.command_line() == "run_scripts/cavity.py --re 1000 --set iips.update=nfts --out 'results/a b'"
 
 
+def cavity_study():
+    """run_scripts/cavity.py as a module."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("cavity_study", studies.CASES.parent / "run_scripts" / "cavity.py")
+    cavity = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(cavity)
+    return cavity
+
+
 @pytest.mark.parametrize("argv, expected", [
     ([], 2.0),                                     # the scene's h/dx, passed explicitly (earlier runs' key)
     (["--h-over-dx", "1.5"], 1.5),
@@ -77,11 +87,7 @@ def test_a_tables_command_line_is_the_study_as_typed(monkeypatch):
 ])
 def test_the_cavity_study_samples_with_the_kernel_of_its_runs(tmp_path, monkeypatch, argv, expected):
     """run_scripts/cavity.py interpolates the centrelines with the h/dx its run used."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("cavity_study", studies.CASES.parent / "run_scripts" / "cavity.py")
-    cavity = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(cavity)
+    cavity = cavity_study()
     seen = {}
 
     def fake_run(scene, out, sets, ranks):
@@ -103,8 +109,11 @@ def test_the_cavity_study_samples_with_the_kernel_of_its_runs(tmp_path, monkeypa
         cavity.main()
     assert seen["ratio"] == expected
     assert seen["sets"][1] == f"domain.h_over_dx={1.5 if '--h-over-dx' in argv else 2.0}"
-    # the wall model is an override of the scene's box, not a scene copy written into the results
-    assert load_scene(studies.CAVITY, seen["sets"]).bodies[0].model == ("ghost" if "ghost" in argv else "clone")
+    # the wall model is an override of the scene's box, not a scene copy written into the results; the clone
+    # walls keep the scene's IIPS + NFTS, the ghost walls (seed 001's) shift with delta+
+    scene = load_scene(studies.CAVITY, seen["sets"])
+    assert scene.bodies[0].model == ("ghost" if "ghost" in argv else "clone")
+    assert studies.shifting_label(scene) == ("delta_plus" if "ghost" in argv else "iips + nfts")
     assert not list(tmp_path.glob("*.toml"))
 
 
@@ -116,3 +125,30 @@ def test_histories_are_written_as_data(tmp_path):
     studies.write_histories(tmp_path / "h.csv", ["name", "n"], runs, ["x"])
     lines = (tmp_path / "h.csv").read_text().splitlines()
     assert lines == ["name,n,time,x", "a,1,0.0,1.0", "a,1,0.5,2.0", "b,2,0.0,3.0"]
+
+
+def test_the_cavity_study_measures_how_steady_the_flow_is():
+    """kinetic_energy_change: KE(t_end) / KE(t1) - 1 with t1 the last row at or before 0.8 t_end."""
+    cavity = cavity_study()
+    rows = [{"time": t, "kinetic_energy": 1.0 + 0.01 * t} for t in np.linspace(0.0, 10.0, 11)]
+    assert cavity.kinetic_energy_change(rows) == pytest.approx(1.10 / 1.08 - 1.0)
+    rows = [{"time": t, "kinetic_energy": 2.0} for t in (0.0, 4.0, 7.9, 8.5, 10.0)]
+    assert cavity.kinetic_energy_change(rows) == 0.0
+
+
+def test_the_cavity_study_refuses_a_setting_a_wall_model_cannot_take(tmp_path, monkeypatch, capsys):
+    """IIPS needs clone walls: --walls clone ghost --set shifting.method=iips stops with the scene's one-line
+    error before the first run, not after the clone-wall runs."""
+    cavity = cavity_study()
+
+    def no_run(*args, **kwargs):
+        raise AssertionError("a run started")
+
+    monkeypatch.setattr(cavity, "run_scene", no_run)
+    monkeypatch.setattr("sys.argv", ["cavity.py", "--walls", "clone", "ghost", "--set", "shifting.method=iips",
+                                     "--out", str(tmp_path / "out")])
+    with pytest.raises(SystemExit) as info:
+        cavity.main()
+    assert info.value.code == 2
+    assert "ghost walls: bodies[0].model:" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

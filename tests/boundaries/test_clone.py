@@ -194,7 +194,8 @@ def test_shifting_towards_a_wall_compresses_and_along_it_does_not(tmp_path):
     """The walls' du terms of the continuity equation: a particle shifted towards the bottom wall is
     compressed, one shifted along it is not. (With rho_j = rho_i these terms reduce to the particle's own
     du, so this does not tell the clones' mirrored du from an unmirrored one; the next test does.)"""
-    driver, system, p = cavity(tmp_path, **{"physics.reynolds": 1e12, "shifting.method": "delta_plus"})
+    driver, system, p = cavity(tmp_path, **{"physics.reynolds": 1e12, "shifting.method": "delta_plus",
+                                            "iips.update": "none"})
     assert driver.scheme.shift.active
     i = particle_at(p, 0.5 + DX / 2, DX / 2)
     d_rho = {}
@@ -213,7 +214,7 @@ def test_the_clones_shifting_velocity_is_mirrored(tmp_path):
     rate is that term; the walls' density rate of the same particle, 2 rho du_i . sum_j grad W V_j, times
     dx gives its size (unmirrored, the x-rate is 5% of that)."""
     driver, system, p = cavity(tmp_path, **{"physics.reynolds": 1e12, "shifting.method": "delta_plus",
-                                            "bodies.0.wall": "free_slip"})
+                                            "iips.update": "none", "bodies.0.wall": "free_slip"})
     assert driver.scheme.variant == 0
     i = particle_at(p, 0.5 + DX / 2, DX / 2)
     p["shift_velocity"][:] = 0.0

@@ -17,6 +17,7 @@ from psph.errors import SceneError
 from psph.io.history import read_history
 from psph.particles import Kind
 from psph.scene.load import load_scene
+from psph.studies import CAVITY_WALLS
 from tests.helpers import CASES, run_psph
 
 
@@ -104,11 +105,13 @@ def test_couette_with_iips_next_to_the_walls(tmp_path):
 
 def test_cavity_with_iips_nfts_keeps_its_volume(tmp_path):
     """Clone walls with delta+ leak volume through the du terms (-2 sum V du . grad C, above all in the lid's
-    corners: eps_V = 0.38% at t = 2.4, L/dx = 25, README). IIPS + NFTS has no du terms, and its fictitious
-    step lets neither mass nor momentum cross a wall: mass to round-off (before, the mirrored steps' flux
-    lost 0.14% by t = 2.4) and eps_V within 0.1%."""
+    corners: eps_V = 0.38% at t = 2.4, L/dx = 25, README). IIPS + NFTS, the cavity scene's own shifting, has
+    no du terms, and its fictitious step lets neither mass nor momentum cross a wall: mass to round-off
+    (before, the mirrored steps' flux lost 0.14% by t = 2.4) and eps_V within 0.1%."""
+    scene = load_scene(CASES / "lid_driven_cavity.toml")
+    assert (scene.shifting.method, scene.iips.update, scene.iips.threshold) == ("iips", "nfts", 0.08)
     out = run(tmp_path, "lid_driven_cavity.toml", "cavity_iips", "domain.dx=0.04", "time.t_end=2.5",
-              "output.every=0", "output.history_every=20", "shifting.method=iips", "iips.update=nfts")
+              "output.every=0", "output.history_every=20")
     rows = read_history(out / "history.csv")
     assert rows[-1]["iips_calls"] > 0
     mass = np.array([r["total_mass"] for r in rows])
@@ -136,10 +139,11 @@ def test_hydrostatic_tank_stays_at_rest(tmp_path, model):
 @pytest.mark.parametrize("model", ["clone", "ghost"])
 def test_lid_driven_cavity_conserves_mass_and_turns(tmp_path, model):
     """A short Re = 100 cavity run: mass to round-off; the lid drags the top layer forward and the fluid
-    returns below (the primary vortex forms); with clone particles and with ghost walls. (Total mass is a
-    check of the scheme, not of the walls: no wall pair changes a mass.)"""
+    returns below (the primary vortex forms); with clone particles (and the scene's IIPS + NFTS) and with
+    seed 001's ghost walls and delta+. (Total mass is a check of the scheme, not of the walls: no wall pair
+    changes a mass.)"""
     out = run(tmp_path, "lid_driven_cavity.toml", "cavity", "domain.dx=0.04", "time.t_end=1.0", "output.every=1.0",
-              "output.history_every=10", *walls(model))
+              "output.history_every=10", *CAVITY_WALLS[model])
     rows = read_history(out / "history.csv")
     mass = np.array([r["total_mass"] for r in rows])
     assert np.abs(mass / mass[0] - 1.0).max() < 1e-12

@@ -268,12 +268,13 @@ def test_grad_c_in_the_gradient_pass_changes_no_bit(tmp_path, case):
 
     from psph.drivers.fluid import FluidDriver
     from psph.scene.load import load_scene
+    from psph.studies import CAVITY_DELTA_PLUS
     from tests.conftest import periodic_scene
 
     def driver(name, fused):
         if case == "cavity_delta_plus":
             scene = load_scene(CASES / "lid_driven_cavity.toml", ["domain.dx=0.05", "time.t_end=0.05",
-                                                                   "shifting.method=delta_plus"])
+                                                                   *CAVITY_DELTA_PLUS])
         else:
             scheme = "riemann_ale" if case.startswith("riemann") else "delta_ale"
             method = case.split("_", 1)[1] if case.startswith("riemann") else case

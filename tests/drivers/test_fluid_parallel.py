@@ -7,6 +7,7 @@ from mpi4py import MPI
 
 from psph.drivers.fluid import FluidDriver
 from psph.io.history import read_history
+from psph.studies import CAVITY_DELTA_PLUS
 from tests.conftest import gather_by_gid, periodic_scene
 from tests.shifting.test_iips import petsc_options
 
@@ -67,12 +68,12 @@ def test_riemann_ale_run_matches_serial(comm, mpi_tmp_path, shifting, update, th
 
 
 @pytest.mark.parametrize("case,sets,tol", [
-    ("lid_driven_cavity.toml", ["shifting.method=delta_plus"], 1e-11),
+    ("lid_driven_cavity.toml", CAVITY_DELTA_PLUS, 1e-11),
     ("lid_driven_cavity.toml", ["shifting.method=iips", "iips.threshold=0.02", "iips.update=nfts",
                                "initial.sigma_over_dx=0.05"], 1e-7),
     ("lid_driven_cavity.toml", ["shifting.method=iips", "iips.threshold=0.02", "iips.update=mls2_increment",
                                "initial.sigma_over_dx=0.05"], 1e-7),
-    ("lid_driven_cavity.toml", ["shifting.method=delta_plus", "physics.viscosity=morris"], 1e-11),
+    ("lid_driven_cavity.toml", [*CAVITY_DELTA_PLUS, "physics.viscosity=morris"], 1e-11),
     ("hydrostatic_tank.toml", [], 1e-11),
     ("inclined_ellipse.toml", ["domain.dx=0.2", "physics.free_stream_ramp=0.05"], 1e-11),
     ("moving_square.toml", ["domain.dx=0.1", "time.t_end=0.3", "bodies.1.motion.law=ramp",

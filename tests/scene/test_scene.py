@@ -9,6 +9,7 @@ from psph.errors import SceneError, UsageError
 from psph.scene.load import apply_overrides, load_scene, parse_override, read_table, scene_from_table
 from psph.scene.schema import Scene
 from psph.scene.validate import describe_keys
+from psph.studies import CAVITY_WALLS
 from tests.helpers import CASES
 
 
@@ -128,9 +129,8 @@ def test_every_key_is_documented():
 
 
 def ghost_cavity(**changes):
-    """The lid-driven cavity's table with ghost walls, and `changes` as key path -> value."""
-    table = read_table(CASES / "lid_driven_cavity.toml")
-    table["bodies"][0]["model"] = "ghost"
+    """The lid-driven cavity's table with seed 001's ghost walls and delta+, and `changes` as key path -> value."""
+    table = apply_overrides(read_table(CASES / "lid_driven_cavity.toml"), CAVITY_WALLS["ghost"])
     for path, value in changes.items():
         node = table
         *parents, last = path.split(".")
