@@ -102,7 +102,8 @@ def main():
                 sets = [f"domain.dx={dx}", f"domain.h_over_dx={ratio}", f"physics.reynolds={re}",
                         f"time.t_end={args.t_end}", f"output.every={args.t_end}", "output.history_every=50",
                         *CAVITY_WALLS[walls], *args.set]
-                shifting = shifting_label(load_scene(CAVITY, sets))
+                scene = load_scene(CAVITY, sets)
+                shifting = shifting_label(scene)
                 try:
                     run = run_scene(CAVITY, args.out / name, sets=sets, ranks=args.ranks)
                 except RuntimeError as err:  # psph's diagnosis stopped the run (its state and history are kept)
@@ -113,7 +114,7 @@ def main():
                         histories[(re, walls, n)] = Run(args.out / name, {}, read_history(args.out / name /
                                                                                           "history.csv"))
                     continue
-                sample, _, _ = centrelines(run, load_scene(CAVITY, sets).domain.h_over_dx, dx)
+                sample, _, _ = centrelines(run, scene.domain.h_over_dx, dx)
                 inner_y, inner_x = (gy > 0) & (gy < 1), (gx > 0) & (gx < 1)  # the walls' values are boundary data
                 u = sample(np.stack([np.full(inner_y.sum(), 0.5), gy[inner_y]], 1))[:, 0]
                 v = sample(np.stack([gx[inner_x], np.full(inner_x.sum(), 0.5)], 1))[:, 1]
