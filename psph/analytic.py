@@ -9,6 +9,8 @@ with Re = U L / nu and t in units of L / U (the functions take dimensional t and
 The pressure sign is the opposite of the thesis' (eq. 3.1):
 with the corrected velocity, only this sign balances the momentum equation. tests/test_analytic.py checks
 symbolically that (u, v, p) solve the incompressible Navier-Stokes equations for any U, L, rho, Re.
+
+Elliptical drop (seed 002 section 3.4, eq. 3.19-3.20; Monaghan 1994): see EllipticalDrop.
 """
 
 import numpy as np
@@ -41,3 +43,38 @@ def couette_startup(y, t, *, U=1.0, H=1.0, nu=1.0, terms=200):
     n = np.arange(1, terms + 1)[:, None]
     series = 2.0 * U * (-1.0) ** n / (n * np.pi) * np.sin(n * np.pi * y / H) * np.exp(-nu * (n * np.pi / H) ** 2 * t)
     return U * y / H + series.sum(axis=0)
+
+
+class EllipticalDrop:
+    """An inviscid drop, at t = 0 a disc of radius R about `center` with u = A0 x, v = -A0 y and
+    p = rho A0^2 / 2 (R^2 - x^2 - y^2) (x, y from the centre; seed 002 eq. 3.19-3.20), stays an ellipse
+    x^2 / a^2 + y^2 / b^2 = 1 with the linear field u = A x, v = -A y and
+        da/dt = A a,   db/dt = -A b,   dA/dt = A^2 (b^2 - a^2) / (a^2 + b^2),   a(0) = b(0) = R, A(0) = A0,
+        p = rho / 2 [(A^2 + dA/dt) (a^2 - x^2) - (A^2 - dA/dt) y^2]
+    (the momentum equation gives p up to a constant, and p = 0 on the ellipse fixes it and dA/dt; the area
+    pi a b stays pi R^2). tests/test_analytic.py checks symbolically that this solves the Euler equations with
+    p = 0 on a boundary that moves with the fluid. The ODE is integrated once to t_end (scipy, rtol 1e-12)."""
+
+    def __init__(self, radius, a0, t_end, center=(0.0, 0.0), rho=1.0):
+        from scipy.integrate import solve_ivp
+
+        self.radius, self.a0, self.center, self.rho = radius, a0, np.asarray(center, dtype=float), rho
+
+        def rhs(_, y):
+            a, b, A = y
+            return [A * a, -A * b, A * A * (b * b - a * a) / (a * a + b * b)]
+
+        self._solution = solve_ivp(rhs, (0.0, max(t_end, 1e-12)), [radius, radius, a0], method="DOP853",
+                                   rtol=1e-12, atol=1e-14 * radius * max(1.0, abs(a0)), dense_output=True).sol
+
+    def state(self, t):
+        """(a, b, A, dA/dt) at time t."""
+        a, b, A = self._solution(t)
+        return a, b, A, A * A * (b * b - a * a) / (a * a + b * b)
+
+    def fields(self, pos, t):
+        """(velocity (n, 2), pressure (n,)) at `pos` and time t (inside the drop)."""
+        a, b, A, dA = self.state(t)
+        x, y = (pos[:, 0] - self.center[0]), (pos[:, 1] - self.center[1])
+        p = 0.5 * self.rho * ((A * A + dA) * (a * a - x * x) - (A * A - dA) * y * y)
+        return np.stack([A * x, -A * y], axis=1), p

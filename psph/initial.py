@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from psph.analytic import taylor_green
+from psph.analytic import EllipticalDrop, taylor_green
 from psph.compute.random import gaussian_by_gid
 from psph.particles import FieldSpec, Kind, ParticleSet
 
@@ -39,14 +39,24 @@ def initial_fields(scene, pos) -> dict:
         vel, p = taylor_green(pos, 0.0, U=scene.physics.reference_velocity, L=d.upper[0] - d.lower[0],
                               rho=scene.physics.density, lower=d.lower)
         fields = {"velocity": vel, "pressure": p}
+    if scene.initial.velocity == "elliptical_drop":
+        vel, p = elliptical_drop(scene).fields(pos, 0.0)
+        fields = {"velocity": vel, "pressure": p}
     if scene.initial.pressure == "hydrostatic":
         fields["pressure"] = hydrostatic_pressure(scene, pos)
     return fields
 
 
+def elliptical_drop(scene, t_end=0.0):
+    """The scene's drop as an analytic.EllipticalDrop (A0 = reference_velocity / drop_radius), solved to t_end."""
+    ini, ph = scene.initial, scene.physics
+    return EllipticalDrop(ini.drop_radius, ph.reference_velocity / ini.drop_radius, t_end,
+                          center=scene.domain.center, rho=ph.density)
+
+
 def reset_initial_fields(scene, particles) -> None:
     """Set the initial-condition fields again at the owned fluid particles' current positions (after the
-    pre-procedure moved them)."""
+    pre-procedure or the packing moved them)."""
     fluid = particles.owned("kind") == Kind.FLUID
     for name, values in initial_fields(scene, particles.owned("position")[fluid]).items():
         particles.owned(name)[fluid] = values

@@ -15,6 +15,7 @@ class Kind(IntEnum):
     INLET = 3
     OUTLET = 4
     FREE_SURFACE = 5
+    FRAME = 6  # fixed particles closing a free surface during the particle packing (removed after it)
 
 
 @dataclass(frozen=True)
@@ -62,6 +63,11 @@ class ParticleSet:
             return
         self.specs[spec.name] = spec
         self._arrays[spec.name] = np.full(spec.array_shape(self.n_local, self.dim), fill, dtype=spec.dtype)
+
+    def remove_field(self, name: str) -> None:
+        """Forget field `name` (no-op if absent)."""
+        self.specs.pop(name, None)
+        self._arrays.pop(name, None)
 
     def __contains__(self, name: str) -> bool:
         return name in self._arrays

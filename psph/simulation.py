@@ -145,6 +145,8 @@ def estimate_resources(scene) -> tuple:
     ball = {1: 2.0 * radius, 2: math.pi * radius**2, 3: 4.0 / 3.0 * math.pi * radius**3}[d.dimension]
     per_particle = 8 * 64 + ball * (8 + 12 * d.dimension**2)
     n = d.estimated_particles()
+    if scene.initial.drop_radius > 0:  # the disc's lattice points, and the packing's frame around it
+        n = math.ceil(math.pi * (scene.initial.drop_radius + d.support) ** 2 / d.dx**2)
     return n, n * per_particle, per_particle
 
 

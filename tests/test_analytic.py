@@ -3,7 +3,7 @@
 import numpy as np
 import sympy as sp
 
-from psph.analytic import couette_startup, taylor_green, taylor_green_kinetic_energy
+from psph.analytic import EllipticalDrop, couette_startup, taylor_green, taylor_green_kinetic_energy
 
 
 def test_taylor_green_solves_navier_stokes():
@@ -61,3 +61,51 @@ def test_couette_startup_solves_the_diffusion_problem():
     u_yy = (couette_startup(yy + e, tt, U=U, H=Hn, nu=nun) - 2 * couette_startup(yy, tt, U=U, H=Hn, nu=nun)
             + couette_startup(yy - e, tt, U=U, H=Hn, nu=nun)) / e**2
     assert abs(u_t[0] - nun * u_yy[0]) < 1e-4 * abs(u_t[0])
+
+
+def test_elliptical_drop_solves_euler_with_a_free_surface():
+    """u = A x, v = -A y and the pressure of analytic.EllipticalDrop solve the Euler equations; with the
+    ODE's dA/dt the pressure vanishes on x^2/a^2 + y^2/b^2 = 1, which moves with the fluid (symbolic)."""
+    x, y, t, rho = sp.symbols("x y t rho", positive=True)
+    a, b, A = (sp.Function(name)(t) for name in "abA")
+    dA = A**2 * (b**2 - a**2) / (a**2 + b**2)
+    ode = {sp.Derivative(a, t): A * a, sp.Derivative(b, t): -A * b, sp.Derivative(A, t): dA}
+    u, v = A * x, -A * y
+    p = rho / 2 * ((A**2 + dA) * (a**2 - x**2) - (A**2 - dA) * y**2)
+    assert sp.simplify(sp.diff(u, x) + sp.diff(v, y)) == 0
+    for comp, grad_p in ((u, sp.diff(p, x)), (v, sp.diff(p, y))):
+        residual = sp.diff(comp, t) + u * sp.diff(comp, x) + v * sp.diff(comp, y) + grad_p / rho
+        assert sp.simplify(residual.subs(ode)) == 0
+    s = sp.symbols("s")  # the boundary: x = a cos s, y = b sin s
+    assert sp.simplify(p.subs({x: a * sp.cos(s), y: b * sp.sin(s)})) == 0
+    level = x**2 / a**2 + y**2 / b**2  # material derivative of the level function vanishes everywhere
+    material = sp.diff(level, t) + u * sp.diff(level, x) + v * sp.diff(level, y)
+    assert sp.simplify(material.subs(ode)) == 0
+    # seed 002 eq. 3.20 at t = 0 (a = b = R, dA/dt = 0)
+    R, A0 = sp.symbols("R A0", positive=True)
+    p0 = p.subs({a: R, b: R}).subs(A, A0)
+    assert sp.simplify(p0 - rho * A0**2 / 2 * (R**2 - x**2 - y**2)) == 0
+
+
+def test_elliptical_drop_keeps_its_area_and_starts_from_seed_002():
+    drop = EllipticalDrop(0.5, 2.0, 1.5, center=(1.0, -1.0), rho=3.0)
+    for t in (0.0, 0.3, 1.5):
+        a, b, _, _ = drop.state(t)
+        assert abs(a * b / 0.25 - 1.0) < 1e-10
+    a, b, A, dA = drop.state(0.0)
+    assert (a, b, A, dA) == (0.5, 0.5, 2.0, 0.0)
+    pos = np.array([[1.0, -1.0], [1.2, -0.9], [1.5, -1.0]])
+    vel, p = drop.fields(pos, 0.0)
+    assert np.allclose(vel, [[0.0, 0.0], [0.4, -0.2], [1.0, 0.0]])
+    assert np.allclose(p, 0.5 * 3.0 * 4.0 * (0.25 - ((pos - [1.0, -1.0]) ** 2).sum(axis=1)))
+    # a stretches, b shrinks, A decays; the values at t A0 = 1 (R = 1) of an independent RK4 integration
+    a1, b1, A1, _ = EllipticalDrop(1.0, 1.0, 1.0).state(1.0)
+    y, n = np.array([1.0, 1.0, 1.0]), 4000
+    f = lambda y: np.array([y[2] * y[0], -y[2] * y[1], y[2] ** 2 * (y[1] ** 2 - y[0] ** 2) / (y[0] ** 2 + y[1] ** 2)])  # noqa: E731
+    for _ in range(n):
+        k1 = f(y)
+        k2 = f(y + 0.5 / n * k1)
+        k3 = f(y + 0.5 / n * k2)
+        k4 = f(y + k3 / n)
+        y = y + (k1 + 2 * k2 + 2 * k3 + k4) / (6 * n)
+    assert np.allclose([a1, b1, A1], y, rtol=1e-10)

@@ -18,8 +18,11 @@ def thickness(scene) -> float:
 
 
 def fluid_mask(scene, pos) -> np.ndarray:
-    """Which lattice points the fluid fills: the fill region, inside every box, outside immersed bodies."""
+    """Which lattice points the fluid fills: the fill region (or the drop's disc), inside every box, outside
+    immersed bodies."""
     keep = np.ones(len(pos), dtype=bool)
+    if scene.initial.drop_radius > 0:
+        keep &= ((pos - np.asarray(scene.domain.center)) ** 2).sum(axis=1) < scene.initial.drop_radius ** 2
     lo, hi = scene.initial.fill_lower, scene.initial.fill_upper
     if lo:
         keep &= np.all(pos >= np.asarray(lo), axis=1)

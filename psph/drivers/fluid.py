@@ -51,6 +51,36 @@ class TaylorGreenReference:
         return {"L2_vx_error": l2, "kinetic_energy_exact": exact, "kinetic_energy_error": kinetic / exact - 1.0}
 
 
+class EllipticalDropReference:
+    """The drop against its analytic evolution (analytic.EllipticalDrop, seed 002 section 3.4): semi-axes from
+    the fluid's second moments about its centroid, a = 2 sqrt(sum V x^2 / sum V) (exact for a uniformly filled
+    ellipse), their relative errors, and the RMS pressure error over the fluid in units of the initial
+    centre pressure rho0 A0^2 R^2 / 2."""
+
+    def __init__(self, scene):
+        from psph.initial import elliptical_drop
+
+        self.drop = elliptical_drop(scene, scene.time.t_end)
+        self.p_scale = 0.5 * scene.physics.density * scene.physics.reference_velocity ** 2
+
+    def errors(self, system, t, kinetic):
+        p, comm = system.particles, system.comm
+        mask = fluid_mask(system)
+        pos, vol = p.owned("position")[mask], p.owned("volume")[mask]
+        first = allreduce_sum(comm, np.concatenate([[vol.sum()], vol @ pos]))
+        rel = pos - first[1:] / first[0]
+        second = allreduce_sum(comm, np.array([vol @ rel[:, 0] ** 2, vol @ rel[:, 1] ** 2]))
+        a, b = 2.0 * np.sqrt(second / first[0])
+        a_exact, b_exact, _, _ = self.drop.state(t)
+        _, pressure = self.drop.fields(pos, t)
+        l2, _ = norms(comm, (p.owned("pressure")[mask] - pressure) / self.p_scale, np.ones(len(pos), bool))
+        return {"semi_axis_a": a, "semi_axis_b": b, "semi_axis_a_exact": a_exact, "semi_axis_b_exact": b_exact,
+                "semi_axis_error": max(abs(a / a_exact - 1.0), abs(b / b_exact - 1.0)), "L2_pressure_error": l2}
+
+
+REFERENCES = {"taylor_green": TaylorGreenReference, "elliptical_drop": EllipticalDropReference}
+
+
 class FluidDriver:
     @staticmethod
     def describe(scene) -> list:
@@ -62,6 +92,13 @@ class FluidDriver:
             lines.append(f"IIPS after each step, field update: {scene.iips.update} (thesis ch. 9)")
         if scene.initial.velocity == "taylor_green":
             lines.append("diagnostics against the analytic Taylor-Green vortex: L2|v_x - v_xA| (eq. 3.8), E_k")
+        if scene.initial.velocity == "elliptical_drop":
+            lines.append("diagnostics against the analytic elliptical drop (seed 002 section 3.4): semi-axes, "
+                         "pressure")
+        k = scene.packing
+        if k.iterations:
+            lines.append(f"particle packing first (seed 002 eq. 2.16): at most {k.iterations} iterations, alpha = "
+                         f"{k.alpha:g}, cfl = {k.cfl:g}, until T < {k.tolerance:g} beta")
         return lines
 
     def __init__(self, scene, comm, out_dir, log=None, restart=None, progress=False):
@@ -72,7 +109,9 @@ class FluidDriver:
                               halo_fields=self.scheme.halo_fields(), log=log, restart=restart, progress=progress)
         self.system = self.sim.system
         self.resumed = restart[0]["driver"] if restart else None
-        self.pre = None
+        self.pre, self.packing = None, None
+        if restart is None and scene.packing.iterations > 0:
+            self.packing = self.pack()
         if restart is None and scene.iips.pre_newton > 0:
             self.pre = self.pre_procedure()
         self.scheme.initialize(self.system, t=self.resumed["time"] if restart else 0.0, fresh=restart is None)
@@ -89,7 +128,7 @@ class FluidDriver:
             self.iips = ImplicitShifting(scene.iips, self.sim.comm, volume=self.concentration_volume)
             if self.pre is not None:
                 self.iips.set_initial_linf(self.pre["linf"])
-        self.reference = TaylorGreenReference(scene) if scene.initial.velocity == "taylor_green" else None
+        self.reference = REFERENCES[scene.initial.velocity](scene) if scene.initial.velocity in REFERENCES else None
         self.initial_volume = allreduce_sum(self.sim.comm, float(
             self.system.particles.owned("volume")[fluid_mask(self.system)].sum()))
         self.first_dt = None
@@ -98,6 +137,24 @@ class FluidDriver:
             self.first_dt = self.resumed["first_dt"]
             if self.iips is not None:
                 self.iips.restore(self.resumed["iips"])
+
+    def pack(self) -> dict:
+        """Colagrossi et al.'s particle packing (psph.packing, seed 002) before the fluid fields exist, then
+        the initial condition again at the packed positions; its history goes to OUT/packing.csv. A failure
+        writes the state. Collective."""
+        from psph.packing import pack
+
+        with self.sim.diagnose_failures(lambda: (0, 0.0)):
+            report = pack(self.scene, self.system)
+        reset_initial_fields(self.scene, self.system.particles)
+        if self.sim.comm.rank == 0:
+            np.savetxt(self.sim.out_dir / "packing.csv", np.asarray(report["rows"]), delimiter=",",
+                       header="iteration,kinetic_energy_over_beta,Linf_grad_gamma", comments="", fmt="%.10g")
+        how = "T < tolerance" if report["converged"] else "the iteration limit (packing.iterations)"
+        self.sim.log(f"packing: {report['iterations']} iteration(s) to {how}, T/beta = {report['kinetic_energy']:.2e}, "
+                     f"Linf(grad Gamma) h {report['Linf_grad_gamma_start']:.3e} -> {report['Linf_grad_gamma']:.3e} "
+                     f"(frame of {report['frame_particles']} particles), {report['time_s']:.1f} s")
+        return {k: v for k, v in report.items() if k != "rows"}
 
     def pre_procedure(self) -> dict:
         """The static pre-procedure (iips.pre_newton IIPS iterations, for every shifting method) before the
@@ -328,4 +385,4 @@ class FluidDriver:
                                                        if "L2_vx_error" in final else ""))
         steps_min = allreduce_min(sim.comm, step)
         return sim.summary(steps=steps_min, final={k: v for k, v in final.items() if k != "time"} | {"time": t},
-                           **totals)
+                           **totals, **({"packing": self.packing} if self.packing else {}))

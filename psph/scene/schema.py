@@ -36,6 +36,10 @@ class DomainSpec:
                                  f"(got {length:g}/{self.dx:g} = {cells:.6g} spacings)")
 
     @property
+    def center(self) -> tuple:
+        return tuple(0.5 * (lo + hi) for lo, hi in zip(self.lower, self.upper))
+
+    @property
     def h(self) -> float:
         return self.h_over_dx * self.dx
 
@@ -136,14 +140,34 @@ class InitialSpec:
                                   ge=0.0, le=1.0)
     seed: int = option(0, doc="seed of the perturbation (results do not depend on the rank count)",
                        ge=0, lt=2**63)
-    velocity: str = option("zero", doc="initial velocity and pressure: zero (no fields) or the analytic "
-                           "taylor_green vortex (2-D bi-periodic square)", choices=("zero", "taylor_green"))
+    velocity: str = option("zero", doc="initial velocity and pressure: zero (no fields), the analytic "
+                           "taylor_green vortex (2-D bi-periodic square), or elliptical_drop: u = A0 x, v = -A0 y "
+                           "and p = rho0 A0^2 / 2 (R^2 - r^2) about the drop's centre, A0 = reference_velocity / "
+                           "drop_radius (seed 002 eq. 3.19-3.20)", choices=("zero", "taylor_green", "elliptical_drop"))
+    drop_radius: float = option(0.0, doc="2-D: the fluid fills the disc of this radius R at the domain's centre, "
+                                "a drop whose rim is a free surface (0: no drop)", ge=0.0)
     fill_lower: tuple[float, ...] = option((), doc="lower corner of the region the fluid fills (default: "
                                            "the domain)")
     fill_upper: tuple[float, ...] = option((), doc="upper corner of the fluid region (a tank's free surface)")
     pressure: str = option("zero", doc="initial pressure without an analytic velocity field: zero, or "
                            "hydrostatic (rho0 |g| (free surface - depth) with gravity along -y)",
                            choices=("zero", "hydrostatic"))
+
+
+@dataclass(frozen=True)
+class PackingSpec:
+    iterations: int = option(0, doc="fluid runs: at most this many iterations of Colagrossi et al.'s particle "
+                             "packing before the flow starts (seed 002 eq. 2.16; 0: none): the particles settle "
+                             "where grad Gamma = grad sum_j W_ij V0 vanishes, held by the walls' solid particles "
+                             "and by fixed frame particles outside every free surface (removed afterwards)", ge=0)
+    alpha: float = option(0.01, doc="damping zeta = alpha sqrt(beta) / V0^(1/d) (seed 002 eq. 2.15 suggests "
+                          "1e-3 to 5e-3; 0.01 levels the drop's grad Gamma 50 times further in 1000 "
+                          "iterations than 0.002: README, Particle packing)", gt=0.0, le=1.0)
+    cfl: float = option(1.0, doc="time step cfl V0^(1/d) / sqrt(beta) (seed 002 eq. 2.17: 1), at most "
+                        "cfl h / (2 sqrt(beta))", gt=0.0, le=2.0)
+    tolerance: float = option(1e-8, doc="stop once the specific kinetic energy sum_i |u_i|^2 / 2 falls below this "
+                              "x beta (seed 002 fig. 6: particles are practically motionless below 1e-8 beta)",
+                              gt=0.0)
 
 
 FLUID_SCHEMES = ("delta_ale", "delta_ale_const_mass", "delta_ale_const_volume", "riemann_ale")
@@ -313,6 +337,7 @@ class Scene:
     output: OutputSpec = option(OutputSpec(), doc="what is written and when")
     diagnostics: DiagnosticsSpec = option(DiagnosticsSpec(), doc="diagnostics")
     neighbours: NeighboursSpec = option(NeighboursSpec(), doc="neighbour lists and load balance")
+    packing: PackingSpec = option(PackingSpec(), doc="particle packing before a flow (seed 002)")
     bodies: tuple[BodySpec, ...] = option((), doc="solid walls and bodies ([[bodies]] tables; clone particles or "
                                           "ghost walls)")
 
@@ -340,6 +365,49 @@ class Scene:
             if not d.periodic[a] and (lo < d.lower[a] - 1e-9 * d.dx or hi > d.upper[a] + 1e-9 * d.dx):
                 raise SceneError(key, f"along axis {a} the box leaves the domain: the fluid at the domain's "
                                  "edge would have no wall")
+
+    def _check_drop(self, fluid):
+        ini, d = self.initial, self.domain
+        if ini.velocity == "elliptical_drop" and ini.drop_radius == 0:
+            raise SceneError("initial.velocity", "elliptical_drop needs initial.drop_radius > 0")
+        if ini.drop_radius > 0:
+            if d.dimension != 2:
+                raise SceneError("initial.drop_radius", "a drop is a 2-D disc: domain.dimension must be 2")
+            if ini.fill_lower or ini.fill_upper or self.bodies:
+                raise SceneError("initial.drop_radius", "a drop fills its disc: give no initial.fill_lower, "
+                                 "fill_upper or bodies with it")
+            if ini.drop_radius < 2.0 * d.dx:
+                raise SceneError("initial.drop_radius", f"{ini.drop_radius:g} is less than 2 dx = {2 * d.dx:g}")
+            room = min(d.upper[a] - d.lower[a] for a in range(2)) / 2.0 - ini.drop_radius
+            if room < d.support + d.dx:
+                raise SceneError("initial.drop_radius", f"the drop must clear the domain's sides by a kernel "
+                                 f"support plus dx ({d.support + d.dx:g}); it clears them by {room:g}")
+            if ini.velocity == "elliptical_drop" and fluid:
+                from psph.analytic import EllipticalDrop
+
+                t_end = self.time.t_end
+                a = EllipticalDrop(ini.drop_radius, self.physics.reference_velocity / ini.drop_radius,
+                                   t_end).state(t_end)[0]
+                if a > (d.upper[0] - d.lower[0]) / 2.0 - d.dx:
+                    raise SceneError("domain.upper", f"the drop stretches to a semi-axis of {a:.4g} along x by "
+                                     f"t_end = {self.time.t_end:g}: the domain's half-width along x, "
+                                     f"{(d.upper[0] - d.lower[0]) / 2.0:g}, must exceed it by dx")
+        if self.packing.iterations > 0:
+            if not fluid:
+                raise SceneError("packing.iterations", "packing initialises a flow: it needs a fluid scheme, not "
+                                 f"physics.scheme = {self.physics.scheme!r}")
+            ghosts = [k for k, b in enumerate(self.bodies) if b.model == "ghost"]
+            if ghosts:
+                raise SceneError(f"bodies[{ghosts[0]}].model", "packing holds the fluid with the walls' solid "
+                                 "particles: ghost walls have none (use clone walls)")
+
+    def free_surface(self) -> str:
+        """Where the fluid has a free surface, in words ("" for none): a drop's rim, or the fill region
+        stopping short of the domain."""
+        if self.initial.drop_radius > 0:
+            return "the drop's rim (initial.drop_radius)"
+        axis = self.free_surface_axis()
+        return "" if axis is None else f"the fill region's side along axis {axis} (initial.fill_lower/fill_upper)"
 
     def free_surface_axis(self):
         """The first axis along which the fluid's fill region stops short of the domain (a free surface
@@ -377,10 +445,10 @@ class Scene:
             if value and len(value) != self.domain.dimension:
                 raise SceneError(f"initial.{key}", f"expected {self.domain.dimension} entries (domain.dimension)")
         method = self.shifting.method
-        surface_axis = self.free_surface_axis()
-        if fluid and surface_axis is not None:
-            why = (f"the fluid fills only part of the domain (initial.fill_lower/fill_upper, axis {surface_axis}) "
-                   "and psph has no free-surface detection yet")
+        self._check_drop(fluid)
+        surface = self.free_surface()
+        if fluid and surface:
+            why = f"the fluid has a free surface ({surface}) and psph has no free-surface detection yet"
             if method != "none":
                 raise SceneError("shifting.method", f"{method} would shift the free surface's particles outward: "
                                  f"{why}; use none")

@@ -17,7 +17,8 @@ from tests.helpers import CASES
 
 BASES = [read_table(CASES / name) for name in ("static_perturbed.toml", "taylor_green.toml",
                                                "lid_driven_cavity.toml", "kinematic_tgv.toml",
-                                               "moving_square.toml", "inclined_ellipse.toml")]
+                                               "moving_square.toml", "inclined_ellipse.toml",
+                                               "elliptical_drop.toml")]
 # the moving square towed while it rocks: every motion key present, for the mutations to reach
 BASES.append(json.loads(json.dumps(BASES[4])))
 BASES[-1]["bodies"][1]["motion"].update(law="constant", rotation_law="oscillate", angular_velocity=1.0, period=2.0,

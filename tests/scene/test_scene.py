@@ -309,3 +309,33 @@ def test_a_flow_without_a_skin_is_refused():
     with pytest.raises(SceneError) as info:
         load_scene(CASES / "taylor_green.toml", ["neighbours.skin=0.0"])
     assert info.value.key == "neighbours.skin" and "a flow needs a skin" in str(info.value)
+
+
+@pytest.mark.parametrize("case", sorted(p.name for p in CASES.glob("*.toml")))
+def test_every_case_file_is_a_valid_scene(case):
+    assert load_scene(CASES / case).name == case.removesuffix(".toml")
+
+
+@pytest.mark.parametrize("scene,sets,key,words", [
+    ("elliptical_drop", ["initial.drop_radius=0"], "initial.velocity", "needs initial.drop_radius"),
+    ("elliptical_drop", ["initial.drop_radius=1.4"], "initial.drop_radius", "must clear the domain"),
+    ("elliptical_drop", ["initial.drop_radius=0.01"], "initial.drop_radius", "less than 2 dx"),
+    ("elliptical_drop", ["initial.fill_upper=[1.0, 1.0]"], "initial.drop_radius", "fills its disc"),
+    ("elliptical_drop", ["time.t_end=2"], "domain.upper", "stretches to a semi-axis of 3.679"),
+    ("elliptical_drop", ["shifting.method=delta_plus"], "shifting.method", "drop's rim"),
+    ("static_perturbed", ["domain.dimension=3", "domain.lower=[0, 0, 0]", "domain.upper=[1, 1, 1]",
+                          "domain.periodic=[true, true, true]", "domain.dx=0.1", "initial.drop_radius=0.2"],
+     "initial.drop_radius", "domain.dimension must be 2"),
+    ("static_perturbed", ["packing.iterations=10"], "packing.iterations", "needs a fluid scheme"),
+    ("lid_driven_cavity", ["packing.iterations=10", *CAVITY_WALLS["ghost"]], "bodies[0].model", "use clone walls"),
+    ("elliptical_drop", ["packing.alpha=0"], "packing.alpha", "must be > 0"),
+])
+def test_drops_and_packing_are_refused_where_they_do_not_apply(scene, sets, key, words):
+    with pytest.raises(SceneError) as info:
+        load_scene(CASES / f"{scene}.toml", sets)
+    assert info.value.key == key and words in str(info.value), str(info.value)
+
+
+def test_packing_is_accepted_with_clone_walls_and_a_free_surface():
+    for scene in ("lid_driven_cavity", "hydrostatic_tank", "moving_square"):
+        assert load_scene(CASES / f"{scene}.toml", ["packing.iterations=10"]).packing.iterations == 10

@@ -1,0 +1,158 @@
+"""Particle packing before a flow (Colagrossi, Bouscasse, Antuono and Marrone 2012, seed 002 section 2).
+
+A lattice cut by a curved or sloping boundary leaves grad Gamma_i = sum_j grad W_ij V_j of order 1/h near
+it, and the SPH pressure gradient there is wrong by 2 p_i grad Gamma_i (seed 002 eq. 1.12-1.13): the flow
+starts by resettling its particles. The packing moves the fluid particles beforehand under the damped
+fictitious dynamics of seed 002 eq. 2.16,
+    du_i/dt = -beta grad Gamma_i - zeta u_i,   dr_i/dt = u_i,   Gamma_i = sum_j W_ij V0,
+whose undamped part is Lagrangian with potential (beta / 2) sum_i Gamma_i over the fluid plus the fixed
+particles' share (eq. 2.18), so the damping drives it to a stable state of small |grad Gamma|.
+
+Fixed particles close the fluid domain (seed 002 section 2: "the free surface has to be treated as a solid
+boundary"): the walls' solid particles (clone walls), and FRAME particles laid outside each free surface for
+the packing only, in layers dx apart parallel to it over one kernel support (rings around a drop, lattice
+rows beyond a fill region's side), removed afterwards.
+
+Constants (seed 002 eq. 2.15-2.17): beta = 2 p0 / rho0 only scales the fictitious time, so psph takes
+beta = 1 (velocities in units of sqrt(beta)); V0 = V_tot / N, the drop's area pi R^2 over its particle
+count (a lattice fill keeps dx^d); dt = cfl V0^(1/d) / sqrt(beta) (eq. 2.17), at most cfl h / (2 sqrt(beta)):
+the fictitious dynamics' fastest oscillation scales with 1 / h, and with Wendland C6 the paper's step
+diverges below h = 2 dx (at h/dx = 1.3 within 33 iterations, measured; the cap changes nothing from
+h = 2 dx up); zeta = alpha sqrt(beta) / V0^(1/d). Integration: symplectic Euler with the damping taken
+implicitly,
+    u <- (u - dt beta grad Gamma) / (1 + zeta dt),   r <- r + dt u.
+Stop once T = sum_i |u_i|^2 / 2 over the fluid (the specific kinetic energy, eq. 2.18) falls below
+packing.tolerance x beta, or after packing.iterations iterations.
+"""
+
+import math
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from psph.diagnostics import fluid_mask, grad_c, norms
+from psph.errors import NumericalError
+from psph.parallel.comm import allreduce_max, allreduce_sum, raise_if_any
+from psph.particles import FieldSpec, Kind
+
+VELOCITY = FieldSpec("packing_velocity", ("d",))
+RECORD_EVERY = 10  # iterations between rows of the packing history
+
+
+def frame_positions(scene) -> np.ndarray:
+    """Positions of the frame particles that close the scene's free surfaces during the packing: rings at
+    R + (k + 1/2) dx around a drop, or the lattice points beyond the fill region's sides (inside the walls),
+    over one kernel support. Every rank computes all of them."""
+    d = scene.domain
+    layers = int(math.ceil(d.support / d.dx))
+    if scene.initial.drop_radius > 0:
+        rings = []
+        for k in range(layers):
+            r = scene.initial.drop_radius + (k + 0.5) * d.dx
+            n = max(int(round(2.0 * math.pi * r / d.dx)), 3)
+            theta = (np.arange(n) + 0.5 * (k % 2)) * 2.0 * math.pi / n
+            rings.append(np.asarray(d.center) + r * np.stack([np.cos(theta), np.sin(theta)], axis=1))
+        return np.concatenate(rings)
+    if scene.free_surface_axis() is None:
+        return np.zeros((0, d.dimension))
+    from psph.boundaries import fluid_mask as fills
+    from psph.initial import lattice_block
+
+    _, lattice = lattice_block(d, 0, 1)
+    unbounded = replace(scene, initial=replace(scene.initial, fill_lower=(), fill_upper=()))
+    candidates = lattice[fills(unbounded, lattice) & ~fills(scene, lattice)]
+    lo = np.asarray(scene.initial.fill_lower or d.lower, dtype=float)
+    hi = np.asarray(scene.initial.fill_upper or d.upper, dtype=float)
+    beyond = np.maximum(np.maximum(lo - candidates, candidates - hi), 0.0)
+    return candidates[np.sqrt((beyond * beyond).sum(axis=1)) <= d.support]
+
+
+def _add_frame(scene, system) -> int:
+    """Append this rank's share of the frame particles (kind FRAME, volume dx^d) and rebuild. Returns the
+    global count. Collective."""
+    p, comm, d = system.particles, system.comm, scene.domain
+    frame = frame_positions(scene)
+    start, stop = len(frame) * comm.rank // comm.size, len(frame) * (comm.rank + 1) // comm.size
+    first_gid = int(allreduce_max(comm, int(p.owned("gid").max()) if p.n_owned else -1)) + 1
+    arrays = p.owned_arrays()
+    extra = {name: np.zeros(spec.array_shape(stop - start, p.dim), dtype=spec.dtype) for name, spec in p.specs.items()}
+    extra["gid"] = first_gid + np.arange(start, stop, dtype=np.int64)
+    extra["position"] = frame[start:stop]
+    extra["kind"][:] = Kind.FRAME
+    extra["volume"][:] = d.dx ** d.dimension
+    if "body" in extra:
+        extra["body"][:] = -1
+    p.set_owned({name: np.concatenate([arrays[name], extra[name]]) for name in arrays})
+    system.rebuild(rebalance=True)
+    return len(frame)
+
+
+def _remove_frame(system) -> None:
+    """Drop the frame particles and the packing velocity, and rebuild. Collective."""
+    p = system.particles
+    keep = p.owned("kind") != Kind.FRAME
+    p.remove_field(VELOCITY.name)
+    p.set_owned({name: values[keep] for name, values in p.owned_arrays().items()})
+    system.rebuild(rebalance=True)
+
+
+def pack(scene, system, log=None) -> dict:
+    """Pack the fluid particles of `system` (seed 002 eq. 2.16; module docstring) and set their volumes to
+    V0. Returns a report: iterations, whether T fell below the tolerance, T / beta, Linf(grad Gamma) h over
+    the fluid (frame included) before and after, V0, the frame's size, the wall time and the history rows
+    (iteration, T / beta, Linf(grad Gamma) h). A non-finite state stops every rank with a NumericalError
+    naming the iteration and a particle. Collective."""
+    spec, d = scene.packing, scene.domain
+    comm, p, h = system.comm, system.particles, system.kernel.h
+    start = time.perf_counter()
+    n_fluid = int(allreduce_sum(comm, int(np.count_nonzero(fluid_mask(system)))))
+    v0 = math.pi * scene.initial.drop_radius ** 2 / n_fluid if scene.initial.drop_radius > 0 else d.dx ** d.dimension
+    p.owned("volume")[fluid_mask(system)] = v0
+    n_frame = _add_frame(scene, system)
+    p.add_field(VELOCITY)
+    spacing = v0 ** (1.0 / d.dimension)
+    dt = spec.cfl * min(spacing, 0.5 * h)
+    damping = 1.0 + spec.alpha / spacing * dt  # 1 + zeta dt
+    grad = grad_c(system)
+    _, linf_start = norms(comm, grad, fluid_mask(system), h)
+    rows, kinetic, linf, iteration = [(0, 0.0, linf_start)], 0.0, linf_start, 0
+    while iteration < spec.iterations:
+        iteration += 1
+        fluid = fluid_mask(system)
+        u = p.owned(VELOCITY.name)
+        u[fluid] = (u[fluid] - dt * grad[fluid]) / damping
+        p.owned("position")[fluid] += dt * u[fluid]
+        _check_finite(system, iteration)
+        try:
+            system.update()
+        except NumericalError as err:  # raised on every rank: an escaped particle
+            failure = NumericalError(f"particle packing diverged at iteration {iteration}: {err}; lower packing.cfl")
+            failure.collective = True
+            raise failure from None
+        grad = grad_c(system)
+        u, fluid = p.owned(VELOCITY.name), fluid_mask(system)
+        kinetic = float(allreduce_sum(comm, 0.5 * float((u[fluid] ** 2).sum())))
+        done = kinetic < spec.tolerance
+        if iteration % RECORD_EVERY == 0 or done or iteration == spec.iterations:
+            _, linf = norms(comm, grad, fluid, h)
+            rows.append((iteration, kinetic, linf))
+        if done:
+            break
+    _remove_frame(system)
+    return {"iterations": iteration, "converged": kinetic < spec.tolerance, "kinetic_energy": kinetic,
+            "Linf_grad_gamma_start": linf_start, "Linf_grad_gamma": linf, "volume": v0, "frame_particles": n_frame,
+            "time_s": time.perf_counter() - start, "rows": rows}
+
+
+def _check_finite(system, iteration) -> None:
+    """Stop every rank if a packed position or velocity is not finite. Collective."""
+    p = system.particles
+    bad = ~(np.isfinite(p.owned("position")).all(axis=1) & np.isfinite(p.owned(VELOCITY.name)).all(axis=1))
+    error = None
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        error = NumericalError(f"particle packing diverged at iteration {iteration} (non-finite position or "
+                               "velocity; lower packing.cfl)", gid=int(p.owned("gid")[k]),
+                               position=p.owned("position")[k])
+    raise_if_any(system.comm, error)
