@@ -60,17 +60,20 @@ class EllipticalDrop:
 
         self.radius, self.a0, self.center, self.rho = radius, a0, np.asarray(center, dtype=float), rho
 
-        def rhs(_, y):
+        def rhs(_, y):  # in a / R, b / R, A / A0 against tau = A0 t: the same for every drop
             a, b, A = y
-            return [A * a, -A * b, A * A * (b * b - a * a) / (a * a + b * b)]
+            return [A * a, -A * b, _rate_change(a, b, A)]
 
-        self._solution = solve_ivp(rhs, (0.0, max(t_end, 1e-12)), [radius, radius, a0], method="DOP853",
-                                   rtol=1e-12, atol=1e-14 * radius * max(1.0, abs(a0)), dense_output=True).sol
+        tau_end = abs(a0) * t_end
+        if not np.isfinite(tau_end):
+            raise ValueError(f"the drop's A0 t_end = {tau_end} is not finite")
+        self._solution = solve_ivp(rhs, (0.0, max(tau_end, 1e-12)), [1.0, 1.0, np.sign(a0) or 1.0],
+                                   method="DOP853", rtol=1e-12, atol=1e-14, dense_output=True).sol
 
     def state(self, t):
         """(a, b, A, dA/dt) at time t."""
-        a, b, A = self._solution(t)
-        return a, b, A, A * A * (b * b - a * a) / (a * a + b * b)
+        a, b, A = self._solution(abs(self.a0) * t) * [self.radius, self.radius, abs(self.a0)]
+        return a, b, A, _rate_change(a, b, A)
 
     def fields(self, pos, t):
         """(velocity (n, 2), pressure (n,)) at `pos` and time t (inside the drop)."""
@@ -78,3 +81,8 @@ class EllipticalDrop:
         x, y = (pos[:, 0] - self.center[0]), (pos[:, 1] - self.center[1])
         p = 0.5 * self.rho * ((A * A + dA) * (a * a - x * x) - (A * A - dA) * y * y)
         return np.stack([A * x, -A * y], axis=1), p
+
+
+def _rate_change(a, b, A):
+    """dA/dt of the elliptical drop (EllipticalDrop)."""
+    return A * A * (b * b - a * a) / (a * a + b * b)

@@ -88,27 +88,12 @@ def create_particles(scene, comm, specs=()) -> ParticleSet:
     keep = fluid_mask(scene, pos)
     gid, pos = gid[keep], pos[keep]
     perturb(gid, pos, scene.initial.sigma_over_dx * dspec.dx, scene.initial.seed)
-    arrays = {name: np.zeros(spec.array_shape(len(gid), dspec.dimension), dtype=spec.dtype)
-              for name, spec in particles.specs.items()}
-    arrays["gid"] = gid
-    arrays["position"] = pos
-    arrays["kind"] = np.full(len(gid), Kind.FLUID, dtype=np.int8)
-    arrays["volume"] = np.full(len(gid), dspec.dx ** dspec.dimension)
-    if "body" in arrays:
-        arrays["body"][:] = -1
     fields = initial_fields(scene, pos)
-    for name, values in fields.items():
+    for name in fields:
         particles.add_field(INITIAL_FIELD_SPECS[name])
-        arrays[name] = values
+    particles.append_owned({"gid": gid, "position": pos, "kind": np.full(len(gid), Kind.FLUID),
+                            "volume": np.full(len(gid), dspec.dx ** dspec.dimension), **fields}, fill={"body": -1})
     solids = solid_arrays(scene, comm.rank, comm.size, int(np.prod(dspec.lattice_shape())))
     if solids is not None:
-        n = len(solids["gid"])
-        for name, spec in particles.specs.items():
-            extra = solids.get(name)
-            if extra is None:
-                extra = np.zeros(spec.array_shape(n, dspec.dimension), dtype=spec.dtype)
-            arrays[name] = np.concatenate([arrays[name], np.asarray(extra, dtype=spec.dtype)])
-        if "pressure" in arrays and scene.initial.pressure == "hydrostatic":
-            arrays["pressure"][-n:] = 0.0
-    particles.set_owned(arrays)
+        particles.append_owned(solids)  # pressure 0 in the solids (their own is mirrored from the fluid)
     return particles

@@ -11,7 +11,8 @@ particles' share (eq. 2.18), so the damping drives it to a stable state of small
 Fixed particles close the fluid domain (seed 002 section 2: "the free surface has to be treated as a solid
 boundary"): the walls' solid particles (clone walls), and FRAME particles laid outside each free surface for
 the packing only, in layers dx apart parallel to it over one kernel support (rings around a drop, lattice
-rows beyond a fill region's side), removed afterwards.
+rows beyond a fill region's side), removed afterwards. All fixed particles weigh V0, as the fluid does
+(seed 002 eq. 2.14, 2.18).
 
 Constants (seed 002 eq. 2.15-2.17): beta = 2 p0 / rho0 only scales the fictitious time, so psph takes
 beta = 1 (velocities in units of sqrt(beta)); V0 = V_tot / N, the drop's area pi R^2 over its particle
@@ -57,33 +58,36 @@ def frame_positions(scene) -> np.ndarray:
     if scene.free_surface_axis() is None:
         return np.zeros((0, d.dimension))
     from psph.boundaries import fluid_mask as fills
-    from psph.initial import lattice_block
 
-    _, lattice = lattice_block(d, 0, 1)
-    unbounded = replace(scene, initial=replace(scene.initial, fill_lower=(), fill_upper=()))
-    candidates = lattice[fills(unbounded, lattice) & ~fills(scene, lattice)]
     lo = np.asarray(scene.initial.fill_lower or d.lower, dtype=float)
     hi = np.asarray(scene.initial.fill_upper or d.upper, dtype=float)
+    lattice = _lattice_within(d, lo - d.support, hi + d.support)
+    unbounded = replace(scene, initial=replace(scene.initial, fill_lower=(), fill_upper=()))
+    candidates = lattice[fills(unbounded, lattice) & ~fills(scene, lattice)]
     beyond = np.maximum(np.maximum(lo - candidates, candidates - hi), 0.0)
     return candidates[np.sqrt((beyond * beyond).sum(axis=1)) <= d.support]
 
 
-def _add_frame(scene, system) -> int:
-    """Append this rank's share of the frame particles (kind FRAME, volume dx^d) and rebuild. Returns the
-    global count. Collective."""
-    p, comm, d = system.particles, system.comm, scene.domain
+def _lattice_within(d, lower, upper) -> np.ndarray:
+    """The domain's cell-centred lattice points (psph.initial.lattice_block) inside the box [lower, upper]."""
+    axes = []
+    for a in range(d.dimension):
+        k = np.arange(d.lattice_shape()[a])
+        x = d.lower[a] + (k + 0.5) * d.dx
+        axes.append(x[(x >= lower[a]) & (x <= upper[a])])
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, d.dimension)
+
+
+def _add_frame(scene, system, volume) -> int:
+    """Append this rank's share of the frame particles (kind FRAME, volume V0 as the fluid's: seed 002
+    eq. 2.14, 2.18) and rebuild. Returns the global count. Collective."""
+    p, comm = system.particles, system.comm
     frame = frame_positions(scene)
     start, stop = len(frame) * comm.rank // comm.size, len(frame) * (comm.rank + 1) // comm.size
     first_gid = int(allreduce_max(comm, int(p.owned("gid").max()) if p.n_owned else -1)) + 1
-    arrays = p.owned_arrays()
-    extra = {name: np.zeros(spec.array_shape(stop - start, p.dim), dtype=spec.dtype) for name, spec in p.specs.items()}
-    extra["gid"] = first_gid + np.arange(start, stop, dtype=np.int64)
-    extra["position"] = frame[start:stop]
-    extra["kind"][:] = Kind.FRAME
-    extra["volume"][:] = d.dx ** d.dimension
-    if "body" in extra:
-        extra["body"][:] = -1
-    p.set_owned({name: np.concatenate([arrays[name], extra[name]]) for name in arrays})
+    p.append_owned({"gid": first_gid + np.arange(start, stop, dtype=np.int64), "position": frame[start:stop],
+                    "kind": np.full(stop - start, Kind.FRAME), "volume": np.full(stop - start, volume)},
+                   fill={"body": -1})
     system.rebuild(rebalance=True)
     return len(frame)
 
@@ -109,7 +113,7 @@ def pack(scene, system, log=None) -> dict:
     n_fluid = int(allreduce_sum(comm, int(np.count_nonzero(fluid_mask(system)))))
     v0 = math.pi * scene.initial.drop_radius ** 2 / n_fluid if scene.initial.drop_radius > 0 else d.dx ** d.dimension
     p.owned("volume")[fluid_mask(system)] = v0
-    n_frame = _add_frame(scene, system)
+    n_frame = _add_frame(scene, system, v0)
     p.add_field(VELOCITY)
     spacing = v0 ** (1.0 / d.dimension)
     dt = spec.cfl * min(spacing, 0.5 * h)
@@ -127,6 +131,7 @@ def pack(scene, system, log=None) -> dict:
         try:
             system.update()
         except NumericalError as err:  # raised on every rank: an escaped particle
+            # the message names the particle already (the ranks that did not hold it rebuilt the error from it)
             failure = NumericalError(f"particle packing diverged at iteration {iteration}: {err}; lower packing.cfl")
             failure.collective = True
             raise failure from None

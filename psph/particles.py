@@ -110,6 +110,19 @@ class ParticleSet:
         self.n_owned = n
         self.n_halo = 0
 
+    def append_owned(self, arrays: dict, fill=None) -> None:
+        """Append owned particles (drops the halo): fields in `arrays` take those values, the others
+        fill[name] (default 0)."""
+        n = len(arrays["gid"])
+        fill = fill or {}
+        rows = {}
+        for name, spec in self.specs.items():
+            extra = arrays.get(name)
+            if extra is None:
+                extra = np.full(spec.array_shape(n, self.dim), fill.get(name, 0), dtype=spec.dtype)
+            rows[name] = np.concatenate([self._arrays[name][: self.n_owned], np.asarray(extra, dtype=spec.dtype)])
+        self.set_owned(rows)
+
     def set_halo(self, arrays: dict, n_halo: int) -> None:
         """Append `n_halo` halo rows: fields in `arrays` take those values, the others zeros."""
         for name, spec in self.specs.items():

@@ -22,8 +22,9 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from psph.analytic import EllipticalDrop  # noqa: E402
+from psph.initial import elliptical_drop  # noqa: E402
 from psph.particles import Kind  # noqa: E402
+from psph.scene.load import load_scene  # noqa: E402
 from psph.studies import CASES, command_line, last_snapshot, plot_histories, run_scene, write_table  # noqa: E402
 
 SCENE = CASES / "elliptical_drop.toml"
@@ -92,10 +93,11 @@ def plot_particles(path, runs, n):
     for ax, start in zip(axes, ("lattice", "packed")):
         snap, t = last_snapshot(runs[(start, n)].out)
         pos = snap["position"][snap["kind"] == Kind.FLUID]
-        a, b = EllipticalDrop(1.0, 1.0, t).state(t)[:2]
+        drop = elliptical_drop(load_scene(SCENE, [f"domain.dx={1.0 / n}"]), t)
+        a, b = drop.state(t)[:2]
         theta = np.linspace(0.0, 2.0 * np.pi, 400)
         ax.plot(pos[:, 0], pos[:, 1], ".", ms=1.5 * 40 / n, color="tab:blue")
-        ax.plot(a * np.cos(theta), b * np.sin(theta), "k--", lw=0.8)
+        ax.plot(drop.center[0] + a * np.cos(theta), drop.center[1] + b * np.sin(theta), "k--", lw=0.8)
         ax.set(aspect="equal", ylim=(-0.6, 0.6), ylabel="y / R",
                title=f"{start} start, R/dx = {n}, t A0 = {t:g} (dashed: analytic)")
     axes[-1].set_xlabel("x / R")

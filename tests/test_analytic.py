@@ -1,6 +1,7 @@
 """Analytic references are checked symbolically before use."""
 
 import numpy as np
+import pytest
 import sympy as sp
 
 from psph.analytic import EllipticalDrop, couette_startup, taylor_green, taylor_green_kinetic_energy
@@ -85,6 +86,19 @@ def test_elliptical_drop_solves_euler_with_a_free_surface():
     R, A0 = sp.symbols("R A0", positive=True)
     p0 = p.subs({a: R, b: R}).subs(A, A0)
     assert sp.simplify(p0 - rho * A0**2 / 2 * (R**2 - x**2 - y**2)) == 0
+    # the numeric class at a later time against these expressions, and p = 0 on its ellipse
+    drop = EllipticalDrop(0.8, 1.5, 1.0, center=(0.3, -0.2), rho=2.0)
+    an, bn, An, dAn = drop.state(0.7)
+    values = {a: an, b: bn, A: An, rho: 2.0}
+    assert dAn == pytest.approx(float(dA.subs(values)), rel=1e-12)
+    pts = np.random.default_rng(1).uniform(-0.5, 0.5, (20, 2))
+    vel, pn = drop.fields(pts + [0.3, -0.2], 0.7)
+    pressure = sp.lambdify((x, y), p.subs(values), "numpy")
+    assert np.allclose(pn, pressure(pts[:, 0], pts[:, 1]), rtol=1e-12, atol=1e-12)
+    assert np.allclose(vel, np.stack([An * pts[:, 0], -An * pts[:, 1]], axis=1))
+    theta = np.linspace(0.0, 2.0 * np.pi, 13)
+    rim = np.stack([an * np.cos(theta) + 0.3, bn * np.sin(theta) - 0.2], axis=1)
+    assert np.abs(drop.fields(rim, 0.7)[1]).max() < 1e-12
 
 
 def test_elliptical_drop_keeps_its_area_and_starts_from_seed_002():

@@ -53,7 +53,7 @@ def test_packing_levels_grad_gamma_and_leaves_no_trace():
     n = len(before)
     assert report["Linf_grad_gamma_start"] > 0.1  # the lattice cut by a circle
     assert report["Linf_grad_gamma"] < 1e-3 * report["Linf_grad_gamma_start"]
-    assert report["frame_particles"] == len(frame_positions(scene))
+    assert report["frame_particles"] == sum(round(2.0 * math.pi * (1.0 + (k + 0.5) * 0.1) / 0.1) for k in range(4))
     # the frame is gone, the fluid keeps its particles, each moved by less than 2 dx (a few rearrange), and
     # fills the disc
     assert p.n_owned == n and set(p.owned("gid")) == set(before) and "packing_velocity" not in p
@@ -64,6 +64,21 @@ def test_packing_levels_grad_gamma_and_leaves_no_trace():
     assert np.allclose(p.owned("volume"), math.pi / n)  # V0 = V_tot / N (seed 002 section 2)
     assert report["volume"] == pytest.approx(math.pi / n)
     assert system.nbr_idx.max() < p.n_local and fluid_mask(system).all()
+
+
+def test_packing_leaves_a_full_lattice_and_the_walls_alone():
+    """In the tank the fluid, the clone walls' solid particles and the frame above the free surface form one
+    lattice: grad Gamma vanishes, the packing ends at once, and the solids keep their gids, places, volumes."""
+    scene = load_scene(CASES / "hydrostatic_tank.toml", ["domain.dx=0.05", "packing.iterations=100"])
+    system = build_system(scene, MPI.COMM_SELF)
+    p = system.particles
+    solids = lambda: {g: (tuple(x), v) for g, x, v, k in zip(p.owned("gid"), p.owned("position"),  # noqa: E731
+                                                              p.owned("volume"), p.owned("kind")) if k == Kind.WALL}
+    before, n = solids(), p.n_owned
+    report = pack(scene, system)
+    assert report["converged"] and report["iterations"] == 1 and report["Linf_grad_gamma_start"] < 1e-12
+    assert report["frame_particles"] == 40 * 4  # four rows of 40 between the surface (y = 1) and the lid
+    assert p.n_owned == n and solids() == before and len(before) > 0
 
 
 def test_packing_stops_at_the_kinetic_energy_tolerance():
