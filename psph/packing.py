@@ -101,7 +101,7 @@ def _remove_frame(system) -> None:
     system.rebuild(rebalance=True)
 
 
-def pack(scene, system, log=None) -> dict:
+def pack(scene, system) -> dict:
     """Pack the fluid particles of `system` (seed 002 eq. 2.16; module docstring) and set their volumes to
     V0. Returns a report: iterations, whether T fell below the tolerance, T / beta, Linf(grad Gamma) h over
     the fluid (frame included) before and after, V0, the frame's size, the wall time and the history rows
