@@ -3,8 +3,8 @@
     .venv/bin/python run_scripts/tank.py [--resolutions 20 40] [--walls clone ghost] [--t-end 10] [--ranks 1]
 
 Runs cases/hydrostatic_tank.toml (water at rest, H = 1 deep in a 2 x 1.2 tank, free surface at y = 1,
-g = 1, delta-ALE-SPH without shifting: psph detects no free surface yet) at H/dx = 20 and 40 with clone
-walls (seed 004) and fixed ghost walls (seed 001, `bodies.0.model=ghost`), and writes, in --out
+g = 1, delta-ALE-SPH without shifting; run_scripts/free_surface.py adds shifting) at H/dx = 20 and 40
+with clone walls (seed 004) and fixed ghost walls (seed 001, `bodies.0.model=ghost`), and writes, in --out
 (results/tank): spurious.md and .csv (the largest particle speed at t_end and over the second half of the
 run, in units of sqrt(g H); the largest density variation; the global volume error eps_V; the mass drift;
 the wall time) and speed.png (the largest speed against time).

@@ -7,7 +7,7 @@ start-up keeps that cost out of the time loops (it stays in the run's total wall
 
 import numpy as np
 
-from psph.compute import csr, fluid, iips, neighbours, random, sums
+from psph.compute import csr, fluid, free_surface, iips, neighbours, random, sums
 from psph.compute.smoothing import make_kernel
 
 
@@ -36,6 +36,13 @@ def warm_up(dim: int, kernel_name: str) -> None:
     sums.viscous_pi(pos, vol, ptr, idx, kp, vector, vector)
     sums.renormalisation_matrix(pos, vol, ptr, idx, kp, tensor)
     sums.smallest_eigenvalue(tensor, scalar)
+    sums.invert_renormalisation(tensor, scalar, 1e-3, tensor.copy())
+    flag, fluid_rows = np.zeros(n, dtype=np.int8), np.ones(n, dtype=np.bool_)
+    free_surface.outward_normals(tensor, vector, vector.copy())
+    free_surface.scan_surface(pos, fluid_rows, scalar, vector, ptr, idx, 0.5, 0.2, 0.75, flag)
+    free_surface.mark_region(pos, fluid_rows, ptr, idx, 1.0, flag)
+    free_surface.region_normals(pos, flag, ptr, idx, kp, vector)
+    free_surface.restrict_shift(flag, scalar, vector, 0.4, vector.copy())
     row = gid.copy()
     indptr, indices, slot = iips.iips_structure(row, ptr, idx, dim)
     iips.iips_values(pos, vol, row, ptr, idx, kp, slot, np.zeros(len(indices)), np.zeros(0))

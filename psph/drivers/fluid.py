@@ -90,6 +90,8 @@ class FluidDriver:
         lines.append(f"time integration: {t.integrator}, cfl {t.cfl:g} (thesis eq. 5.52), t_end = {t.t_end:g}")
         if scene.shifting.method == "iips":
             lines.append(f"IIPS after each step, field update: {scene.iips.update} (thesis ch. 9)")
+        if scheme.surface.active:
+            lines.append(scheme.surface.describe())
         if scene.initial.velocity == "taylor_green":
             lines.append("diagnostics against the analytic Taylor-Green vortex: L2|v_x - v_xA| (eq. 3.8), E_k")
         if scene.initial.velocity == "elliptical_drop":
@@ -125,7 +127,8 @@ class FluidDriver:
             from psph.shifting.iips import ImplicitShifting
 
             self.concentration_volume = self.update.concentration_volume
-            self.iips = ImplicitShifting(scene.iips, self.sim.comm, volume=self.concentration_volume)
+            self.iips = ImplicitShifting(scene.iips, self.sim.comm, volume=self.concentration_volume,
+                                         surface=self.scheme.surface)
             if self.pre is not None:
                 self.iips.set_initial_linf(self.pre["linf"])
         self.reference = REFERENCES[scene.initial.velocity](scene) if scene.initial.velocity in REFERENCES else None
@@ -162,7 +165,7 @@ class FluidDriver:
         the flow cannot strain into a squeezed lattice as it does the Cartesian one (README, Taylor-Green).
         The initial condition is then set again at the moved positions. Collective."""
         start = time.perf_counter()
-        linf = pre_procedure(self.scene.iips, self.sim.comm, self.system)
+        linf = pre_procedure(self.scene.iips, self.sim.comm, self.system, surface=self.scheme.surface)
         reset_initial_fields(self.scene, self.system.particles)
         pre = {"linf": linf, "time_s": time.perf_counter() - start}
         self.sim.log(f"pre-procedure: {self.scene.iips.pre_newton} IIPS iterations, Linf(grad C) = {linf:.3e}, "
@@ -181,6 +184,7 @@ class FluidDriver:
         t = state["time"]
         with phase("fluid_step"):
             system.prepare_step(self.reach * dt * vmax)
+            self.scheme.surface.detect(system)  # the step's surface flags, for the shifting law's du
             totals["steps_redone"] += self._integrate(t, dt, state["step"] + 1)
             self.scheme.end_step(system, dt)
             if self.scheme.walls is not None:  # solids exactly where their bodies are at t + dt
@@ -268,7 +272,9 @@ class FluidDriver:
         grad = grad_c(self.system, self.concentration_volume)
         if self.scheme.walls is not None:  # ghost walls complete the support with images
             self.scheme.walls.add_ghost_grad_c(self.system, 0.0, 1.0, 1.0, grad)
-        l2, linf = norms(comm, grad, mask, self.system.kernel.h)
+        surface = self.scheme.surface
+        surface.detect(self.system)  # the flags where the particles are now (the step moved them)
+        l2, linf = norms(comm, grad, surface.interior(self.system), self.system.kernel.h)
         dvol = allreduce_max(comm, float(np.abs(vol / p.owned("volume0") - 1.0).max()) if p.n_owned else 0.0)
         speed = np.sqrt((u * u).sum(axis=1))[mask]
         vmax = allreduce_max(comm, float(speed.max()) if len(speed) else 0.0)
@@ -280,6 +286,8 @@ class FluidDriver:
                "max_density_variation": drho, "max_volume_variation": dvol, "L2_grad_c": l2, "Linf_grad_c": linf}
         for a in range(p.dim):
             out[f"momentum_{'xyz'[a]}"] = sums[3 + a]
+        if surface.active:
+            out["surface_particles"] = surface.count(self.system)
         if self.reference is not None:
             out.update(self.reference.errors(self.system, t, sums[0]))
         if self.scheme.walls is not None:

@@ -170,6 +170,22 @@ class PackingSpec:
                               gt=0.0)
 
 
+@dataclass(frozen=True)
+class FreeSurfaceSpec:
+    lambda_surface: float = option(0.2, doc="a fluid particle whose lambda (smallest eigenvalue of sum_j (x_j - "
+                                   "x_i) (x) grad W_ij V_j, thesis eq. 6.28) is at most this is on the free "
+                                   "surface (Marrone et al. 2010)", gt=0.0, lt=1.0)
+    lambda_interior: float = option(0.75, doc="above this lambda a particle is interior; between the two, "
+                                    "Marrone et al.'s scan region decides", gt=0.0, lt=1.0)
+    lambda_normal: float = option(0.4, doc="explicit shifting near the free surface (thesis eq. 6.29): du = 0 "
+                                  "below this lambda, du . n = 0 above", ge=0.0, lt=1.0)
+
+    def check(self, path):
+        if not self.lambda_surface < self.lambda_interior:
+            raise SceneError(f"{path}.lambda_interior", f"must exceed lambda_surface = {self.lambda_surface:g}, "
+                             f"got {self.lambda_interior:g}")
+
+
 FLUID_SCHEMES = ("delta_ale", "delta_ale_const_mass", "delta_ale_const_volume", "riemann_ale")
 
 
@@ -338,6 +354,8 @@ class Scene:
     diagnostics: DiagnosticsSpec = option(DiagnosticsSpec(), doc="diagnostics")
     neighbours: NeighboursSpec = option(NeighboursSpec(), doc="neighbour lists and load balance")
     packing: PackingSpec = option(PackingSpec(), doc="particle packing before a flow (seed 002)")
+    free_surface: FreeSurfaceSpec = option(FreeSurfaceSpec(), doc="free-surface detection and the shifting "
+                                           "near a free surface")
     bodies: tuple[BodySpec, ...] = option((), doc="solid walls and bodies ([[bodies]] tables; clone particles or "
                                           "ghost walls)")
 
@@ -419,7 +437,7 @@ class Scene:
                 raise SceneError(f"bodies[{ghosts[0]}].model", "packing holds the fluid with the walls' solid "
                                  "particles: ghost walls have none (use clone walls)")
 
-    def free_surface(self) -> str:
+    def describe_free_surface(self) -> str:
         """Where the fluid has a free surface, in words ("" for none): a drop's rim, or the fill region
         stopping short of the domain."""
         if self.initial.drop_radius > 0:
@@ -465,15 +483,13 @@ class Scene:
         method = self.shifting.method
         self._check_drop(fluid)
         self._check_packing(fluid)
-        surface = self.free_surface()
-        if fluid and surface:
-            why = f"the fluid has a free surface ({surface}) and psph has no free-surface detection yet"
-            if method != "none":
-                raise SceneError("shifting.method", f"{method} would shift the free surface's particles outward: "
-                                 f"{why}; use none")
-            if self.iips.pre_newton > 0:
-                raise SceneError("iips.pre_newton", f"the IIPS pre-procedure would shift the free surface's "
-                                 f"particles outward: {why}; use 0")
+        surface = self.describe_free_surface()
+        if fluid and surface and (method != "none" or self.iips.pre_newton > 0):
+            ghosts = [k for k, b in enumerate(self.bodies) if b.model == "ghost"]
+            if ghosts:
+                raise SceneError(f"bodies[{ghosts[0]}].model", f"shifting with a free surface ({surface}) needs "
+                                 "clone walls: ghost walls have no solid particles, so the free-surface detection "
+                                 "would take the fluid along them for a surface")
         if fluid and method == "explicit_iterative":
             raise SceneError("shifting.method", "explicit_iterative is for static and kinematic runs; fluid "
                              "schemes take iips or an explicit law (lind, skillen, oger, delta_plus, neuhauser)")

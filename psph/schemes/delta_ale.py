@@ -6,14 +6,16 @@
 
 with the equation of state of psph.schemes.eos, viscosity mu = rho0 U L / Re through the pi_ij operator
 (eq. 11, K = 2(d+2); or Morris' with physics.viscosity = "morris"), gravity, the diffusive terms D^rho
-(delta = 0.1) and D^m (eq. 14), the tensile switch (p_j - p_i where p_i < 0; no free surfaces yet) and
-the shifting velocity du of an explicit law (psph.shifting.velocity) with its du-terms (eq. 12); without
-shifting those terms are skipped.
+(delta = 0.1) and D^m (eq. 14), the tensile switch (p_j - p_i where p_i < 0, everywhere: not switched off
+near free surfaces as seed 004 eq. 3 has it) and the shifting velocity du of an explicit law
+(psph.shifting.velocity) with its du-terms (eq. 12); without shifting those terms are skipped. Near a free
+surface the shifting velocity is restricted by psph.boundaries.free_surface (thesis eq. 6.29).
 The kernels are in psph.compute.fluid.
 """
 
 import numpy as np
 
+from psph.boundaries.free_surface import make_free_surface
 from psph.compute.fluid import (
     PairCache,
     add_uniform_acceleration,
@@ -51,6 +53,7 @@ class DeltaALE:
         self.free_stream_ramp = phys.free_stream_ramp
         self.eos = make_eos(phys)
         self.shift = make_velocity_shift(scene)
+        self.surface = make_free_surface(scene)
         self.pairs = PairCache()  # the support's pairs, from renormalised_gradient to delta_ale_rhs
         self.walls = None
         if scene.bodies:
@@ -87,7 +90,7 @@ class DeltaALE:
                  FieldSpec("grad_rho", ("d",)), FieldSpec("volume0")]
         if self.shift.active:
             specs.append(FieldSpec("shift_velocity", ("d",)))
-        specs += list(self.shift.fields)
+        specs += list(self.shift.fields) + list(self.surface.fields)
         if self.walls is not None:
             from psph.boundaries import SOLID_FIELDS
 
@@ -219,6 +222,7 @@ class DeltaALE:
                               system.kernel.params, p["kind"], fluid_only, p["grad_rho"], self.pairs, grad_c=grad_c)
         if law.active:
             law.velocity(system, self, dt, grad=None if grad_c is None else grad_c[3])
+            self.surface.restrict(system, p.owned("shift_velocity"))
             system.refresh(["shift_velocity"])
 
     def free_stream_velocity(self, t):

@@ -22,12 +22,12 @@ class ShiftReport:
     history: list = field(default_factory=list)
 
 
-def measure(system, volume="volume"):
-    """(grad C of the owned particles, L2(grad C), Linf(grad C)) over the free (fluid) particles; C is
-    weighted by the field `volume` (diagnostics.grad_c)."""
+def measure(system, volume="volume", mask=None):
+    """(grad C of the owned particles, L2(grad C), Linf(grad C)) over the free (fluid) particles, or the owned
+    rows of `mask`; C is weighted by the field `volume` (diagnostics.grad_c)."""
     with phase("grad_c"):
         grad = grad_c(system, volume)
-        l2, linf = norms(system.comm, grad, fluid_mask(system), system.kernel.h)
+        l2, linf = norms(system.comm, grad, fluid_mask(system) if mask is None else mask, system.kernel.h)
     return grad, l2, linf
 
 

@@ -32,10 +32,11 @@ import time
 
 import numpy as np
 
+from psph.boundaries.free_surface import NoFreeSurface
 from psph.compute.iips import iips_structure, iips_values
 from psph.errors import NumericalError, PsphError, SolverError
 from psph.parallel.comm import allreduce_max, allreduce_sum
-from psph.particles import FieldSpec, Kind
+from psph.particles import FieldSpec
 from psph.profiling import phase
 from psph.shifting.base import ShiftReport, measure
 from psph.solvers.aij import FixedPatternMatrix
@@ -57,13 +58,14 @@ DIVERGENCE_FLOOR = 1e-6
 class ImplicitShifting:
     name = "iips"
 
-    def __init__(self, spec, comm, volume="volume"):
+    def __init__(self, spec, comm, volume="volume", surface=None):
         """volume: the field whose values weight the concentration C = sum_j W_ij V_j that IIPS levels and
         its operator (thesis eq. 6.12, 8.6, 8.11: omega_j): the particle volumes, or "volume0", the constant
         reference volumes, under a field update that makes the volumes follow the displacements (NFTS: see
         psph.shifting.field_update.FictitiousTimeStep)."""
         self.spec = spec
         self.volume = volume
+        self.surface = NoFreeSurface() if surface is None else surface
         self.solver = LinearSolver(comm, "iips_", ksp_type="bcgs", pc_type="jacobi", rtol=1e-2,
                                    initial_guess_nonzero=True)
         self.threshold = spec.threshold if spec.threshold > 0.0 else None
@@ -89,7 +91,7 @@ class ImplicitShifting:
         """(Re)build the matrix after a neighbour-list rebuild: numbering, pattern, preallocation. Collective."""
         p = system.particles
         d = p.dim
-        free = p.owned("kind") == Kind.FLUID
+        free = self.surface.unknowns(system)
         rows, _, n_free = system.global_rows(free)
         with phase("iips_structure"):
             self._free_structure()  # the previous matrix and vectors first: their memory can serve the new ones
@@ -108,9 +110,16 @@ class ImplicitShifting:
         self.solver.set_operator(self.mat)
         self._structure_of = system.rebuilds
 
+    def _unknowns_changed(self, system) -> bool:
+        """Whether a free-surface detection changed the unknowns on some rank. Collective."""
+        if not self.surface.active:
+            return False
+        changed = not np.array_equal(self.free, self.surface.unknowns(system))
+        return bool(allreduce_max(system.comm, int(changed)))
+
     def assemble(self, system):
         """Fill the IIPS matrix at the current positions. Collective."""
-        if self._structure_of != system.rebuilds:
+        if self._structure_of != system.rebuilds or self._unknowns_changed(system):
             self._structure(system)
         p = system.particles
         pos, vol, row, ptr, idx = p["position"], p[self.volume], p["row"], system.nbr_ptr, system.nbr_idx
@@ -198,7 +207,8 @@ class ImplicitShifting:
         p.owned(SHIFT_FIELD.name)[:] = 0.0
         h = system.kernel.h
         separated = system.separate_coincident(COINCIDENT * h, NUDGE * h)
-        grad, l2, linf = measure(system, self.volume)
+        self.surface.detect(system)
+        grad, l2, linf = self.measure(system)
         start_linf = linf
         report = ShiftReport(L2_grad_c=l2, Linf_grad_c=linf)
         if separated:
@@ -217,7 +227,7 @@ class ImplicitShifting:
             except SolverError as err:
                 failure = err
                 break
-            grad, l2, linf = measure(system, self.volume)
+            grad, l2, linf = self.measure(system)
             report.iterations += 1
             report.linear_iterations += its
             report.L2_grad_c, report.Linf_grad_c = l2, linf
@@ -245,6 +255,10 @@ class ImplicitShifting:
             self._fail(system, report, failure, where, mode)
         return report
 
+    def measure(self, system):
+        """(grad C, L2, Linf) over the unknowns. Collective."""
+        return measure(system, self.volume, self.surface.unknowns(system))
+
     def _restore(self, system, shift, report):
         """Move the particles back to the iterate whose accumulated displacement is `shift` (None: the
         call's start) and re-measure. Collective."""
@@ -253,7 +267,7 @@ class ImplicitShifting:
         p.owned("position")[:] -= current if shift is None else current - shift
         current[:] = 0.0 if shift is None else shift
         system.update()
-        _, report.L2_grad_c, report.Linf_grad_c = measure(system, self.volume)
+        _, report.L2_grad_c, report.Linf_grad_c = self.measure(system)
 
     def _fail(self, system, report, failure, where, mode):
         """Stop (raise on all ranks), or reject (undo this call's displacements), warn (keep them) or best
@@ -277,7 +291,7 @@ class ImplicitShifting:
         return allreduce_max(system.comm, float(np.sqrt((s * s).sum(axis=1)).max()) if len(s) else 0.0)
 
 
-def pre_procedure(spec, comm, system, iips=None):
+def pre_procedure(spec, comm, system, iips=None, surface=None):
     """The static pre-procedure (thesis Algorithms 2-4, line 2): `spec.pre_newton` IIPS iterations with no
     threshold, whatever the run's shifting method, so that every method starts from the same distribution.
     From a perturbed lattice (`initial.sigma_over_dx`) it gives a relaxed distribution that is not a lattice.
@@ -287,7 +301,7 @@ def pre_procedure(spec, comm, system, iips=None):
         return None
     if iips is not None:
         return iips.prepare(system)
-    temporary = ImplicitShifting(spec, comm)
+    temporary = ImplicitShifting(spec, comm, surface=surface)
     linf = temporary.prepare(system)
     temporary.destroy()
     return linf

@@ -105,3 +105,15 @@ def test_ghost_walls_match_serial(comm, mpi_tmp_path):
 
     table = apply_overrides(ghost_cavity(), ["domain.dx=0.05", "time.t_end=0.05", "output.every=0"])
     assert_matches_serial(scene_from_table(table), comm, mpi_tmp_path, 1e-11)
+
+
+@pytest.mark.parametrize("shifting,tol", [("delta_plus", 1e-11), ("iips", 1e-7)])
+def test_drop_with_a_free_surface_matches_serial(comm, mpi_tmp_path, shifting, tol):
+    """The elliptical drop (a free surface all round, detected every step and IIPS call) at R/dx = 10."""
+    from psph.scene.load import load_scene
+    from tests.helpers import CASES
+
+    iips = ["iips.procedure=A", "iips.update=nfts"] if shifting == "iips" else []
+    scene = load_scene(CASES / "elliptical_drop.toml", ["domain.dx=0.1", "time.t_end=0.02", "packing.iterations=0",
+                                                       f"shifting.method={shifting}", *iips])
+    assert_matches_serial(scene, comm, mpi_tmp_path, tol)

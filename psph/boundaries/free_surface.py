@@ -1,0 +1,138 @@
+"""Free surfaces: detection, and what the shifting does near them.
+
+Detection (psph.compute.free_surface: Marrone et al. 2010, seed 004 ref. [25]; lambda of thesis eq. 6.28)
+flags each fluid particle SURFACE (on the free surface), REGION (within a kernel support of a surface
+particle: seed 004's "free-surface particles and their neighbouring particles") or 0 (interior), in the
+particle field `free_surface`, with lambda in `surface_lambda` and the outward normal in `surface_normal` (in
+the region, the surface's normal nearby; zero inside), all written to the snapshots. It runs at the start of
+every time step, and at the start of every IIPS call.
+
+Near a free surface the shifting would push the surface particles outward, where no particle holds them
+(grad C points into the fluid there). So:
+- explicit laws: thesis eq. 6.29 (Sun et al.'s delta+-SPH): in the region, du = 0 where lambda < 0.4 and
+  du = (I - n (x) n) du elsewhere (seed 001 section 5.3: du . n = 0 close to the free surface);
+- IIPS: the whole region is fixed, not unknowns: the surface particles as in thesis section 10.2.1, and their
+  neighbours too, whose supports the surface cuts. There grad C cannot vanish, and with only the surface
+  row fixed the Newton iteration drives the next rows through it (a slab perturbed by 0.1 dx: out of the
+  domain within one call of 20 iterations; README, Free surfaces);
+- the history's L2/Linf(grad C) are taken over the interior particles.
+
+A scene without a free surface, or whose shifting is none, gets NoFreeSurface: no pass, no field.
+"""
+
+import numpy as np
+
+from psph.compute import sums
+from psph.compute.free_surface import (
+    SURFACE,
+    mark_region,
+    outward_normals,
+    region_normals,
+    restrict_shift,
+    scan_surface,
+)
+from psph.parallel.comm import allreduce_sum
+from psph.particles import FieldSpec, Kind
+from psph.profiling import phase
+
+FIELDS = (FieldSpec("free_surface", (), np.int8), FieldSpec("surface_lambda"), FieldSpec("surface_normal", ("d",)))
+
+
+def _fluid(system):
+    return system.particles.owned("kind") == Kind.FLUID
+
+
+class NoFreeSurface:
+    """No free surface to detect: every fluid particle is interior."""
+
+    active = False
+    fields = ()
+
+    def detect(self, system) -> None:
+        pass
+
+    def restrict(self, system, du) -> None:
+        pass
+
+    def interior(self, system) -> np.ndarray:
+        """Owned fluid particles away from any free surface (those the history's grad C is measured on)."""
+        return _fluid(system)
+
+    def unknowns(self, system) -> np.ndarray:
+        """Owned particles that IIPS moves."""
+        return _fluid(system)
+
+    def count(self, system) -> int:
+        return 0
+
+    def describe(self) -> str:
+        return ""
+
+
+class FreeSurface(NoFreeSurface):
+    active = True
+    fields = FIELDS
+
+    def __init__(self, spec):
+        self.spec = spec
+
+    def detect(self, system) -> None:
+        """Flag the surface and its region, with lambda and the outward normals (owned rows; the halo gets the
+        flags). Collective."""
+        p, k = system.particles, system.kernel
+        for spec in FIELDS:
+            p.add_field(spec)
+        n, d = p.n_owned, p.dim
+        pos, vol, ptr, idx = p["position"], p["volume"], system.nbr_ptr, system.nbr_idx
+        with phase("free_surface"):
+            mat = np.empty((n, d, d))
+            sums.renormalisation_matrix(pos, vol, ptr, idx, k.params, mat)
+            lam = p.owned("surface_lambda")
+            sums.smallest_eigenvalue(mat, lam)
+            inverse = np.empty_like(mat)
+            sums.invert_renormalisation(mat, lam, 1e-3, inverse)
+            grad = np.empty((n, d))
+            sums.grad_concentration(pos, vol, ptr, idx, k.params, grad)
+            normal = p.owned("surface_normal")
+            outward_normals(inverse, grad, normal)
+            fluid = p["kind"] == Kind.FLUID
+            flag = p["free_surface"]
+            scan_surface(pos, fluid, lam, normal, ptr, idx, k.h, self.spec.lambda_surface,
+                         self.spec.lambda_interior, flag)
+            system.refresh(["free_surface", "surface_normal"])
+            mark_region(pos, fluid, ptr, idx, k.support, flag)
+            region_normals(pos, flag, ptr, idx, k.params, p["surface_normal"])
+
+    def restrict(self, system, du) -> None:
+        """Thesis eq. 6.29 on the owned shifting velocities `du` (in place)."""
+        p = system.particles
+        restrict_shift(p.owned("free_surface"), p.owned("surface_lambda"), p.owned("surface_normal"),
+                       self.spec.lambda_normal, du)
+
+    def interior(self, system) -> np.ndarray:
+        return _fluid(system) & (system.particles.owned("free_surface") == 0)
+
+    unknowns = interior
+
+    def count(self, system) -> int:
+        """Surface particles on all ranks (collective)."""
+        return int(allreduce_sum(system.comm, int(np.count_nonzero(system.particles.owned("free_surface")
+                                                                    == SURFACE))))
+
+    def describe(self) -> str:
+        s = self.spec
+        return (f"free-surface detection (Marrone et al. 2010): lambda <= {s.lambda_surface:g} surface, "
+                f"> {s.lambda_interior:g} interior, scan region between; explicit shifting du . n = 0 in the "
+                f"region, du = 0 where lambda < {s.lambda_normal:g} (thesis eq. 6.29); IIPS fixes the "
+                f"{'surface particles and their neighbours' if s.iips_fixed == 'region' else 'surface particles'}")
+
+
+def make_free_surface(scene):
+    """FreeSurface where a fluid scene has a free surface and something shifts its particles (an explicit law,
+    IIPS, or the IIPS pre-procedure); NoFreeSurface elsewhere."""
+    from psph.scene.schema import FLUID_SCHEMES
+
+    shifts = scene.shifting.method != "none" or scene.iips.pre_newton > 0
+    if scene.physics.scheme in FLUID_SCHEMES and scene.describe_free_surface() and shifts:
+        return FreeSurface(scene.free_surface)
+    return NoFreeSurface()

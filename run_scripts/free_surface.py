@@ -1,0 +1,131 @@
+"""Shifting with a free surface: the elliptical drop and the hydrostatic tank, without shifting, with the
+delta+ law and with IIPS, the free surface detected (psph.boundaries.free_surface).
+
+    .venv/bin/python run_scripts/free_surface.py [--drop-resolutions 20 40 80] [--tank-resolutions 20 40]
+                                                 [--methods none delta_plus iips] [--ranks 2]
+
+Drop: cases/elliptical_drop.toml (packed, R = 1, A0 = 1, c0 = 20, to t A0 = 1) at each R/dx; the semi-axis
+error max(|a/a_exact - 1|, |b/b_exact - 1|) from the fluid's second moments and the RMS pressure error in
+units of rho0 A0^2 R^2 / 2 (averaged over the run), against psph.analytic.EllipticalDrop.
+Tank: cases/hydrostatic_tank.toml (water at rest, clone walls, to t sqrt(g/H) = 10): the largest particle
+speed in units of sqrt(g H).
+IIPS runs as the thesis runs it with a free surface (section 10.2.2): Procedure A, threshold
+Linf(grad C) = 0.02, the NFTS field update. Writes, in --out (results/free_surface): drop.md/.csv,
+tank.md/.csv, drop_axes.png and tank_speed.png (against time), surface.png (the finest delta+ drop at
+t_end, coloured by the detection's flags).
+"""
+
+import argparse
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from psph.compute.free_surface import REGION, SURFACE  # noqa: E402
+from psph.particles import Kind  # noqa: E402
+from psph.studies import CASES, command_line, last_snapshot, plot_histories, run_scene, write_table  # noqa: E402
+
+IIPS = ["shifting.method=iips", "iips.procedure=A", "iips.threshold=0.02", "iips.update=nfts"]
+METHODS = {"none": ["shifting.method=none"], "delta_plus": ["shifting.method=delta_plus"], "iips": IIPS}
+
+
+def at_time(history, t, column):
+    """`column` of the history row closest to time t."""
+    return min(history, key=lambda r: abs(r["time"] - t))[column]
+
+
+def drop_runs(args):
+    rows, runs = [], {}
+    for n in args.drop_resolutions:
+        for method in args.methods:
+            run = run_scene(CASES / "elliptical_drop.toml", args.out / f"drop_{method}_r{n}", ranks=args.ranks,
+                            sets=[f"domain.dx={1.0 / n}", "output.every=0", "output.history_every=10",
+                                  *METHODS[method]])
+            runs[(method, n)] = run
+            h = run.history
+            t_end = h[-1]["time"]
+            rows.append([n, method, at_time(h, 0.5 * t_end, "semi_axis_error"), h[-1]["semi_axis_error"],
+                         h[-1]["semi_axis_b"] / h[-1]["semi_axis_b_exact"] - 1.0,
+                         np.mean([r["L2_pressure_error"] for r in h[1:]]), h[-1]["min_spacing"],
+                         np.mean([r["Linf_grad_c"] for r in h[1:]]), h[-1].get("surface_particles", ""),
+                         run.summary["wall_time_s"]])
+            print(rows[-1], flush=True)
+    return rows, runs
+
+
+def tank_runs(args):
+    rows, runs = [], {}
+    for n in args.tank_resolutions:
+        for method in args.methods:
+            run = run_scene(CASES / "hydrostatic_tank.toml", args.out / f"tank_{method}_h{n}", ranks=args.ranks,
+                            sets=[f"domain.dx={1.0 / n}", "output.every=0", "output.history_every=20",
+                                  *METHODS[method]])
+            runs[(method, n)] = run
+            h = run.history
+            t = np.array([r["time"] for r in h])
+            speed = np.array([r["max_speed"] for r in h])
+            rows.append([n, method, speed[-1], speed[t >= 0.5 * t[-1]].max(), h[-1]["volume_error"],
+                         np.mean([r["Linf_grad_c"] for r in h[1:]]), h[-1].get("surface_particles", ""),
+                         run.summary["wall_time_s"]])
+            print(rows[-1], flush=True)
+    return rows, runs
+
+
+def plot_surface(path, run, n):
+    snap, t = last_snapshot(run.out)
+    fluid = snap["kind"] == Kind.FLUID
+    pos, flag = snap["position"][fluid], snap["free_surface"][fluid]
+    fig, ax = plt.subplots(figsize=(9, 3))
+    for value, colour, label in ((0, "tab:blue", "interior"), (REGION, "tab:orange", "region (no normal shift)"),
+                                 (SURFACE, "tab:red", "surface")):
+        sel = flag == value
+        ax.plot(pos[sel, 0], pos[sel, 1], ".", ms=2.0 * 40 / n, color=colour, label=label)
+    ax.set(aspect="equal", xlabel="x / R", ylabel="y / R",
+           title=f"Drop with delta+, R/dx = {n}, t A0 = {t:g}: free-surface detection")
+    ax.legend(fontsize=7, loc="upper right", markerscale=3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("results/free_surface"))
+    parser.add_argument("--ranks", type=int, default=2)
+    parser.add_argument("--drop-resolutions", type=int, nargs="*", default=[20, 40, 80], help="R/dx")
+    parser.add_argument("--tank-resolutions", type=int, nargs="*", default=[20, 40], help="H/dx")
+    parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
+    args = parser.parse_args()
+    note = "Command: " + command_line()
+    if args.drop_resolutions:
+        rows, runs = drop_runs(args)
+        print(write_table(args.out / "drop", [
+            "R/dx", "shifting", "axes error t = 0.5", "t = 1", "b/b_exact - 1 (t = 1)", "RMS p error",
+            "min spacing / dx (t = 1)", "interior Linf(grad C), mean", "surface particles (t = 1)", "wall s"],
+            rows, title="Elliptical drop (packed) to t A0 = 1 with a detected free surface", note=note))
+        curves = [([r["time"] for r in run.history], [max(r["semi_axis_error"], 1e-6) for r in run.history],
+                   f"{method}, R/dx = {n}", {"ls": {"none": ":", "delta_plus": "-", "iips": "--"}[method]})
+                  for (method, n), run in sorted(runs.items(), key=lambda kv: (kv[0][1], kv[0][0]))]
+        plot_histories(args.out / "drop_axes.png", curves, "t A0", "max(|a/a_exact - 1|, |b/b_exact - 1|)",
+                       "Elliptical drop: semi-axis error", logy=True)
+        if "delta_plus" in args.methods:
+            n = max(args.drop_resolutions)
+            plot_surface(args.out / "surface.png", runs[("delta_plus", n)], n)
+    if args.tank_resolutions:
+        rows, runs = tank_runs(args)
+        print(write_table(args.out / "tank", [
+            "H/dx", "shifting", "max speed at t = 10", "max speed, t >= 5", "eps_V(t_end)",
+            "interior Linf(grad C), mean", "surface particles (t_end)", "wall s"], rows,
+            title="Hydrostatic tank (clone walls) to t sqrt(g/H) = 10: speeds in sqrt(g H)", note=note))
+        curves = [([r["time"] for r in run.history], [max(r["max_speed"], 1e-8) for r in run.history],
+                   f"{method}, H/dx = {n}", {"ls": {"none": ":", "delta_plus": "-", "iips": "--"}[method]})
+                  for (method, n), run in sorted(runs.items(), key=lambda kv: (kv[0][1], kv[0][0]))]
+        plot_histories(args.out / "tank_speed.png", curves, "t sqrt(g/H)", "max |u| / sqrt(g H)",
+                       "Hydrostatic tank: spurious velocity", logy=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,220 @@
+"""Free-surface detection (Marrone et al. 2010) and the shifting near a free surface (thesis eq. 6.29,
+section 10.2.1): which particles are flagged in a tank, a disc, a 3-D slab and a disordered interior; the
+restricted shifting velocity; IIPS with fixed surface particles; rank independence."""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from psph.boundaries.free_surface import FreeSurface, make_free_surface
+from psph.compute.free_surface import REGION, SURFACE
+from psph.particles import Kind
+from psph.scene.load import load_scene
+from psph.scene.schema import FreeSurfaceSpec
+from psph.shifting.base import measure
+from psph.simulation import build_system
+from tests.conftest import gather_by_gid
+from tests.helpers import CASES
+
+SLAB = """
+name = "slab"
+[domain]
+dimension = {dim}
+lower = {lower}
+upper = {upper}
+periodic = {periodic}
+dx = 0.1
+[initial]
+fill_upper = {fill}
+sigma_over_dx = {sigma}
+[physics]
+scheme = "delta_ale"
+[shifting]
+method = "delta_plus"
+[time]
+t_end = 1.0
+"""
+
+
+def detected(scene, comm=MPI.COMM_SELF, spec=None):
+    """The system of `scene` with the free surface detected."""
+    system = build_system(scene, comm)
+    FreeSurface(spec or scene.free_surface).detect(system)
+    return system
+
+
+def owned(system, name):
+    return system.particles.owned(name)
+
+
+def slab(tmp_path, dim=2, sigma=0.0):
+    """A fluid layer 0 <= y <= 0.95 (10 rows) in a box 2 high, periodic along the other axes: free surfaces
+    at its top and its bottom."""
+    lower, upper = [0.0] * dim, [1.0] * dim
+    upper[1] = 2.0
+    fill = list(upper)
+    fill[1] = 0.96
+    periodic = [True] * dim
+    periodic[1] = False
+    path = tmp_path / "slab.toml"
+    path.write_text(SLAB.format(dim=dim, lower=lower, upper=upper, periodic=str(periodic).lower(), fill=fill,
+                                sigma=sigma))
+    return load_scene(path)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_slab_has_its_top_and_bottom_rows_at_the_surface(tmp_path, dim):
+    system = detected(slab(tmp_path, dim))
+    y, flag = owned(system, "position")[:, 1], owned(system, "free_surface")
+    assert np.allclose(np.unique(y), 0.05 + 0.1 * np.arange(10))
+    edge = np.isclose(y, 0.05) | np.isclose(y, 0.95)
+    assert np.all(flag[edge] == SURFACE) and not np.any(flag[~edge] == SURFACE)
+    # within the support (2h = 4 dx) of a surface row: rows 1-3 deep; the slab is 10 rows thick, so the
+    # two middle rows (4 dx from either surface: the support's edge) are the only candidates for interior
+    depth = np.minimum(y - 0.05, 0.95 - y)
+    assert np.all(flag[(depth > 0.05) & (depth < 0.35)] == REGION)
+    normal = owned(system, "surface_normal")
+    expected = np.where(np.isclose(y, 0.95), 1.0, -1.0)
+    assert np.allclose(normal[edge, 1], expected[edge], atol=1e-12)
+    assert np.allclose(owned(system, "surface_lambda")[edge], owned(system, "surface_lambda")[edge][0])
+
+
+def test_a_tank_flags_its_surface_row_and_nothing_along_its_walls():
+    scene = load_scene(CASES / "hydrostatic_tank.toml", ["domain.dx=0.05", "shifting.method=delta_plus"])
+    system = detected(scene)
+    p = system.particles
+    fluid = owned(system, "kind") == Kind.FLUID
+    pos, flag = owned(system, "position")[fluid], owned(system, "free_surface")[fluid]
+    top = np.isclose(pos[:, 1], pos[:, 1].max())
+    assert np.all(flag[top] == SURFACE) and not np.any(flag[~top] == SURFACE)  # the clone walls fill the support
+    assert np.all(flag[pos[:, 1] < 1.0 - 0.2 - 1e-9] == 0)  # deeper than the support: interior
+    assert np.all(owned(system, "free_surface")[~fluid] == 0) and p.n_owned > fluid.sum()
+
+
+def test_the_rim_of_a_disc_is_its_surface_with_outward_normals():
+    scene = load_scene(CASES / "elliptical_drop.toml", ["domain.dx=0.1", "shifting.method=delta_plus"])
+    system = detected(scene)
+    pos, flag = owned(system, "position"), owned(system, "free_surface")
+    r = np.linalg.norm(pos, axis=1)
+    surface = flag == SURFACE
+    # only the outermost particles, and all the way round (every 20 degrees holds some)
+    assert r[surface].min() > 1.0 - 1.5 * 0.1 and not np.any(surface[r < 1.0 - 1.5 * 0.1])
+    angles = np.degrees(np.arctan2(pos[surface, 1], pos[surface, 0]))
+    assert len(np.unique(np.floor((angles + 180.0) / 20.0))) == 18
+    # every lattice particle within half a spacing of the circle is found
+    assert np.all(surface[r > 1.0 - 0.05])
+    radial = pos[surface] / r[surface, None]
+    assert np.all((owned(system, "surface_normal")[surface] * radial).sum(axis=1) > 0.8)
+    assert np.all(flag[r < r[surface].min() - 0.4 - 1e-9] == 0)  # beyond a support from the surface
+    assert np.all(flag[r > 1.0 - 0.4] > 0)
+
+
+def test_a_disordered_interior_has_no_surface(tmp_path):
+    scene = load_scene(CASES / "static_perturbed.toml", ["initial.sigma_over_dx=0.25", "domain.dx=0.05"])
+    system = detected(scene, spec=FreeSurfaceSpec())
+    assert not np.any(owned(system, "free_surface"))
+    # lambda alone would not do: the disorder gives candidates, and the scan region clears them
+    assert np.count_nonzero(owned(system, "surface_lambda") <= 0.75) > 5
+
+
+def test_an_isolated_particle_is_a_surface(tmp_path):
+    scene = slab(tmp_path)
+    system = build_system(scene, MPI.COMM_SELF)
+    p = system.particles
+    k = int(np.argmax(owned(system, "position")[:, 1]))
+    p.owned("position")[k, 1] = 1.8  # far above the slab
+    system.rebuild()
+    FreeSurface(scene.free_surface).detect(system)
+    k = int(np.argmax(owned(system, "position")[:, 1]))
+    assert owned(system, "surface_lambda")[k] == 0.0 and owned(system, "free_surface")[k] == SURFACE
+
+
+def test_the_restricted_shift_has_no_normal_component_near_the_surface(tmp_path):
+    scene = slab(tmp_path, sigma=0.1)
+    system = detected(scene)
+    surface = FreeSurface(scene.free_surface)
+    rng = np.random.default_rng(3)
+    du = rng.standard_normal((system.particles.n_owned, 2))
+    before = du.copy()
+    surface.restrict(system, du)
+    flag, lam, normal = (owned(system, name) for name in ("free_surface", "surface_lambda", "surface_normal"))
+    near = flag > 0
+    assert near.any() and (~near).any()
+    assert np.array_equal(du[~near], before[~near])
+    low = near & (lam < 0.4)
+    assert np.all(du[low] == 0.0)
+    tangential = near & ~low
+    assert tangential.sum() > 20
+    assert np.abs((du[tangential] * normal[tangential]).sum(axis=1)).max() < 1e-14
+    # the tangential part is kept
+    assert np.allclose(du[tangential], before[tangential] - (before[tangential] * normal[tangential]).sum(
+        axis=1)[:, None] * normal[tangential])
+
+
+def test_make_free_surface_only_where_a_shifting_meets_a_free_surface():
+    drop = CASES / "elliptical_drop.toml"
+    assert not make_free_surface(load_scene(drop)).active  # shifting none
+    assert make_free_surface(load_scene(drop, ["shifting.method=delta_plus"])).active
+    assert make_free_surface(load_scene(drop, ["shifting.method=iips"])).active
+    assert not make_free_surface(load_scene(CASES / "lid_driven_cavity.toml")).active  # no free surface
+
+
+def test_iips_keeps_the_surface_region_in_place(tmp_path):
+    from psph.shifting.iips import ImplicitShifting
+
+    scene = slab(tmp_path, sigma=0.1)
+    system = build_system(scene, MPI.COMM_SELF)
+    surface = FreeSurface(scene.free_surface)
+    surface.detect(system)
+    start = measure(system, "volume", surface.interior(system))[2]
+    iips = ImplicitShifting(scene.iips, system.comm, surface=surface)
+    before = dict(zip(owned(system, "gid"), owned(system, "position").copy()))
+    report = iips.correct(system)
+    iips.destroy()
+    flag = owned(system, "free_surface")
+    moved = np.array([np.linalg.norm(x - before[g]) for g, x in zip(owned(system, "gid"), owned(system, "position"))])
+    assert np.all(moved[flag > 0] == 0.0) and moved[flag == 0].max() > 0.0
+    assert report.iterations == 20 and report.Linf_grad_c < 0.1 * start
+
+
+@pytest.mark.mpi
+def test_detection_is_rank_independent():
+    comm = MPI.COMM_WORLD
+    scene = load_scene(CASES / "elliptical_drop.toml", ["domain.dx=0.05", "shifting.method=delta_plus",
+                                                       "initial.sigma_over_dx=0.1"])
+    system = detected(scene, comm)
+    gid = owned(system, "gid")
+    _, flags = gather_by_gid(comm, gid, owned(system, "free_surface"))
+    _, normals = gather_by_gid(comm, gid, owned(system, "surface_normal"))
+    serial = detected(scene)
+    _, flags1 = gather_by_gid(MPI.COMM_SELF, owned(serial, "gid"), owned(serial, "free_surface"))
+    _, normals1 = gather_by_gid(MPI.COMM_SELF, owned(serial, "gid"), owned(serial, "surface_normal"))
+    assert np.count_nonzero(flags1 == SURFACE) > 50
+    assert np.array_equal(flags, flags1) and np.allclose(normals, normals1, atol=1e-12)
+
+
+def drop_run(tmp_path, monkeypatch, restricted):
+    """The drop at R/dx = 10 with delta+ to t A0 = 0.5: with the free surface detected and the shift
+    restricted, or (restricted=False) with delta+ left to push the rim outward."""
+    import psph.schemes.delta_ale as delta_ale
+    from psph.boundaries.free_surface import NoFreeSurface
+    from psph.drivers.fluid import FluidDriver
+
+    if not restricted:
+        monkeypatch.setattr(delta_ale, "make_free_surface", lambda scene: NoFreeSurface())
+    scene = load_scene(CASES / "elliptical_drop.toml", ["domain.dx=0.1", "packing.iterations=300",
+                                                       "shifting.method=delta_plus", "time.t_end=0.5"])
+    return FluidDriver(scene, MPI.COMM_SELF, tmp_path).run()
+
+
+def test_the_restriction_is_what_lets_delta_plus_run_a_drop(tmp_path, monkeypatch):
+    from psph.errors import NumericalError
+    from psph.io.history import read_history
+
+    drop_run(tmp_path / "restricted", monkeypatch, True)
+    history = read_history(tmp_path / "restricted" / "history.csv")
+    assert history[-1]["time"] == pytest.approx(0.5)
+    assert max(r["semi_axis_error"] for r in history) < 0.01  # measured 0.0048
+    assert all(r["surface_particles"] >= 2 * np.pi * 10 * 0.9 for r in history)  # the rim, all along
+    with pytest.raises(NumericalError, match="density left the weakly compressible range"):
+        drop_run(tmp_path / "unrestricted", monkeypatch, False)  # measured: at step 145, t = 0.27
