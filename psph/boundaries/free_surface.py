@@ -5,19 +5,21 @@ flags each fluid particle SURFACE (on the free surface), REGION (within a kernel
 particle: seed 004's "free-surface particles and their neighbouring particles") or 0 (interior), in the
 particle field `free_surface`, with lambda in `surface_lambda` and the outward normal in `surface_normal` (in
 the region, the surface's normal nearby; zero inside), all written to the snapshots. It runs at the start of
-every time step, and at the start of every IIPS call.
+every time step of an explicit law, at the start of every IIPS call, and for every history row.
 
 Near a free surface the shifting would push the surface particles outward, where no particle holds them
 (grad C points into the fluid there). So:
 - explicit laws: thesis eq. 6.29 (Sun et al.'s delta+-SPH): in the region, du = 0 where lambda < 0.4 and
-  du = (I - n (x) n) du elsewhere (seed 001 section 5.3: du . n = 0 close to the free surface);
-- IIPS: the whole region is fixed, not unknowns: the surface particles as in thesis section 10.2.1, and their
-  neighbours too, whose supports the surface cuts. There grad C cannot vanish, and with only the surface
-  row fixed the Newton iteration drives the next rows through it (a slab perturbed by 0.1 dx: out of the
-  domain within one call of 20 iterations; README, Free surfaces);
+  du = (I - n (x) n) du elsewhere (seed 001 section 6.3: du . n = 0 close to the free surface);
+- IIPS: the whole region is fixed, not unknowns: the surface particles, as thesis section 10.2.1 fixes the
+  interface particles (which it finds by a grad C threshold), and their neighbours too, whose supports the
+  surface cuts. There grad C cannot vanish, and with only the surface row fixed the Newton iteration drives
+  the next rows through it (a slab perturbed by 0.1 dx: out of the domain within one call of 20 iterations;
+  README, Free surfaces);
 - the history's L2/Linf(grad C) are taken over the interior particles.
 
-A scene without a free surface, or whose shifting is none, gets NoFreeSurface: no pass, no field.
+A scene without a free surface, or whose shifting is none, gets NoFreeSurface: no pass, no field (the IIPS
+pre-procedure makes its own FreeSurface).
 """
 
 import numpy as np
@@ -82,6 +84,7 @@ class FreeSurface(NoFreeSurface):
         p, k = system.particles, system.kernel
         for spec in FIELDS:
             p.add_field(spec)
+        system.refresh(["volume"])  # a field update may have changed the owned volumes since the last exchange
         n, d = p.n_owned, p.dim
         pos, vol, ptr, idx = p["position"], p["volume"], system.nbr_ptr, system.nbr_idx
         with phase("free_surface"):
@@ -94,7 +97,7 @@ class FreeSurface(NoFreeSurface):
             grad = np.empty((n, d))
             sums.grad_concentration(pos, vol, ptr, idx, k.params, grad)
             normal = p.owned("surface_normal")
-            outward_normals(inverse, grad, normal)
+            outward_normals(inverse, grad, k.h, normal)
             fluid = p["kind"] == Kind.FLUID
             flag = p["free_surface"]
             scan_surface(pos, fluid, lam, normal, ptr, idx, k.h, self.spec.lambda_surface,
@@ -124,15 +127,15 @@ class FreeSurface(NoFreeSurface):
         return (f"free-surface detection (Marrone et al. 2010): lambda <= {s.lambda_surface:g} surface, "
                 f"> {s.lambda_interior:g} interior, scan region between; explicit shifting du . n = 0 in the "
                 f"region, du = 0 where lambda < {s.lambda_normal:g} (thesis eq. 6.29); IIPS fixes the "
-                f"{'surface particles and their neighbours' if s.iips_fixed == 'region' else 'surface particles'}")
+                "surface particles and their neighbours")
 
 
-def make_free_surface(scene):
-    """FreeSurface where a fluid scene has a free surface and something shifts its particles (an explicit law,
-    IIPS, or the IIPS pre-procedure); NoFreeSurface elsewhere."""
+def make_free_surface(scene, pre_procedure=False):
+    """FreeSurface where a fluid scene has a free surface and its shifting method moves the particles (or, with
+    pre_procedure, for the IIPS pre-procedure, whatever the method); NoFreeSurface elsewhere."""
     from psph.scene.schema import FLUID_SCHEMES
 
-    shifts = scene.shifting.method != "none" or scene.iips.pre_newton > 0
+    shifts = pre_procedure or scene.shifting.method != "none"
     if scene.physics.scheme in FLUID_SCHEMES and scene.describe_free_surface() and shifts:
         return FreeSurface(scene.free_surface)
     return NoFreeSurface()

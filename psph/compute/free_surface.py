@@ -1,6 +1,6 @@
 """Free-surface detection kernels (numba; no communication): Marrone et al.'s algorithm (J. Comput. Phys.
 229 (2010) 3652, reference [25] of seed 004, which detects the free surface with it; the indicator lambda is
-thesis 000 eq. 6.28).
+thesis 000 eq. 6.28, which prints the inverse of M_i below and means the smallest eigenvalue of M_i).
 
     M_i      = sum_j (x_j - x_i) (x) grad_i W_ij V_j          (compute.sums.renormalisation_matrix)
     lambda_i = smallest eigenvalue of M_i: about 1 in a full support, about 1/2 on a flat surface, 0 alone
@@ -14,10 +14,12 @@ A fluid particle is at the surface if lambda_i <= lambda_surface (0.2), never if
     |x_ji| >= sqrt(2) h  and  |x_j - T_i| < h,      T_i = x_i + h n_i, or
     |x_ji| <  sqrt(2) h  and  angle(x_ji, n_i) < pi/4,
 
-the umbrella-shaped region of Marrone et al. (a disc of radius h about T_i, and the quarter-cone from x_i to
-it; in 2-D the cone part is their square |n.(x_j - T)| + |t.(x_j - T)| < h, which within sqrt(2) h of x_i is
-exactly the cone). Neighbours on the region's edge, to a relative 1e-9, count as outside. h is the smoothing
-length, half the support of psph's kernels, as in their paper. """
+the umbrella-shaped region of Marrone et al. (a disc, in 3-D a ball, of radius h about T_i, and the
+quarter-cone from x_i to it; in 2-D the cone part is their square |n.(x_j - T)| + |t.(x_j - T)| < h, which
+within sqrt(2) h of x_i is exactly the cone). Neighbours on the region's edge, to a relative 1e-9, count as
+outside. h is psph's smoothing length, half its kernels' support; Marrone et al. scale the region with their
+own kernel's h (README, Free surfaces).
+"""
 
 import numpy as np
 from numba import njit
@@ -34,9 +36,15 @@ REGION = 1  # flag of a particle within a kernel support of one (seed 004: "the 
 TIE = 1e-9
 
 
+# a normal is undefined (zero) where the vector it normalises is below this relative size: round-off then sets
+# its direction (the middle row of a three-row sheet has |L grad C| h ~ 5e-15)
+UNDEFINED = 1e-6
+
+
 @njit(cache=True)
-def outward_normals(mat_inv, grad_c, out):
-    """n_i = -L_i grad C_i / |L_i grad C_i| (zero where that vector vanishes); L_i = M_i^{-1}."""
+def outward_normals(mat_inv, grad_c, h, out):
+    """n_i = -L_i grad C_i / |L_i grad C_i|, L_i = M_i^{-1}; zero where |L_i grad C_i| h <= UNDEFINED (a full or
+    balanced support: at a flat surface it is about 0.5)."""
     n, d = grad_c.shape
     for i in range(n):
         norm2 = 0.0
@@ -48,7 +56,7 @@ def outward_normals(mat_inv, grad_c, out):
             norm2 += s * s
         norm = np.sqrt(norm2)
         for a in range(d):
-            out[i, a] = out[i, a] / norm if norm > 0.0 else 0.0
+            out[i, a] = out[i, a] / norm if norm * h > UNDEFINED else 0.0
 
 
 @njit(cache=True)
@@ -102,7 +110,8 @@ def mark_region(pos, fluid, ptr, idx, support, flag):
 @njit(cache=True)
 def region_normals(pos, flag, ptr, idx, kp, normal):
     """The normals of the free-surface region: at a REGION particle, the kernel-weighted mean of its SURFACE
-    neighbours' normals (the halo's must be current), normalised; at interior particles, zero. A region
+    neighbours' normals (the halo's must be current), normalised (zero where it is below UNDEFINED times the
+    weights' sum: surfaces on opposite sides balance, as in a sheet's middle row); at interior particles, zero. A region
     particle's own n_i is ill-conditioned (its support is nearly full, so nu_i is small: at 2.65 dx below a
     drop's rim its direction moved by 1e-5 between runs on 1 and 2 ranks within 20 steps); the surface's
     normal nearby is not."""
@@ -110,19 +119,22 @@ def region_normals(pos, flag, ptr, idx, kp, normal):
     for i in range(ptr.size - 1):
         if flag[i] == SURFACE:
             continue
-        s0, s1, s2 = 0.0, 0.0, 0.0
+        s0, s1, s2, weights = 0.0, 0.0, 0.0, 0.0
         if flag[i] == REGION:
             for k in range(ptr[i], ptr[i + 1]):
                 j = idx[k]
                 if flag[j] == SURFACE:
                     w = kernel_w(pair(pos, i, j, d)[3], kp)
+                    weights += w
                     n0, n1, n2 = load(normal, j, d)
                     s0 += w * n0
                     s1 += w * n1
                     s2 += w * n2
         norm = np.sqrt(dot(s0, s1, s2, s0, s1, s2, d))
-        if norm > 0.0:
+        if norm > UNDEFINED * weights:
             s0, s1, s2 = s0 / norm, s1 / norm, s2 / norm
+        else:
+            s0, s1, s2 = 0.0, 0.0, 0.0
         normal[i, 0] = s0
         if d > 1:
             normal[i, 1] = s1

@@ -17,6 +17,7 @@ import time
 import numpy as np
 
 from psph.analytic import taylor_green, taylor_green_kinetic_energy
+from psph.boundaries.free_surface import make_free_surface
 from psph.compute.sums import nearest_distance
 from psph.diagnostics import fluid_mask, grad_c, norms
 from psph.errors import NumericalError
@@ -165,7 +166,8 @@ class FluidDriver:
         the flow cannot strain into a squeezed lattice as it does the Cartesian one (README, Taylor-Green).
         The initial condition is then set again at the moved positions. Collective."""
         start = time.perf_counter()
-        linf = pre_procedure(self.scene.iips, self.sim.comm, self.system, surface=self.scheme.surface)
+        linf = pre_procedure(self.scene.iips, self.sim.comm, self.system,
+                             surface=make_free_surface(self.scene, pre_procedure=True))
         reset_initial_fields(self.scene, self.system.particles)
         pre = {"linf": linf, "time_s": time.perf_counter() - start}
         self.sim.log(f"pre-procedure: {self.scene.iips.pre_newton} IIPS iterations, Linf(grad C) = {linf:.3e}, "
@@ -184,7 +186,8 @@ class FluidDriver:
         t = state["time"]
         with phase("fluid_step"):
             system.prepare_step(self.reach * dt * vmax)
-            self.scheme.surface.detect(system)  # the step's surface flags, for the shifting law's du
+            if self.scheme.shift.active:  # the step's surface flags, for the shifting law's du
+                self.scheme.surface.detect(system)
             totals["steps_redone"] += self._integrate(t, dt, state["step"] + 1)
             self.scheme.end_step(system, dt)
             if self.scheme.walls is not None:  # solids exactly where their bodies are at t + dt

@@ -71,6 +71,7 @@ class ImplicitShifting:
         self.threshold = spec.threshold if spec.threshold > 0.0 else None
         self.initial_linf = None  # Linf(grad C) after the pre-procedure (thesis: Linf(grad C)_Init)
         self._structure_of = None
+        self._unknowns_moved = False  # a free-surface detection changed the unknowns: rebuild the structure
         self.calls = 0
         self.newton_iterations = 0
         self.rejections = 0
@@ -109,17 +110,21 @@ class ImplicitShifting:
         self.free = free
         self.solver.set_operator(self.mat)
         self._structure_of = system.rebuilds
+        self._unknowns_moved = False
 
-    def _unknowns_changed(self, system) -> bool:
-        """Whether a free-surface detection changed the unknowns on some rank. Collective."""
-        if not self.surface.active:
-            return False
-        changed = not np.array_equal(self.free, self.surface.unknowns(system))
-        return bool(allreduce_max(system.comm, int(changed)))
+    def _detect_surface(self, system) -> int:
+        """Detect the free surface (if any) for this call; mark the structure stale if that changed the unknowns
+        on some rank. Returns the global number of unknowns. Collective."""
+        self.surface.detect(system)
+        unknowns = self.surface.unknowns(system)
+        if self.surface.active and self._structure_of is not None:
+            changed = len(unknowns) != len(self.free) or not np.array_equal(self.free, unknowns)
+            self._unknowns_moved = bool(allreduce_max(system.comm, int(changed)))
+        return int(allreduce_sum(system.comm, int(np.count_nonzero(unknowns))))
 
     def assemble(self, system):
         """Fill the IIPS matrix at the current positions. Collective."""
-        if self._structure_of != system.rebuilds or self._unknowns_changed(system):
+        if self._structure_of != system.rebuilds or self._unknowns_moved:
             self._structure(system)
         p = system.particles
         pos, vol, row, ptr, idx = p["position"], p[self.volume], p["row"], system.nbr_ptr, system.nbr_idx
@@ -144,6 +149,7 @@ class ImplicitShifting:
         step = self.dx.getArray(readonly=True).reshape(-1, d)
         if guess:
             p.owned(GUESS_FIELD.name)[self.free] = step
+            p.owned(GUESS_FIELD.name)[~self.free] = 0.0  # no stale guess for a particle that becomes free later
         p.owned("position")[self.free] += step
         p.owned(SHIFT_FIELD.name)[self.free] += step
         self.newton_iterations += 1
@@ -207,7 +213,8 @@ class ImplicitShifting:
         p.owned(SHIFT_FIELD.name)[:] = 0.0
         h = system.kernel.h
         separated = system.separate_coincident(COINCIDENT * h, NUDGE * h)
-        self.surface.detect(system)
+        if self._detect_surface(system) == 0:  # a free-surface region covers all the fluid
+            return ShiftReport(message="no IIPS unknowns: the free-surface region holds every fluid particle")
         grad, l2, linf = self.measure(system)
         start_linf = linf
         report = ShiftReport(L2_grad_c=l2, Linf_grad_c=linf)

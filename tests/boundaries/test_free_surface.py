@@ -2,6 +2,8 @@
 section 10.2.1): which particles are flagged in a tank, a disc, a 3-D slab and a disordered interior; the
 restricted shifting velocity; IIPS with fixed surface particles; rank independence."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from mpi4py import MPI
@@ -47,13 +49,13 @@ def owned(system, name):
     return system.particles.owned(name)
 
 
-def slab(tmp_path, dim=2, sigma=0.0):
-    """A fluid layer 0 <= y <= 0.95 (10 rows) in a box 2 high, periodic along the other axes: free surfaces
-    at its top and its bottom."""
+def slab(tmp_path, dim=2, sigma=0.0, rows=10):
+    """A fluid layer of `rows` rows from y = 0 (10: 0.05 <= y <= 0.95) in a box 2 high, periodic along the other
+    axes: free surfaces at its top and its bottom."""
     lower, upper = [0.0] * dim, [1.0] * dim
     upper[1] = 2.0
     fill = list(upper)
-    fill[1] = 0.96
+    fill[1] = 0.1 * rows - 0.04
     periodic = [True] * dim
     periodic[1] = False
     path = tmp_path / "slab.toml"
@@ -73,9 +75,11 @@ def test_a_slab_has_its_top_and_bottom_rows_at_the_surface(tmp_path, dim):
     # two middle rows (4 dx from either surface: the support's edge) are the only candidates for interior
     depth = np.minimum(y - 0.05, 0.95 - y)
     assert np.all(flag[(depth > 0.05) & (depth < 0.35)] == REGION)
+    assert np.all(flag[depth > 0.4 - 1e-9] == 0)  # exactly a support from the surface: outside it
     normal = owned(system, "surface_normal")
-    expected = np.where(np.isclose(y, 0.95), 1.0, -1.0)
-    assert np.allclose(normal[edge, 1], expected[edge], atol=1e-12)
+    expected = np.where(y > 0.5, 1.0, -1.0)  # the region takes its surface's normal; the interior has none
+    near = flag > 0
+    assert np.allclose(normal[near, 1], expected[near], atol=1e-12) and not np.any(normal[~near])
     assert np.allclose(owned(system, "surface_lambda")[edge], owned(system, "surface_lambda")[edge][0])
 
 
@@ -177,6 +181,58 @@ def test_iips_keeps_the_surface_region_in_place(tmp_path):
     assert report.iterations == 20 and report.Linf_grad_c < 0.1 * start
 
 
+def test_a_sheet_has_no_interior_and_no_iips_unknowns(tmp_path):
+    """Seven rows: every row is within a support of a surface, so IIPS has nothing to move; the middle row's
+    region normal, balanced between the two surfaces, is undefined (zero), and so is its shift."""
+    from psph.shifting.iips import ImplicitShifting
+
+    scene = slab(tmp_path, rows=7)
+    system = build_system(scene, MPI.COMM_SELF)
+    surface = FreeSurface(scene.free_surface)
+    iips = ImplicitShifting(scene.iips, system.comm, surface=surface)
+    report = iips.correct(system)
+    iips.destroy()
+    assert report.iterations == 0 and "no IIPS unknowns" in report.message
+    y, flag = owned(system, "position")[:, 1], owned(system, "free_surface")
+    assert np.all(flag > 0)
+    middle = np.isclose(y, 0.35)
+    assert not np.any(owned(system, "surface_normal")[middle])
+    du = np.ones((system.particles.n_owned, 2))
+    surface.restrict(system, du)
+    assert not np.any(du[middle]) and np.allclose(du[~middle], [1.0, 0.0], atol=1e-14)
+
+
+def test_iips_follows_unknowns_that_change_without_a_rebuild(tmp_path):
+    """Turning the top row into walls moves the surface region (no neighbour-list rebuild): the next IIPS call
+    builds its matrix over the new unknowns."""
+    from psph.shifting.iips import ImplicitShifting
+
+    scene = slab(tmp_path, sigma=0.05, rows=14)
+    system = build_system(scene, MPI.COMM_SELF)
+    surface = FreeSurface(scene.free_surface)
+    iips = ImplicitShifting(replace(scene.iips, max_newton=2), system.comm, surface=surface)
+    iips.correct(system)
+    before = iips.mat.getSize()[0]
+    assert before == 2 * np.count_nonzero(surface.unknowns(system)) > 0
+    rebuilds = system.rebuilds
+    p = system.particles
+    top = p["position"][:, 1] > 1.0  # the top four rows, a support deep: the rows below get full supports
+    p["kind"][top] = Kind.WALL
+    iips.correct(system)
+    assert system.rebuilds == rebuilds
+    after = iips.mat.getSize()[0]
+    assert after == 2 * np.count_nonzero(surface.unknowns(system)) > before
+    iips.destroy()
+
+
+def test_psph_info_describes_the_detection():
+    from tests.helpers import run_psph
+
+    res = run_psph("info", CASES / "elliptical_drop.toml", "--set", "shifting.method=delta_plus")
+    assert res.returncode == 0, res.stderr
+    assert "free-surface detection (Marrone et al. 2010)" in res.stdout
+
+
 @pytest.mark.mpi
 def test_detection_is_rank_independent():
     comm = MPI.COMM_WORLD
@@ -218,3 +274,21 @@ def test_the_restriction_is_what_lets_delta_plus_run_a_drop(tmp_path, monkeypatc
     assert all(r["surface_particles"] >= 2 * np.pi * 10 * 0.9 for r in history)  # the rim, all along
     with pytest.raises(NumericalError, match="density left the weakly compressible range"):
         drop_run(tmp_path / "unrestricted", monkeypatch, False)  # measured: at step 145, t = 0.27
+
+
+def test_the_pre_procedure_keeps_a_drop_rim_in_place(tmp_path):
+    """iips.pre_newton with shifting none: the pre-procedure detects the surface for itself and leaves the
+    region where it was; the run itself makes no detection."""
+    from psph.drivers.fluid import FluidDriver
+    from psph.initial import create_particles
+
+    scene = load_scene(CASES / "elliptical_drop.toml", ["domain.dx=0.1", "packing.iterations=0",
+                                                       "initial.sigma_over_dx=0.1", "iips.pre_newton=5"])
+    start = create_particles(scene, MPI.COMM_SELF)
+    start = dict(zip(start.owned("gid"), start.owned("position").copy()))
+    driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path)
+    assert not driver.scheme.surface.active and np.isfinite(driver.pre["linf"])
+    p = driver.system.particles
+    moved = np.array([np.linalg.norm(x - start[g]) for g, x in zip(p.owned("gid"), p.owned("position"))])
+    flag = p.owned("free_surface")
+    assert np.count_nonzero(flag == SURFACE) > 50 and np.all(moved[flag > 0] == 0.0) and moved.max() > 0.0
