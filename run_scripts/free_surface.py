@@ -2,7 +2,7 @@
 delta+ law and with IIPS, the free surface detected (psph.boundaries.free_surface).
 
     .venv/bin/python run_scripts/free_surface.py [--drop-resolutions 20 40 80] [--tank-resolutions 20 40]
-                                                 [--methods none delta_plus iips] [--ranks 2]
+                                                 [--methods none delta_plus iips] [--ranks 2] [--no-run]
 
 Drop: cases/elliptical_drop.toml (packed, R = 1, A0 = 1, c0 = 20, to t A0 = 1) at each R/dx; the semi-axis
 error max(|a/a_exact - 1|, |b/b_exact - 1|) from the fluid's second moments and the RMS pressure error in
@@ -12,7 +12,7 @@ speed in units of sqrt(g H).
 IIPS runs as the thesis runs it with a free surface (section 10.2.2): Procedure A, threshold
 Linf(grad C) = 0.02, the NFTS field update. Writes, in --out (results/free_surface): drop.md/.csv,
 tank.md/.csv, drop_axes.png and tank_speed.png (against time), surface.png (the finest delta+ drop at
-t_end, coloured by the detection's flags).
+t_end, coloured by the detection's flags). --no-run builds them from the finished runs in --out only.
 """
 
 import argparse
@@ -26,7 +26,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from psph.compute.free_surface import REGION, SURFACE  # noqa: E402
 from psph.particles import Kind  # noqa: E402
-from psph.studies import CASES, command_line, last_snapshot, plot_histories, run_scene, write_table  # noqa: E402
+from psph.studies import CASES, NotRun, command_line, last_snapshot, plot_histories, run_scene, write_table  # noqa: E402
 
 IIPS = ["shifting.method=iips", "iips.procedure=A", "iips.threshold=0.02", "iips.update=nfts"]
 METHODS = {"none": ["shifting.method=none"], "delta_plus": ["shifting.method=delta_plus"], "iips": IIPS}
@@ -37,13 +37,23 @@ def at_time(history, t, column):
     return min(history, key=lambda r: abs(r["time"] - t))[column]
 
 
+def finished_run(args, scene, out, sets):
+    """run_scene, or None (reported) for a run --no-run does not find finished."""
+    try:
+        return run_scene(CASES / scene, out, ranks=args.ranks, sets=sets, only_finished=args.no_run)
+    except NotRun:
+        print(f"{out}: not run", flush=True)
+        return None
+
+
 def drop_runs(args):
     rows, runs = [], {}
     for n in args.drop_resolutions:
         for method in args.methods:
-            run = run_scene(CASES / "elliptical_drop.toml", args.out / f"drop_{method}_r{n}", ranks=args.ranks,
-                            sets=[f"domain.dx={1.0 / n}", "output.every=0", "output.history_every=10",
-                                  *METHODS[method]])
+            run = finished_run(args, "elliptical_drop.toml", args.out / f"drop_{method}_r{n}",
+                               [f"domain.dx={1.0 / n}", "output.every=0", "output.history_every=10", *METHODS[method]])
+            if run is None:
+                continue
             runs[(method, n)] = run
             h = run.history
             t_end = h[-1]["time"]
@@ -67,9 +77,10 @@ def tank_runs(args):
     rows, runs = [], {}
     for n in args.tank_resolutions:
         for method in args.methods:
-            run = run_scene(CASES / "hydrostatic_tank.toml", args.out / f"tank_{method}_h{n}", ranks=args.ranks,
-                            sets=[f"domain.dx={1.0 / n}", "output.every=0", "output.history_every=20",
-                                  *METHODS[method]])
+            run = finished_run(args, "hydrostatic_tank.toml", args.out / f"tank_{method}_h{n}",
+                               [f"domain.dx={1.0 / n}", "output.every=0", "output.history_every=20", *METHODS[method]])
+            if run is None:
+                continue
             runs[(method, n)] = run
             h = run.history
             t = np.array([r["time"] for r in h])
@@ -104,6 +115,7 @@ def main():
     parser.add_argument("--drop-resolutions", type=int, nargs="*", default=[20, 40, 80], help="R/dx")
     parser.add_argument("--tank-resolutions", type=int, nargs="*", default=[20, 40], help="H/dx")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
+    parser.add_argument("--no-run", action="store_true", help="tables and plots from the finished runs only")
     args = parser.parse_args()
     note = "Command: " + command_line()
     if args.drop_resolutions:
@@ -117,9 +129,9 @@ def main():
                   for (method, n), run in sorted(runs.items(), key=lambda kv: (kv[0][1], kv[0][0]))]
         plot_histories(args.out / "drop_axes.png", curves, "t A0", "max(|a/a_exact - 1|, |b/b_exact - 1|)",
                        "Elliptical drop: semi-axis error", logy=True)
-        if "delta_plus" in args.methods:
-            n = max(args.drop_resolutions)
-            plot_surface(args.out / "surface.png", runs[("delta_plus", n)], n)
+        finest = [n for (method, n) in runs if method == "delta_plus"]
+        if finest:
+            plot_surface(args.out / "surface.png", runs[("delta_plus", max(finest))], max(finest))
     if args.tank_resolutions:
         rows, runs = tank_runs(args)
         print(write_table(args.out / "tank", [
