@@ -34,8 +34,6 @@ REGION = 1  # flag of a particle within a kernel support of one (seed 004: "the 
 # at distance h from T, at 2h): such ties count as outside, by this relative margin, so that round-off (which
 # differs with the rank count) cannot decide them
 TIE = 1e-9
-
-
 # a normal is undefined (zero) where the vector it normalises is below this relative size: round-off then sets
 # its direction (the middle row of a three-row sheet has |L grad C| h ~ 5e-15)
 UNDEFINED = 1e-6
@@ -110,11 +108,11 @@ def mark_region(pos, fluid, ptr, idx, support, flag):
 @njit(cache=True)
 def region_normals(pos, flag, ptr, idx, kp, normal):
     """The normals of the free-surface region: at a REGION particle, the kernel-weighted mean of its SURFACE
-    neighbours' normals (the halo's must be current), normalised (zero where it is below UNDEFINED times the
-    weights' sum: surfaces on opposite sides balance, as in a sheet's middle row); at interior particles, zero. A region
-    particle's own n_i is ill-conditioned (its support is nearly full, so nu_i is small: at 2.65 dx below a
-    drop's rim its direction moved by 1e-5 between runs on 1 and 2 ranks within 20 steps); the surface's
-    normal nearby is not."""
+    neighbours' normals (the halo's must be current), normalised, or zero where it is below UNDEFINED times
+    the weights' sum (surfaces on opposite sides balance, as in a sheet's middle row); at interior particles,
+    zero. A region particle's own n_i is ill-conditioned (its support is nearly full, so nu_i is small: at
+    2.65 dx below a drop's rim its direction moved by 1e-5 between runs on 1 and 2 ranks within 20 steps);
+    the surface's normal nearby is not."""
     d = pos.shape[1]
     for i in range(ptr.size - 1):
         if flag[i] == SURFACE:
