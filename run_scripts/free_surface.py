@@ -46,23 +46,35 @@ def finished_run(args, scene, out, sets):
         return None
 
 
-def drop_runs(args):
+def sweep(args, scene, name, resolutions, history_every, row_of):
+    """Every method at every resolution of one scene, each run in --out/name.format(method=, n=): (rows, with
+    row_of(history) in the middle, {(method, n): run})."""
     rows, runs = [], {}
-    for n in args.drop_resolutions:
+    for n in resolutions:
         for method in args.methods:
-            run = finished_run(args, "elliptical_drop.toml", args.out / f"drop_{method}_r{n}",
-                               [f"domain.dx={1.0 / n}", "output.every=0", "output.history_every=10", *METHODS[method]])
+            run = finished_run(args, scene, args.out / name.format(method=method, n=n),
+                               [f"domain.dx={1.0 / n}", "output.every=0", f"output.history_every={history_every}",
+                                *METHODS[method]])
             if run is None:
                 continue
             runs[(method, n)] = run
-            h = run.history
-            t_end = h[-1]["time"]
-            rows.append([n, method, at_time(h, 0.5 * t_end, "semi_axis_error"), h[-1]["semi_axis_error"],
-                         h[-1]["semi_axis_b"] / h[-1]["semi_axis_b_exact"] - 1.0,
-                         np.mean([r["L2_pressure_error"] for r in h[1:]]), h[-1]["min_spacing"],
-                         *interior_linf(h), run.summary["wall_time_s"]])
+            rows.append([n, method, *row_of(run.history), *interior_linf(run.history), run.summary["wall_time_s"]])
             print(rows[-1], flush=True)
     return rows, runs
+
+
+def drop_row(h) -> list:
+    """Axes error at t_end / 2 and t_end, b's error at t_end, mean pressure error, final smallest spacing."""
+    return [at_time(h, 0.5 * h[-1]["time"], "semi_axis_error"), h[-1]["semi_axis_error"],
+            h[-1]["semi_axis_b"] / h[-1]["semi_axis_b_exact"] - 1.0,
+            np.mean([r["L2_pressure_error"] for r in h[1:]]), h[-1]["min_spacing"]]
+
+
+def tank_row(h) -> list:
+    """Largest speed at t_end and over the second half of the run, final volume error."""
+    t = np.array([r["time"] for r in h])
+    speed = np.array([r["max_speed"] for r in h])
+    return [speed[-1], speed[t >= 0.5 * t[-1]].max(), h[-1]["volume_error"]]
 
 
 def interior_linf(history) -> list:
@@ -71,24 +83,6 @@ def interior_linf(history) -> list:
     if "surface_particles" not in history[-1]:
         return ["", ""]
     return [np.mean([r["Linf_grad_c"] for r in history[1:]]), history[-1]["surface_particles"]]
-
-
-def tank_runs(args):
-    rows, runs = [], {}
-    for n in args.tank_resolutions:
-        for method in args.methods:
-            run = finished_run(args, "hydrostatic_tank.toml", args.out / f"tank_{method}_h{n}",
-                               [f"domain.dx={1.0 / n}", "output.every=0", "output.history_every=20", *METHODS[method]])
-            if run is None:
-                continue
-            runs[(method, n)] = run
-            h = run.history
-            t = np.array([r["time"] for r in h])
-            speed = np.array([r["max_speed"] for r in h])
-            rows.append([n, method, speed[-1], speed[t >= 0.5 * t[-1]].max(), h[-1]["volume_error"],
-                         *interior_linf(h), run.summary["wall_time_s"]])
-            print(rows[-1], flush=True)
-    return rows, runs
 
 
 def plot_surface(path, run, n):
@@ -119,7 +113,7 @@ def main():
     args = parser.parse_args()
     note = "Command: " + command_line()
     if args.drop_resolutions:
-        rows, runs = drop_runs(args)
+        rows, runs = sweep(args, "elliptical_drop.toml", "drop_{method}_r{n}", args.drop_resolutions, 10, drop_row)
         print(write_table(args.out / "drop", [
             "R/dx", "shifting", "axes error t = 0.5", "t = 1", "b/b_exact - 1 (t = 1)", "RMS p error",
             "min spacing / dx (t = 1)", "interior Linf(grad C), mean", "surface particles (t = 1)", "wall s"],
@@ -133,7 +127,7 @@ def main():
         if finest:
             plot_surface(args.out / "surface.png", runs[("delta_plus", max(finest))], max(finest))
     if args.tank_resolutions:
-        rows, runs = tank_runs(args)
+        rows, runs = sweep(args, "hydrostatic_tank.toml", "tank_{method}_h{n}", args.tank_resolutions, 20, tank_row)
         print(write_table(args.out / "tank", [
             "H/dx", "shifting", "max speed at t = 10", "max speed, t >= 5", "eps_V(t_end)",
             "interior Linf(grad C), mean", "surface particles (t_end)", "wall s"], rows,

@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 from psph.compute.smoothing import kernel_w
-from psph.compute.sums import dot, load, pair, pair2
+from psph.compute.sums import dot, load, pair, pair2, store
 
 SURFACE = 2  # flag of a particle on the free surface
 REGION = 1  # flag of a particle within a kernel support of one (seed 004: "the free-surface particles and
@@ -133,11 +133,7 @@ def region_normals(pos, flag, ptr, idx, kp, normal):
             s0, s1, s2 = s0 / norm, s1 / norm, s2 / norm
         else:
             s0, s1, s2 = 0.0, 0.0, 0.0
-        normal[i, 0] = s0
-        if d > 1:
-            normal[i, 1] = s1
-        if d > 2:
-            normal[i, 2] = s2
+        store(normal, i, d, s0, s1, s2)
 
 
 @njit(cache=True)
