@@ -11,6 +11,9 @@ with the corrected velocity, only this sign balances the momentum equation. test
 symbolically that (u, v, p) solve the incompressible Navier-Stokes equations for any U, L, rho, Re.
 
 Elliptical drop (seed 002 section 3.4, eq. 3.19-3.20; Monaghan 1994): see EllipticalDrop.
+
+Jet impinging normally on an infinite flat plate (Michell 1890, Taylor 1966; thesis 000 eq. 3.3, misprinted
+there): see impinging_jet_wall.
 """
 
 import numpy as np
@@ -43,6 +46,42 @@ def couette_startup(y, t, *, U=1.0, H=1.0, nu=1.0, terms=200):
     n = np.arange(1, terms + 1)[:, None]
     series = 2.0 * U * (-1.0) ** n / (n * np.pi) * np.sin(n * np.pi * y / H) * np.exp(-nu * (n * np.pi / H) ** 2 * t)
     return U * y / H + series.sum(axis=0)
+
+
+def impinging_jet_wall(x, H=1.0, U=1.0, rho=1.0):
+    """(u (n,), p (n,)) on the plate y = 0 of a 2-D jet of half-width H and speed U impinging normally on it,
+    at abscissae x from the jet axis (any sign; the flow is symmetric in x). Inviscid, steady, free streamlines
+    at p = 0 (Michell 1890; Taylor 1966). Source: thesis 000 eq. 3.3 (misprinted there; derived here by the
+    hodograph method): at phi = 0 the printed u = 2 / (1 - q) exceeds U.
+
+    Derivation (x > 0 half): zeta = (u - i v) / U maps the flow onto the quarter unit disc (plate: zeta = q
+    real in [0, 1); axis: zeta = i s; free streamline: |zeta| = 1; upstream zeta = i, downstream zeta = 1,
+    stagnation zeta = 0); t = zeta^2 and sigma = -(t + 1/t) / 2 take it onto the upper half plane, where
+        w = (U H / pi) ln((sigma - 1) / (sigma + 1)) = (2 U H / pi) ln((1 + zeta^2) / (1 - zeta^2))
+    has psi = 0 on the axis and the plate and psi = U H on the free streamline; dz = dw / (U zeta) gives
+    z = (4 H / pi) (artanh zeta + arctan zeta), so on the plate
+        x / H = (4 / pi) (artanh q + arctan q),   u = U q,   p = rho U^2 (1 - q^2) / 2,
+    the free streamline tends to x = H upstream and to y = H downstream (wall jets of thickness H), and the
+    force on the plate is 2 rho U^2 H, the jet's momentum flux (tests/test_impinging_jet_analytic.py).
+
+    x(q) is inverted with q = tanh(a): c := pi |x| / (4 H) = a + arctan(tanh a) =: g(a), g concave with
+    1 < g' <= 2, so Newton from the lower bound max(c / 2, c - pi / 4) rises monotonically to the root, and
+    p = rho U^2 / 2 sech^2(a) keeps its relative accuracy far from the axis. Units: those of H, U, rho
+    (SI in psph); returns arrays of the shape of x; |x| = inf gives u = U, p = 0."""
+    if not H > 0.0:
+        raise ValueError(f"the jet half-width H = {H} must be positive")
+    c = 0.25 * np.pi * np.abs(np.asarray(x, dtype=float)) / H
+    finite = np.isfinite(c)
+    target = np.where(finite, c, 0.0)  # Newton on finite x only; inf and nan pass through below
+    a = np.maximum(0.5 * target, target - 0.25 * np.pi)
+    for _ in range(50):
+        step = (a + np.arctan(np.tanh(a)) - target) / (1.0 + 1.0 / np.cosh(np.minimum(2.0 * a, 700.0)))
+        a = a - step
+        if np.all(np.abs(step) <= 1e-15 * (1.0 + a)):
+            break
+    a = np.where(finite, a, c)
+    e = np.exp(-2.0 * a)
+    return U * np.tanh(a), 2.0 * rho * U**2 * e / (1.0 + e) ** 2
 
 
 class EllipticalDrop:

@@ -69,3 +69,19 @@ def distribution_report(system, wavelength: float, grad=None) -> dict:
     err = dfdx_sph(system, wavelength) - exact
     l2_dfdx, _ = norms(system.comm, err, mask)
     return {"L2_grad_c": l2, "Linf_grad_c": linf, "L2_dfdx": l2_dfdx}
+
+
+def shepard_sums(kernel, pos, values, volumes, probes) -> np.ndarray:
+    """(sum_j phi_j W(x_k - x_j) V_j, sum_j W(x_k - x_j) V_j) over the particles given, for every probe x_k:
+    the numerator and denominator of the Shepard interpolation phi(x_k) (to be added over ranks). Local."""
+    from scipy.spatial import cKDTree
+
+    out = np.zeros((len(probes), 2))
+    if len(pos) == 0:
+        return out
+    near = cKDTree(pos).query_ball_point(probes, kernel.support)
+    for k, js in enumerate(near):
+        if js:
+            w = kernel.value(np.linalg.norm(pos[js] - probes[k], axis=1)) * volumes[js]
+            out[k] = (w @ values[js], w.sum())
+    return out

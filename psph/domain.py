@@ -17,6 +17,7 @@ class Domain:
     upper: tuple
     periodic: tuple
     margin: float = 0.0  # how far outside the box particles (walls) may sit along non-periodic axes
+    outflow: tuple = ()  # (axis, side) of the open faces, side -1 lower / +1 upper: leaving there is no escape
 
     @property
     def dim(self) -> int:
@@ -37,11 +38,21 @@ class Domain:
                 pos[pos[:, a] >= self.upper[a], a] = lo[a]
 
     def outside(self, pos: np.ndarray) -> np.ndarray:
-        """Mask of positions outside the box along non-periodic axes (escaped particles)."""
+        """Mask of positions outside the box along non-periodic axes (escaped particles), past an outflow
+        face excepted."""
         mask = np.zeros(len(pos), dtype=bool)
         for a in range(self.dim):
             if not self.periodic[a]:
-                mask |= (pos[:, a] < self.lower[a] - self.margin) | (pos[:, a] > self.upper[a] + self.margin)
+                below = pos[:, a] < self.lower[a] - self.margin
+                above = pos[:, a] > self.upper[a] + self.margin
+                mask |= (below & ((a, -1) not in self.outflow)) | (above & ((a, 1) not in self.outflow))
+        return mask
+
+    def past_outflow(self, pos: np.ndarray) -> np.ndarray:
+        """Mask of positions past an outflow face."""
+        mask = np.zeros(len(pos), dtype=bool)
+        for a, side in self.outflow:
+            mask |= pos[:, a] < self.lower[a] if side < 0 else pos[:, a] > self.upper[a]
         return mask
 
     def minimum_image(self, dx: np.ndarray) -> np.ndarray:

@@ -42,6 +42,8 @@ def initial_fields(scene, pos) -> dict:
     if scene.initial.velocity == "elliptical_drop":
         vel, p = elliptical_drop(scene).fields(pos, 0.0)
         fields = {"velocity": vel, "pressure": p}
+    if scene.initial.velocity == "inflow":
+        fields = {"velocity": np.tile(np.asarray(scene.inflow[0].velocity, dtype=np.float64), (len(pos), 1))}
     if scene.initial.pressure == "hydrostatic":
         fields["pressure"] = hydrostatic_pressure(scene, pos)
     return fields
@@ -74,7 +76,8 @@ def hydrostatic_pressure(scene, pos) -> np.ndarray:
 
 def create_particles(scene, comm, specs=()) -> ParticleSet:
     """This rank's share of the initial particles (not yet spatially distributed): the fluid lattice
-    (within the fill region and the walls, outside immersed bodies), then the bodies' solid particles."""
+    (within the fill region and the walls, outside immersed bodies and inflow buffers), then the bodies'
+    solid particles, then the inflow buffers' particles (psph.boundaries.open)."""
     from psph.boundaries import SOLID_FIELDS, fluid_mask, solid_arrays
 
     dspec = scene.domain
@@ -96,4 +99,13 @@ def create_particles(scene, comm, specs=()) -> ParticleSet:
     solids = solid_arrays(scene, comm.rank, comm.size, int(np.prod(dspec.lattice_shape())))
     if solids is not None:
         particles.append_owned(solids)  # pressure 0 in the solids (their own is mirrored from the fluid)
+    if scene.inflow:
+        from psph.boundaries.open import initial_inflow_particles
+        from psph.parallel.comm import allreduce_max
+
+        last = int(particles.owned("gid").max()) if particles.n_owned else -1
+        inflow = initial_inflow_particles(scene, comm, int(allreduce_max(comm, last)) + 1)
+        for name in ("velocity", "pressure"):
+            particles.add_field(INITIAL_FIELD_SPECS[name])
+        particles.append_owned({k: v for k, v in inflow.items() if k in particles}, fill={"body": -1})
     return particles

@@ -19,7 +19,8 @@ from psph.system import BASE_HALO_FIELDS, ParticleSystem
 def make_domain(scene) -> Domain:
     d = scene.domain
     margin = 2.0 * (d.support + d.dx) if scene.bodies else 0.0  # the walls' solid layers lie outside
-    return Domain(lower=tuple(d.lower), upper=tuple(d.upper), periodic=tuple(d.periodic), margin=margin)
+    return Domain(lower=tuple(d.lower), upper=tuple(d.upper), periodic=tuple(d.periodic), margin=margin,
+                  outflow=d.outflow_faces())
 
 
 def build_system(scene, comm, specs=(), halo_fields=BASE_HALO_FIELDS, particles=None,

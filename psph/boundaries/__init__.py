@@ -19,7 +19,7 @@ def thickness(scene) -> float:
 
 def fluid_mask(scene, pos) -> np.ndarray:
     """Which lattice points the fluid fills: the fill region (or the drop's disc), inside every box, outside
-    immersed bodies."""
+    immersed bodies and inflow buffers."""
     keep = np.ones(len(pos), dtype=bool)
     if scene.initial.drop_radius > 0:
         keep &= ((pos - np.asarray(scene.domain.center)) ** 2).sum(axis=1) < scene.initial.drop_radius ** 2
@@ -32,6 +32,11 @@ def fluid_mask(scene, pos) -> np.ndarray:
         spec = ("ellipse" if b.shape == "ellipse" else "rectangle", b.center, b.size, b.angle)
         is_in = inside(spec, pos)
         keep &= is_in if b.shape == "box" else ~is_in
+    if scene.inflow:
+        from psph.boundaries.open import make_inflows
+
+        for f in make_inflows(scene):
+            keep &= ~f.inside(pos)
     return keep
 
 

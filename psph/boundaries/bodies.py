@@ -149,7 +149,8 @@ def make_bodies(scene):
 def check_placement(scene) -> None:
     """Refuse bodies that psph would build wrongly, with a SceneError naming the body's key: a body thinner
     than 2 dx (no solid particle would fill it), a box leaving the domain along a bounded axis, and, at
-    t = 0 and along its prescribed motion to t_end, an immersed body leaving the domain or coming within
+    t = 0 and along its prescribed motion to t_end, an immersed body leaving the domain (but through an
+    outflow face, past which it may reach: the solids there lie within the walls' margin) or coming within
     one kernel support of a periodic edge (shapes and their nearest-node search do not wrap), coming
     within dx of a box's walls, or overlapping another immersed body. The motion is sampled so that no
     point of a body moves more than dx between samples (every law's speed stays within its velocity and
@@ -161,6 +162,9 @@ def check_placement(scene) -> None:
     d, dx = scene.domain, scene.domain.dx
     lower, upper = np.asarray(d.lower, dtype=float), np.asarray(d.upper, dtype=float)
     margin = np.where(d.periodic, d.support, 0.0)
+    # an immersed body may reach past an outflow face (a plate the fluid leaves along)
+    lower = np.where([(a, -1) in d.outflow_faces() for a in range(2)], -np.inf, lower)
+    upper = np.where([(a, 1) in d.outflow_faces() for a in range(2)], np.inf, upper)
     boxes = [(k, b) for k, b in enumerate(scene.bodies) if b.shape == "box"]
     immersed = []
     for k, b in enumerate(scene.bodies):
@@ -173,7 +177,8 @@ def check_placement(scene) -> None:
         for a in range(2):  # before any profile is built (a mistyped huge size would take long)
             bounded = not d.periodic[a] or b.shape != "box"
             lo, hi = b.center[a] - half[a], b.center[a] + half[a]
-            if bounded and (lo < lower[a] - 1e-9 * dx or hi > upper[a] + 1e-9 * dx):
+            box_lo, box_hi = (d.lower[a], d.upper[a]) if b.shape == "box" else (lower[a], upper[a])
+            if bounded and (lo < box_lo - 1e-9 * dx or hi > box_hi + 1e-9 * dx):
                 raise SceneError(f"{path}.size" if b.shape == "box" else f"{path}.center",
                                  f"{b.name!r} leaves the domain along axis {a}"
                                  + (": the fluid at the domain's edge would have no wall" if b.shape == "box" else ""))

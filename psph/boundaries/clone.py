@@ -29,6 +29,10 @@ class WallTerms:
         self.centers = np.zeros((len(self.bodies), 2))
         self.force = np.zeros((len(self.bodies), 2, 2))
         self.torque = np.zeros((len(self.bodies), 2))
+        # the owned fluid rows' pressure forces on the solids at the last right-hand side, and where the rows
+        # were then (the particle order may change before they are read): the load along a wall
+        self.particle_force = np.zeros((0, 2))
+        self.particle_force_at = np.zeros((0, 2))
         self.gravity = np.zeros(2)
         if scene.physics.gravity:
             self.gravity[:] = scene.physics.gravity
@@ -108,6 +112,8 @@ class WallTerms:
         p = system.particles
         eos_b = getattr(scheme.eos, "b", 0.0)
         self.force[:] = 0.0
+        self.particle_force = np.zeros((system.particles.n_owned, 2))
+        self.particle_force_at = system.particles.owned("position").copy()
         self.torque[:] = 0.0
         du = p["shift_velocity"] if scheme.shift.active else p["velocity"]
         if self.clones:
@@ -129,7 +135,7 @@ class WallTerms:
                   self.no_slip,
                   system.nbr_ptr, system.nbr_idx, system.kernel.params, scheme.c0, scheme.rho0, eos_b, GAMMA,
                   scheme.mu, scheme.morris, self.gravity, self.ds, scheme.variant, scheme.shift.active,
-                  scheme.tensile, self.centers, d_rho, d_mom, self.force, self.torque)
+                  scheme.tensile, self.centers, d_rho, d_mom, self.force, self.torque, self.particle_force)
 
     def _ghost_images(self, system):
         """Owned fluid rows within a support of a ghost wall and the images they see."""

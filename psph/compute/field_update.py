@@ -18,14 +18,14 @@ import numpy as np
 from numba import njit
 
 from psph.compute.smoothing import kernel_f, kernel_w
-from psph.compute.sums import pair
+from psph.compute.sums import pair, solid
 
 
 @njit(cache=True)
 def nfts_increments(pos, vol, rho, vel, step, kind, normal, ptr, idx, kp, d_vol, d_mass, d_mom):
     """Increments of V, V rho and V rho u for one fictitious sub-step of displacement `step` (owned rows).
 
-    A solid neighbour j (kind != 0) is a clone of i (seed 004 section III, as for the shifting terms of
+    A solid neighbour j (a wall's or a body's) is a clone of i (seed 004 section III, as for the shifting terms of
     the right-hand side): its step is i's mirrored in the wall, s_j = s_i - 2 (s_i . n_j) n_j, so the pair
     changes i's volume by the normal part of the step only, -2 V_i (s_i . n_j) (n_j . grad W_ij) V_j (a
     particle moved towards the wall is squeezed). Mass and momentum do not cross a wall: a solid pair adds
@@ -52,7 +52,7 @@ def nfts_increments(pos, vol, rho, vel, step, kind, normal, ptr, idx, kp, d_vol,
                 continue
             s = kernel_f(r, kp) * vol[j]
             w0, w1, w2 = s * x0, s * x1, s * x2
-            if kind[j] != 0:  # the mirrored step's volume term only: s_j - s_i = -2 (s_i . n_j) n_j
+            if solid(kind[j]):  # the mirrored step's volume term only: s_j - s_i = -2 (s_i . n_j) n_j
                 n0 = normal[j, 0]
                 n1 = normal[j, 1] if d > 1 else 0.0
                 n2 = normal[j, 2] if d > 2 else 0.0

@@ -30,7 +30,7 @@ from numba import njit
 
 from psph.compute.shift_velocity import grad_c_weight
 from psph.compute.smoothing import kernel_f
-from psph.compute.sums import dot, load, pair2, store
+from psph.compute.sums import dot, load, pair2, solid, store
 
 
 @njit(cache=True)
@@ -90,7 +90,7 @@ def _compile(d):
                         c1_ += sc * x1
                     if d > 2:
                         c2_ += sc * x2
-                if not row or (fluid_only and kind[j] != 0):
+                if not row or (fluid_only and solid(kind[j])):
                     continue
                 s = f * vol[j]
                 cidx[c] = j
@@ -241,8 +241,9 @@ class PairCache:
 
 def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pairs=None, grad_c=None):
     """<grad phi>^L_i = L_i sum_j (phi_j - phi_i) grad_i W_ij V_j (seed 001 eq. 15), fused in one pass, for
-    the rows of ptr. fluid_only: sum over fluid particles (kind 0) only, and only for fluid rows (walls carry
-    no field). pairs: a PairCache to fill with the summed pairs inside the support (for delta_ale_rhs).
+    the rows of ptr. fluid_only: sum over fluid and inflow particles only (not solids), and only for fluid
+    rows (walls carry no field, inflow particles a prescribed one). pairs: a PairCache to fill with the
+    summed pairs inside the support (for delta_ale_rhs).
     grad_c = (coeff, power, w_ref, g): also fill g (rows of ptr) with the corrected grad C of
     compute.shift_velocity.corrected_grad_c in the same pass (the same values, one walk of the lists).
     Pairs beyond the support are skipped (f = 0 there, but for pairs within rounding of its edge, whose

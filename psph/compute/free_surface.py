@@ -9,7 +9,7 @@ thesis 000 eq. 6.28, which prints the inverse of M_i below and means the smalles
                kernel-weighted mean of their normals (region_normals)
 
 A fluid particle is at the surface if lambda_i <= lambda_surface (0.2), never if lambda_i > lambda_interior
-(0.75); in between it is when its scan region is empty: no neighbour j (of any kind) with
+(0.75); in between it is when its scan region is empty: no fluid (or inflow) neighbour j with
 
     |x_ji| >= sqrt(2) h  and  |x_j - T_i| < h,      T_i = x_i + h n_i, or
     |x_ji| <  sqrt(2) h  and  angle(x_ji, n_i) < pi/4,
@@ -18,7 +18,9 @@ the umbrella-shaped region of Marrone et al. (a disc, in 3-D a ball, of radius h
 quarter-cone from x_i to it; in 2-D the cone part is their square |n.(x_j - T)| + |t.(x_j - T)| < h, which
 within sqrt(2) h of x_i is exactly the cone). Neighbours on the region's edge, to a relative 1e-9, count as
 outside. h is psph's smoothing length, half its kernels' support; Marrone et al. scale the region with their
-own kernel's h (README, Free surfaces).
+own kernel's h (README, Free surfaces). Solid particles count in M_i (a wall fills the support) but not in
+the scan region: fluid facing a wall across an air gap (a jet's front coming down on a plate, a tank's
+contact line under the wall's solids above it) is at a surface.
 """
 
 import numpy as np
@@ -58,8 +60,9 @@ def outward_normals(mat_inv, grad_c, h, out):
 
 
 @njit(cache=True)
-def scan_surface(pos, fluid, lam, normal, ptr, idx, h, lam_surface, lam_interior, flag):
-    """flag[i] = SURFACE for the owned fluid particles at the free surface, 0 for the other owned rows."""
+def scan_surface(pos, fluid, blocks, lam, normal, ptr, idx, h, lam_surface, lam_interior, flag):
+    """flag[i] = SURFACE for the owned fluid particles at the free surface, 0 for the other owned rows.
+    blocks: the local particles that fill a scan region (the fluid's, not the solids')."""
     d = pos.shape[1]
     far2 = 2.0 * h * h  # (sqrt(2) h)^2
     for i in range(ptr.size - 1):
@@ -75,6 +78,8 @@ def scan_surface(pos, fluid, lam, normal, ptr, idx, h, lam_surface, lam_interior
         empty = True
         for k in range(ptr[i], ptr[i + 1]):
             j = idx[k]
+            if not blocks[j]:
+                continue
             r0, r1, r2, rr = pair2(pos, i, j, d)  # x_ij = x_i - x_j
             if rr >= far2:
                 t0, t1, t2 = h * n0 + r0, h * n1 + r1, h * n2 + r2  # T_i - x_j

@@ -14,6 +14,13 @@ from psph.compute.smoothing import kernel_f, kernel_w
 
 
 @njit(cache=True, inline="always")
+def solid(kind):
+    """Is a particle of this kind (psph.particles.Kind) a wall's or a body's? Inflow particles are fluid to
+    their neighbours' sums; only solids are mirrored or left out of the fluid's own terms."""
+    return kind == 1 or kind == 2
+
+
+@njit(cache=True, inline="always")
 def pair2(pos, i, j, d):
     """(x_ij components padded to 3, r^2); with a compile-time d only the d components are computed."""
     r0 = pos[i, 0] - pos[j, 0]

@@ -39,7 +39,7 @@ from numba import njit
 
 from psph.compute.shift_velocity import fast_power
 from psph.compute.smoothing import kernel_f, kernel_w
-from psph.compute.sums import pair
+from psph.compute.sums import pair, solid
 
 
 @njit(cache=True)
@@ -96,13 +96,13 @@ def _add_rates(i, rho_i, v_i, mu, variant, cont, gp0, gp1, vs0, vs1, sh0, sh1, d
 
 @njit(cache=True)
 def near_wall_rows(kind, ptr, idx):
-    """Owned fluid rows (kind 0) with at least one solid neighbour (kind != 0)."""
+    """Owned fluid rows (kind 0) with at least one solid neighbour (a wall's or a body's)."""
     out = np.zeros(ptr.size - 1, dtype=np.bool_)
     for i in range(ptr.size - 1):
         if kind[i] != 0:
             continue
         for k in range(ptr[i], ptr[i + 1]):
-            if kind[idx[k]] != 0:
+            if solid(kind[idx[k]]):
                 out[i] = True
                 break
     return np.flatnonzero(out)
@@ -111,7 +111,7 @@ def near_wall_rows(kind, ptr, idx):
 @njit(cache=True)
 def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel, wall_vel, rows, n_i_all, s_i_all,
               no_slip, ptr, idx, kp, c0, rho0, eos_b, eos_gamma, mu, morris, gravity, ds_min, variant,
-              with_shift, tensile_switch, centers, d_rho, d_mom, force, torque):
+              with_shift, tensile_switch, centers, d_rho, d_mom, force, torque, particle_force):
     """Add the solid neighbours' contributions to the owned fluid `rows` (2-D).
 
     n_i_all, s_i_all: the closest body node's normal and distance, per entry of rows; wall_vel: the velocity
@@ -120,7 +120,8 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
     no_slip: per body; eos_b > 0 selects Tait (p = eos_b ((rho/rho0)^gamma - 1)), else linear.
     tensile_switch: p_j - p_i instead of p_j + p_i in the particle's pressure force where p_i < 0 (eq. 3).
     force: (n_bodies, 2, 2) pressure and viscous force of the fluid on each body; torque: (n_bodies, 2), about
-    centers, each pair's force applied at the solid particle's wall node x_j - s_j n_j.
+    centers, each pair's force applied at the solid particle's wall node x_j - s_j n_j; particle_force: (n_owned,
+    2), each fluid row's pressure force on the solids (zero for the other rows), for the wall's load along it.
     """
     support = 2.0 * kp[1]
     g0, g1 = gravity[0], gravity[1]
@@ -138,7 +139,7 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
         use_own = False
         for k in range(ptr[i], ptr[i + 1]):
             j = idx[k]
-            if kind[j] != 0 and normal[j, 0] * (xi0 - pos[j, 0]) + normal[j, 1] * (xi1 - pos[j, 1]) > 0.0:
+            if solid(kind[j]) and normal[j, 0] * (xi0 - pos[j, 0]) + normal[j, 1] * (xi1 - pos[j, 1]) > 0.0:
                 x0, x1, _, rr = pair(pos, i, j, 2)
                 if rr < support:
                     use_own = True
@@ -149,7 +150,7 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
         sh0 = sh1 = 0.0
         for k in range(ptr[i], ptr[i + 1]):
             j = idx[k]
-            if kind[j] == 0:
+            if not solid(kind[j]):
                 continue
             x0, x1, _, rr = pair(pos, i, j, 2)
             if rr >= support or rr == 0.0:
@@ -194,6 +195,8 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
             fv0, fv1 = -v_i * mu * v0, -v_i * mu * v1
             force[b, 0, 0] += fp0
             force[b, 0, 1] += fp1
+            particle_force[i, 0] += fp0
+            particle_force[i, 1] += fp1
             force[b, 1, 0] += fv0
             force[b, 1, 1] += fv1
             # applied at the solid particle's own wall node x_j - s_j n_j (on body b, whichever body the
@@ -227,7 +230,7 @@ def _ghost_images(pos, kind, rows, w_axis, w_coord, w_sign, ptr, idx, support, f
         i = rows[r]
         for k in range(ptr[i] - 1, ptr[i + 1]):
             j = i if k < ptr[i] else idx[k]
-            if (k >= ptr[i] and j == i) or kind[j] != 0:
+            if (k >= ptr[i] and j == i) or solid(kind[j]):
                 continue
             for w1 in range(nw):
                 s1 = w_sign[w1] * (pos[j, w_axis[w1]] - w_coord[w1])

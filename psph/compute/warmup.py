@@ -39,7 +39,7 @@ def warm_up(dim: int, kernel_name: str) -> None:
     sums.invert_renormalisation(tensor, scalar, 1e-3, tensor.copy())
     flag, fluid_rows = np.zeros(n, dtype=np.int8), np.ones(n, dtype=np.bool_)
     free_surface.outward_normals(tensor, vector, 0.5, vector.copy())
-    free_surface.scan_surface(pos, fluid_rows, scalar, vector, ptr, idx, 0.5, 0.2, 0.75, flag)
+    free_surface.scan_surface(pos, fluid_rows, fluid_rows, scalar, vector, ptr, idx, 0.5, 0.2, 0.75, flag)
     free_surface.mark_region(pos, fluid_rows, ptr, idx, 1.0, flag)
     free_surface.region_normals(pos, flag, ptr, idx, kp, vector)
     free_surface.restrict_shift(flag, scalar, vector, 0.4, vector.copy())

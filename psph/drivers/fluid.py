@@ -18,8 +18,9 @@ import numpy as np
 
 from psph.analytic import taylor_green, taylor_green_kinetic_energy
 from psph.boundaries.free_surface import make_free_surface
+from psph.boundaries.open import describe_open, make_open_boundaries
 from psph.compute.sums import nearest_distance
-from psph.diagnostics import fluid_mask, grad_c, norms
+from psph.diagnostics import fluid_mask, grad_c, norms, shepard_sums
 from psph.errors import NumericalError
 from psph.initial import reset_initial_fields
 from psph.parallel.comm import allreduce_max, allreduce_min, allreduce_sum, raise_if_any
@@ -79,6 +80,70 @@ class EllipticalDropReference:
                 "semi_axis_error": max(abs(a / a_exact - 1.0), abs(b / b_exact - 1.0)), "L2_pressure_error": l2}
 
 
+class ImpingingJetReference:
+    """A jet impinging normally on a plate against Taylor's wall solution (analytic.impinging_jet_wall; thesis
+    eq. 3.3, diagnostics.impinging_jet), in units of the stagnation pressure rho0 U^2 / 2, at probes dx/2
+    apart along the plate's top:
+        load    the pressure the plate takes: the fluid particles' pressure forces on its solids (at the last
+                right-hand side) spread along it by a hat of half-width 2 dx, -sum_i F_i,y hat(x_i - x_k); its
+                integral is the plate's pressure force (a narrower hat samples the particles that sit still at
+                the stagnation point: with dx, the time-averaged load there was 0.92 between 1.03 either side)
+        fluid   the fluid's pressure there, Shepard-interpolated from the fluid particles (biased towards the
+                first row's, which the wall model sets: README, "Open boundaries")
+    Columns: the load at the stagnation point (`stagnation_pressure`, 1 exactly in the analytic solution),
+    the fluid's there (`stagnation_pressure_fluid`) and the load's RMS error over |x - x0| <= 2 H
+    (`wall_pressure_error`). The force on the plate (cl_pressure + cl_viscous with the plate's
+    reference_length = 2 H) balances the jet's momentum flux at -2 in a steady state. Each history row also
+    writes the whole load to OUT/wall_pressure.csv (time, then one column per probe, named by its x), for
+    time averages over the acoustic ringing that the jet's impact leaves."""
+
+    SPAN = 2.0  # half-width of the compared stretch of the plate, in jet half-widths H
+
+    def __init__(self, scene, walls, out_dir=None, fresh=True):
+        """walls: the scheme's boundaries.clone.WallTerms; out_dir: where wall_pressure.csv goes (None on every
+        rank but one); fresh: start it (else append, for a restart)."""
+        self.walls = walls
+        jet, plate = scene.inflow[0], scene.bodies[0]
+        self.H = 0.5 * (jet.upper[0] - jet.lower[0])
+        self.U = abs(jet.velocity[1])
+        self.x0 = 0.5 * (jet.upper[0] + jet.lower[0])
+        self.wall = plate.center[1] + 0.5 * plate.size[1]
+        self.rho = scene.physics.density
+        x = self.x0 + np.arange(-2 * int(self.SPAN * self.H / scene.domain.dx), 2 * int(
+            self.SPAN * self.H / scene.domain.dx) + 1) * 0.5 * scene.domain.dx
+        self.probes = np.stack([x, np.full(len(x), self.wall)], axis=1)
+        self.spread = 2.0 * scene.domain.dx  # the load's hat half-width
+        self.centre = int(np.argmin(np.abs(x - self.x0)))
+        self.path = None if out_dir is None else out_dir / "wall_pressure.csv"
+        if self.path is not None and fresh:
+            self.path.write_text("time," + ",".join(f"x={v - self.x0:.6g}" for v in x) + "\n")
+
+    def wall_pressure(self, system, walls) -> tuple:
+        """(load, fluid) at the probes over rho0 U^2 / 2 (the fluid's nan where no fluid reaches). Collective."""
+        p, scale = system.particles, 0.5 * self.rho * self.U ** 2
+        mask = fluid_mask(system)
+        sums = shepard_sums(system.kernel, p.owned("position")[mask], p.owned("pressure")[mask],
+                            p.owned("volume")[mask], self.probes)
+        s = np.abs(walls.particle_force_at[:, 0][None, :] - self.probes[:, 0][:, None]) / self.spread
+        load = -(np.maximum(1.0 - s, 0.0) / self.spread) @ walls.particle_force[:, 1]
+        total = allreduce_sum(system.comm, np.concatenate([sums, load[:, None]], axis=1))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return total[:, 2] / scale, total[:, 0] / total[:, 1] / scale
+
+    def errors(self, system, t, kinetic):
+        from psph.analytic import impinging_jet_wall
+
+        measured, fluid = self.wall_pressure(system, self.walls)
+        if self.path is not None:
+            with open(self.path, "a") as f:
+                f.write(f"{t!r}," + ",".join(f"{v:.8g}" for v in measured) + "\n")
+        _, exact = impinging_jet_wall(self.probes[:, 0] - self.x0, H=self.H, U=self.U, rho=self.rho)
+        err = measured - exact / (0.5 * self.rho * self.U ** 2)
+        return {"stagnation_pressure": float(measured[self.centre]),
+                "stagnation_pressure_fluid": float(fluid[self.centre]),
+                "wall_pressure_error": float(np.sqrt(np.mean(err ** 2)))}
+
+
 REFERENCES = {"taylor_green": TaylorGreenReference, "elliptical_drop": EllipticalDropReference}
 
 
@@ -93,11 +158,15 @@ class FluidDriver:
             lines.append(f"IIPS after each step, field update: {scene.iips.update} (thesis ch. 9)")
         if scheme.surface.active:
             lines.append(scheme.surface.describe())
+        lines += describe_open(scene)
         if scene.initial.velocity == "taylor_green":
             lines.append("diagnostics against the analytic Taylor-Green vortex: L2|v_x - v_xA| (eq. 3.8), E_k")
         if scene.initial.velocity == "elliptical_drop":
             lines.append("diagnostics against the analytic elliptical drop (seed 002 section 3.4): semi-axes, "
                          "pressure")
+        if scene.diagnostics.impinging_jet:
+            lines.append("diagnostics against Taylor's wall pressure of an impinging jet (thesis eq. 3.3): "
+                         "stagnation pressure, RMS error over |x| <= 2 H")
         k = scene.packing
         if k.iterations:
             lines.append(f"particle packing first (seed 002 eq. 2.16): at most {k.iterations} iterations, alpha = "
@@ -118,6 +187,7 @@ class FluidDriver:
         if restart is None and scene.iips.pre_newton > 0:
             self.pre = self.pre_procedure()
         self.scheme.initialize(self.system, t=self.resumed["time"] if restart else 0.0, fresh=restart is None)
+        self.open = make_open_boundaries(scene, self.system)
         self.integrate = INTEGRATORS[scene.time.integrator]
         self.reach = STAGE_REACH[scene.time.integrator]
         self.iips = None
@@ -133,6 +203,10 @@ class FluidDriver:
             if self.pre is not None:
                 self.iips.set_initial_linf(self.pre["linf"])
         self.reference = REFERENCES[scene.initial.velocity](scene) if scene.initial.velocity in REFERENCES else None
+        if scene.diagnostics.impinging_jet:
+            self.reference = ImpingingJetReference(scene, self.scheme.walls,
+                                                   self.sim.out_dir if comm.rank == 0 else None,
+                                                   fresh=restart is None)
         self.initial_volume = allreduce_sum(self.sim.comm, float(
             self.system.particles.owned("volume")[fluid_mask(self.system)].sum()))
         self.first_dt = None
@@ -141,6 +215,7 @@ class FluidDriver:
             self.first_dt = self.resumed["first_dt"]
             if self.iips is not None:
                 self.iips.restore(self.resumed["iips"])
+            self.open.restore(self.resumed.get("open"))
 
     def pack(self) -> dict:
         """Colagrossi et al.'s particle packing (psph.packing, seed 002) before the fluid fields exist, then
@@ -178,7 +253,8 @@ class FluidDriver:
         self.sim.checkpoint(step, t, {
             "step": step, "time": t, "totals": totals, "next_output": next_output, "first_dt": self.first_dt,
             "initial_volume": self.initial_volume,
-            "iips": self.iips.checkpoint_state() if self.iips is not None else None})
+            "iips": self.iips.checkpoint_state() if self.iips is not None else None,
+            "open": self.open.checkpoint_state()})
 
     def advance(self, state, dt, vmax, totals) -> None:
         """One time step of size dt from state (step, time): integrate, shift, check. Collective."""
@@ -199,6 +275,9 @@ class FluidDriver:
         state["step"] += 1
         state["time"] = t = t + dt
         step = state["step"]
+        if self.open.active:  # inflow particles join the fluid, rows are emitted, outflow removed
+            with phase("open_boundaries"):
+                self.open.apply(system, t)
         if self.iips is not None:
             t0 = time.perf_counter()
             with phase("iips"):
@@ -359,7 +438,8 @@ class FluidDriver:
                 dt, vmax = self.time_step()
                 self.first_dt = self.first_dt or dt
                 dt = min(dt * scale, t_end - state["time"])
-                saved = (dict(state), system.particles.owned_arrays()) if scene.time.retries else None
+                saved = ((dict(state), system.particles.owned_arrays(), self.open.checkpoint_state())
+                         if scene.time.retries else None)
                 try:
                     self.advance(state, dt, vmax, totals)
                 except NumericalError as err:
@@ -371,6 +451,7 @@ class FluidDriver:
                             f"dt x {scale:g} (time.retries: {tries} of {scene.time.retries})")
                     state.update(saved[0])
                     self.restore(saved[1], state["time"])
+                    self.open.restore(saved[2])
                     totals["retries"] += 1
                     continue
                 tries, scale = 0, 1.0

@@ -10,6 +10,8 @@ from psph.compute.smoothing import KERNEL_NAMES
 from psph.errors import SceneError
 from psph.scene.validate import option
 
+OUTFLOW_FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
+
 
 @dataclass(frozen=True)
 class DomainSpec:
@@ -20,8 +22,20 @@ class DomainSpec:
     dx: float = option(doc="initial particle spacing (the resolution)", gt=0.0)
     h_over_dx: float = option(2.0, doc="smoothing length over particle spacing", ge=1.0, le=4.0)
     kernel: str = option("wendland_c6", doc="smoothing kernel", choices=KERNEL_NAMES)
+    outflow: tuple[str, ...] = option((), doc="open faces of the box (x-, x+, y-, y+, z-, z+ on non-periodic "
+                                      "axes) through which fluid leaves: a fluid particle past one is removed "
+                                      "(README, \"Open boundaries\")")
 
     def check(self, path):
+        faces = OUTFLOW_FACES[: 2 * self.dimension]
+        for k, face in enumerate(self.outflow):
+            if face not in faces:
+                raise SceneError(f"{path}.outflow[{k}]", f"expected one of {', '.join(faces)}, got {face!r}")
+            if self.periodic[faces.index(face) // 2]:
+                raise SceneError(f"{path}.outflow[{k}]", f"face {face} lies on a periodic axis: fluid leaving "
+                                 "there comes back on the other side")
+        if len(set(self.outflow)) != len(self.outflow):
+            raise SceneError(f"{path}.outflow", f"faces listed twice: {list(self.outflow)}")
         for a in range(self.dimension):
             if not self.upper[a] > self.lower[a]:
                 raise SceneError(f"{path}.upper[{a}]", f"must exceed lower[{a}] = {self.lower[a]}, "
@@ -53,6 +67,34 @@ class DomainSpec:
 
     def estimated_particles(self) -> int:
         return math.prod(self.lattice_shape())
+
+    def outflow_faces(self) -> tuple:
+        """(axis, side) of every outflow face, side -1 for the lower face and +1 for the upper."""
+        return tuple((OUTFLOW_FACES.index(f) // 2, 1 if f.endswith("+") else -1) for f in self.outflow)
+
+
+@dataclass(frozen=True)
+class InflowSpec:
+    lower: tuple[float, ...] = option(doc="lower corner of the inflow buffer (a box inside the domain)")
+    upper: tuple[float, ...] = option(doc="upper corner of the inflow buffer")
+    velocity: tuple[float, ...] = option(doc="velocity of the fluid entering: along one axis, pointing from the "
+                                         "buffer into the domain through the buffer's face on that side")
+
+    def check(self, path):
+        if len(self.lower) != len(self.upper) or len(self.velocity) != len(self.lower):
+            raise SceneError(f"{path}.velocity", "lower, upper and velocity need one entry per dimension")
+        for a in range(len(self.lower)):
+            if not self.upper[a] > self.lower[a]:
+                raise SceneError(f"{path}.upper[{a}]", f"must exceed lower[{a}] = {self.lower[a]}, "
+                                 f"got {self.upper[a]}")
+        moving = [a for a, v in enumerate(self.velocity) if v != 0.0]
+        if len(moving) != 1:
+            raise SceneError(f"{path}.velocity", f"give exactly one non-zero component (the buffer's axis), got "
+                             f"{list(self.velocity)}")
+
+    @property
+    def axis(self) -> int:
+        return next(a for a, v in enumerate(self.velocity) if v != 0.0)
 
 
 MOTION_LAWS = ("fixed", "constant", "ramp", "spheric6", "oscillate")
@@ -143,7 +185,9 @@ class InitialSpec:
     velocity: str = option("zero", doc="initial velocity and pressure: zero (no fields), the analytic "
                            "taylor_green vortex (2-D bi-periodic square), or elliptical_drop: u = A0 x, v = -A0 y "
                            "and p = rho0 A0^2 / 2 (R^2 - r^2) about the drop's centre, A0 = reference_velocity / "
-                           "drop_radius (seed 002 eq. 3.19-3.20)", choices=("zero", "taylor_green", "elliptical_drop"))
+                           "drop_radius (seed 002 eq. 3.19-3.20), or inflow: the fill region moves with the first "
+                           "inflow's velocity (a jet already on its way)",
+                           choices=("zero", "taylor_green", "elliptical_drop", "inflow"))
     drop_radius: float = option(0.0, doc="2-D: the fluid fills the disc of this radius R at the domain's centre, "
                                 "a drop whose rim is a free surface (0: no drop)", ge=0.0)
     fill_lower: tuple[float, ...] = option((), doc="lower corner of the region the fluid fills (default: "
@@ -328,6 +372,9 @@ class DiagnosticsSpec:
     test_wavelength: float = option(
         0.5, doc="wavelength l of the test function f = sin(2 pi x/l) + cos(2 pi y/l) (thesis eq. 3.6), "
         "in domain length units; l/dx particles per wavelength", gt=0.0)
+    impinging_jet: bool = option(False, doc="fluid runs: compare the wall pressure with Taylor's solution for a "
+                                 "jet impinging normally on a plate (thesis eq. 3.3): the jet is inflow[0] (along "
+                                 "-y, half-width H its half cross-section), the plate the top of bodies[0]")
     stop_at_cartesian: float = option(
         0.0, doc="static runs: stop shifting once L2(d f/dx) <= this x its Cartesian-lattice value (0: never)",
         ge=0.0)
@@ -358,6 +405,9 @@ class Scene:
                                            "near a free surface")
     bodies: tuple[BodySpec, ...] = option((), doc="solid walls and bodies ([[bodies]] tables; clone particles or "
                                           "ghost walls)")
+    inflow: tuple[InflowSpec, ...] = option((), doc="inflow buffers ([[inflow]] tables): particles move at the "
+                                            "prescribed velocity and join the fluid as they leave the buffer "
+                                            "(README, \"Open boundaries\")")
 
     def _check_ghost_walls(self, fluid):
         ghosts = [k for k, b in enumerate(self.bodies) if b.model == "ghost"]
@@ -437,6 +487,51 @@ class Scene:
                 raise SceneError(f"bodies[{ghosts[0]}].model", "packing holds the fluid with the walls' solid "
                                  "particles: ghost walls have none (use clone walls)")
 
+    def _check_open(self, fluid):
+        d = self.domain
+        if self.initial.velocity == "inflow" and not self.inflow:
+            raise SceneError("initial.velocity", "inflow sets the fluid moving with the first [[inflow]]: the "
+                             "scene has none")
+        if not self.inflow:
+            return
+        if not fluid or self.physics.scheme == "riemann_ale":
+            raise SceneError("inflow", f"inflow buffers need a delta_ale scheme, not physics.scheme = "
+                             f"{self.physics.scheme!r}")
+        for k, f in enumerate(self.inflow):
+            path = f"inflow[{k}]"
+            if len(f.lower) != d.dimension:
+                raise SceneError(f"{path}.lower", f"expected {d.dimension} entries (domain.dimension)")
+            for a in range(d.dimension):
+                if f.lower[a] < d.lower[a] - 1e-9 * d.dx or f.upper[a] > d.upper[a] + 1e-9 * d.dx:
+                    raise SceneError(f"{path}.lower", f"the buffer leaves the domain along axis {a}")
+                if f.upper[a] - f.lower[a] < d.dx * (1.0 - 1e-9):
+                    raise SceneError(f"{path}.upper", f"the buffer is thinner than dx along axis {a}")
+            a = f.axis
+            if d.periodic[a]:
+                raise SceneError(f"{path}.velocity", f"the buffer's axis {a} is periodic: its particles would come "
+                                 "round again")
+            depth = f.upper[a] - f.lower[a]
+            if depth < d.support * (1.0 - 1e-9):
+                raise SceneError(f"{path}.upper", f"the buffer is {depth:g} deep along its axis {a}: it must be "
+                                 f"at least one kernel support ({d.support:g}) deep, so the fluid beside it has "
+                                 "a full support")
+            if self.bodies and any(b.model == "ghost" for b in self.bodies):
+                raise SceneError(f"{path}", "inflow buffers work with clone walls, not ghost walls")
+        if self.packing.iterations > 0:
+            raise SceneError("packing.iterations", "the packing's frame does not hold an inflow buffer: pack "
+                             "without [[inflow]] (or start from the lattice)")
+
+    def _check_jet(self):
+        if not self.diagnostics.impinging_jet:
+            return
+        key = "diagnostics.impinging_jet"
+        if self.physics.scheme not in FLUID_SCHEMES or self.domain.dimension != 2:
+            raise SceneError(key, "needs a 2-D fluid scene")
+        if not self.inflow or self.inflow[0].velocity[1] >= 0.0 or self.inflow[0].velocity[0] != 0.0:
+            raise SceneError(key, "needs inflow[0] with a velocity [0, -U] (the jet falls along -y)")
+        if not self.bodies or self.bodies[0].shape != "rectangle" or self.bodies[0].angle != 0.0:
+            raise SceneError(key, "needs bodies[0], an unrotated rectangle whose top is the plate")
+
     def describe_free_surface(self) -> str:
         """Where the fluid has a free surface, in words ("" for none): a drop's rim, or the fill region
         stopping short of the domain."""
@@ -483,6 +578,8 @@ class Scene:
         method = self.shifting.method
         self._check_drop(fluid)
         self._check_packing(fluid)
+        self._check_open(fluid)
+        self._check_jet()
         surface = self.describe_free_surface()
         if fluid and surface and (method != "none" or self.iips.pre_newton > 0):
             ghosts = [k for k, b in enumerate(self.bodies) if b.model == "ghost"]

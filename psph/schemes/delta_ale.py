@@ -24,7 +24,7 @@ from psph.compute.fluid import (
     renormalised_gradient,
 )
 from psph.parallel.comm import allreduce_sum
-from psph.particles import FieldSpec
+from psph.particles import FieldSpec, Kind
 from psph.profiling import phase
 from psph.schemes.eos import make_eos
 from psph.shifting.velocity import make_velocity_shift
@@ -55,6 +55,7 @@ class DeltaALE:
         self.shift = make_velocity_shift(scene)
         self.surface = make_free_surface(scene)
         self.pairs = PairCache()  # the support's pairs, from renormalised_gradient to delta_ale_rhs
+        self.inflow = bool(scene.inflow)  # rows of Kind.INLET keep their prescribed fields
         self.walls = None
         if scene.bodies:
             from psph.boundaries.clone import WallTerms
@@ -133,7 +134,7 @@ class DeltaALE:
         if "transport_velocity" in p:
             p.owned("transport_velocity")[:] = p.owned("velocity")
         if self.walls is not None:
-            solid = p.owned("kind") != 0
+            solid = (p.owned("kind") == Kind.WALL) | (p.owned("kind") == Kind.BODY)
             p.owned("density")[solid] = self.rho0
             p.owned("mass")[solid] = self.rho0 * p.owned("volume")[solid]
             p.owned("pressure")[solid] = 0.0
@@ -200,6 +201,9 @@ class DeltaALE:
                 self.walls.add(system, self, t, d_rho, d_mom)
         if self.free_stream is not None:
             self._drive_free_stream(system, t, d_mom)
+        if self.inflow:  # inflow particles move at their prescribed velocity, with fields unchanged
+            inlet = p.owned("kind") == Kind.INLET
+            d_rho[inlet], d_mass[inlet], d_mom[inlet] = 0.0, 0.0, 0.0
         transport = p.owned("velocity") + (p.owned("shift_velocity") if self.shift.active else 0.0)
         out = {"position": transport, "density": d_rho}
         if self.variant == 0:

@@ -1,0 +1,222 @@
+"""Open boundaries: inflow buffers and outflow faces (README, "Open boundaries").
+
+An inflow buffer is a box of particles (Kind.INLET) on a lattice of spacing dx that move at the prescribed
+velocity U along one axis, with rho = rho0 and the pressure of the equation of state there; they take part
+in their fluid neighbours' sums as fluid particles do, but their own fields stay prescribed and no shifting
+moves them (they are not IIPS unknowns: thesis 000 section 10.2.1). A buffer at least one kernel support
+deep gives the fluid beside it a full support. With xi the distance downstream of the buffer's
+upstream face and D its depth:
+
+    rows at t = 0          xi_k = (k + 1/2) dx,  k = 0 .. D/dx - 1
+    row m emitted          when |U| t >= m dx, at xi = (1/2 - m) dx + |U| t   (m = 1, 2, ...)
+    a particle joins       the fluid (Kind.FLUID) once xi > D
+
+so every row travels on the same lattice and the buffer lets |U| rho0 dx^(d-1) of mass in per unit area
+and time, whatever the time step. Which rows exist depends on t only: runs on any number of ranks emit
+the same particles with the same gids. At an outflow face (domain.outflow) fluid particles that crossed it
+are removed. Each change of the particle set is followed by a neighbour rebuild (changes are rare: a row
+every dx / |U| of time).
+"""
+
+import math
+
+import numpy as np
+
+from psph.parallel.comm import allreduce_max, allreduce_sum
+from psph.particles import Kind
+
+# ties, in rows (dx): a row due within EMIT_TOL of t is emitted now, and a particle joins the fluid only once
+# it is TIE past the buffer's face. A time step can end exactly when a row reaches the face (t_end a
+# multiple of dx / U); positions differ by round-off between rank counts, which must not decide it
+EMIT_TOL = 1e-9
+TIE = 1e-9
+
+
+class Inflow:
+    """One [[inflow]] buffer (scene.InflowSpec) on spacing dx."""
+
+    def __init__(self, spec, dx):
+        self.spec, self.dx = spec, dx
+        self.axis = spec.axis
+        self.velocity = np.asarray(spec.velocity, dtype=np.float64)
+        self.speed = abs(self.velocity[self.axis])
+        lower, upper = np.asarray(spec.lower, dtype=np.float64), np.asarray(spec.upper, dtype=np.float64)
+        self.lower, self.upper = lower, upper
+        # the upstream face: the lower one for a positive velocity
+        self.sign = 1.0 if self.velocity[self.axis] > 0 else -1.0
+        self.upstream = lower[self.axis] if self.sign > 0 else upper[self.axis]
+        self.depth = upper[self.axis] - lower[self.axis]
+        self.rows = max(1, int(round(self.depth / dx)))
+        cross = []
+        for a in range(len(lower)):
+            if a == self.axis:
+                continue
+            n = max(1, int(round((upper[a] - lower[a]) / dx)))
+            # centred in the buffer's cross-section at spacing dx
+            first = 0.5 * (lower[a] + upper[a]) - 0.5 * (n - 1) * dx
+            cross.append(first + dx * np.arange(n))
+        grid = np.meshgrid(*cross, indexing="ij") if cross else []
+        self.section = np.stack([g.ravel() for g in grid], axis=1) if cross else np.zeros((1, 0))
+
+    def _place(self, xi) -> np.ndarray:
+        """Positions of the cross-section at distances xi downstream of the upstream face (rows of xi)."""
+        xi = np.atleast_1d(np.asarray(xi, dtype=np.float64))
+        n_sec, dim = len(self.section), len(self.lower)
+        pos = np.empty((len(xi) * n_sec, dim))
+        other = [a for a in range(dim) if a != self.axis]
+        pos[:, self.axis] = np.repeat(self.upstream + self.sign * xi, n_sec)
+        if other:
+            pos[:, other] = np.tile(self.section, (len(xi), 1))
+        return pos
+
+    def initial_positions(self) -> np.ndarray:
+        return self._place((np.arange(self.rows) + 0.5) * self.dx)
+
+    def emitted(self, t) -> int:
+        """Rows emitted since t = 0."""
+        return int(math.floor(self.speed * t / self.dx + EMIT_TOL))
+
+    def rows_at(self, first, last, t) -> np.ndarray:
+        """Positions at time t of emitted rows first..last (1-based, inclusive)."""
+        m = np.arange(first, last + 1, dtype=np.float64)
+        return self._place((0.5 - m) * self.dx + self.speed * t)
+
+    def in_section(self, pos) -> np.ndarray:
+        """Mask of positions within the buffer's cross-section (any distance along its axis)."""
+        mask = np.ones(len(pos), dtype=bool)
+        for a in range(pos.shape[1]):
+            if a != self.axis:
+                mask &= (pos[:, a] > self.lower[a]) & (pos[:, a] < self.upper[a])
+        return mask
+
+    def joined(self, pos) -> np.ndarray:
+        """Mask of positions past the buffer's downstream face, within its cross-section."""
+        xi = self.sign * (pos[:, self.axis] - self.upstream)
+        return (xi > self.depth + TIE * self.dx) & (xi < self.depth + 2.0 * self.dx) & self.in_section(pos)
+
+    def inside(self, pos) -> np.ndarray:
+        """Mask of positions inside the buffer box (the fluid lattice leaves them out)."""
+        return np.all((pos >= self.lower) & (pos <= self.upper), axis=1)
+
+
+def make_inflows(scene) -> list:
+    return [Inflow(spec, scene.domain.dx) for spec in scene.inflow]
+
+
+def prescribed_fields(scene, n, velocity) -> dict:
+    """Fields of n new inflow particles moving at `velocity`: rho0, its pressure, dx^d volumes and masses."""
+    from psph.schemes.eos import make_eos
+
+    d, rho0 = scene.domain, scene.physics.density
+    vol = d.dx ** d.dimension
+    return {"kind": np.full(n, Kind.INLET, dtype=np.int8), "volume": np.full(n, vol), "volume0": np.full(n, vol),
+            "velocity": np.tile(velocity, (n, 1)), "density": np.full(n, rho0), "mass": np.full(n, rho0 * vol),
+            "pressure": np.full(n, float(make_eos(scene.physics).pressure(np.array([rho0]))[0]))}
+
+
+def initial_inflow_particles(scene, comm, first_gid):
+    """The buffers' particles at t = 0 (on rank 0) as arrays of fields, gids from first_gid on; None if the
+    scene has no inflow."""
+    if not scene.inflow:
+        return None
+    inflows = make_inflows(scene)
+    pos = [f.initial_positions() if comm.rank == 0 else np.zeros((0, scene.domain.dimension)) for f in inflows]
+    fields = [prescribed_fields(scene, len(x), f.velocity) for f, x in zip(inflows, pos)]
+    n = sum(len(x) for x in pos)
+    out = {k: np.concatenate([f[k] for f in fields]) for k in fields[0]}
+    out["position"] = np.concatenate(pos)
+    out["gid"] = first_gid + np.arange(n, dtype=np.int64)
+    return out
+
+
+def describe_open(scene) -> list:
+    """The scene's inflow buffers and outflow faces, in words (for `psph info` and the run log)."""
+    lines = []
+    for k, f in enumerate(make_inflows(scene)):
+        lines.append(f"inflow[{k}]: buffer {tuple(f.lower)} - {tuple(f.upper)}, {f.rows} rows of "
+                     f"{len(f.section)} particles at velocity {tuple(f.velocity)}, a row every "
+                     f"{f.dx / f.speed:.4g} time units")
+    if scene.domain.outflow:
+        lines.append(f"outflow faces {', '.join(scene.domain.outflow)}: fluid particles past them are removed")
+    return lines
+
+
+class NoOpenBoundaries:
+    active = False
+
+    def apply(self, system, t) -> dict:
+        return {"joined": 0, "emitted": 0, "removed": 0}
+
+    def checkpoint_state(self):
+        return None
+
+    def restore(self, state) -> None:
+        pass
+
+
+class OpenBoundaries:
+    """The scene's inflow buffers and outflow faces. `apply` after every time step (collective)."""
+
+    active = True
+
+    def __init__(self, scene, system):
+        self.scene = scene
+        self.inflows = make_inflows(scene)
+        self.outflow = scene.domain.outflow
+        p = system.particles
+        self.next_gid = int(allreduce_max(system.comm, int(p.owned("gid").max()) if p.n_owned else -1)) + 1
+        self.emitted = [0] * len(self.inflows)
+        self.totals = {"joined": 0, "emitted": 0, "removed": 0}
+
+    def apply(self, system, t) -> dict:
+        """At time t: buffer particles past their downstream face join the fluid, rows due are emitted (on
+        rank 0), fluid particles past an outflow face are removed; the lists are rebuilt if anything
+        changed. Returns the global counts of this call. Collective."""
+        p = system.particles
+        pos, kind = p.owned("position"), p.owned("kind")
+        joined = np.zeros(p.n_owned, dtype=bool)
+        for f in self.inflows:
+            joined |= (kind == Kind.INLET) & f.joined(pos)
+        kind[joined] = Kind.FLUID
+        removed = (kind == Kind.FLUID) & system.domain.past_outflow(pos)
+        new = []
+        for k, f in enumerate(self.inflows):
+            due = f.emitted(t)
+            if due > self.emitted[k]:
+                x = f.rows_at(self.emitted[k] + 1, due, t)
+                new.append((x, f.velocity))
+                self.emitted[k] = due
+        n_new = sum(len(x) for x, _ in new)
+        counts = allreduce_sum(system.comm, np.array([joined.sum(), removed.sum()], dtype=np.int64))
+        out = {"joined": int(counts[0]), "emitted": n_new, "removed": int(counts[1])}
+        if not (out["joined"] or out["emitted"] or out["removed"]):
+            return out
+        if out["removed"]:
+            p.set_owned({name: arr[~removed] for name, arr in p.owned_arrays().items()})
+        if n_new and system.comm.rank == 0:
+            fields = [prescribed_fields(self.scene, len(x), v) for x, v in new]
+            arrays = {k: np.concatenate([f[k] for f in fields]) for k in fields[0]}
+            arrays["position"] = np.concatenate([x for x, _ in new])
+            arrays["gid"] = self.next_gid + np.arange(n_new, dtype=np.int64)
+            p.append_owned({k: v for k, v in arrays.items() if k in p}, fill={"body": -1})
+        self.next_gid += n_new
+        system.rebuild()
+        for key in self.totals:
+            self.totals[key] += out[key]
+        return out
+
+    def checkpoint_state(self) -> dict:
+        return {"next_gid": self.next_gid, "emitted": list(self.emitted), "totals": dict(self.totals)}
+
+    def restore(self, state) -> None:
+        if state is None:  # a checkpoint written before the scene had open boundaries
+            return
+        self.next_gid = int(state["next_gid"])
+        self.emitted = [int(e) for e in state["emitted"]]
+        self.totals = {k: int(v) for k, v in state["totals"].items()}
+
+
+def make_open_boundaries(scene, system):
+    if scene.inflow or scene.domain.outflow:
+        return OpenBoundaries(scene, system)
+    return NoOpenBoundaries()
