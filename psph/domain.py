@@ -48,11 +48,11 @@ class Domain:
                 mask |= (below & ((a, -1) not in self.outflow)) | (above & ((a, 1) not in self.outflow))
         return mask
 
-    def past_outflow(self, pos: np.ndarray) -> np.ndarray:
-        """Mask of positions past an outflow face."""
+    def past_outflow(self, pos: np.ndarray, tie: float = 0.0) -> np.ndarray:
+        """Mask of positions more than `tie` past an outflow face."""
         mask = np.zeros(len(pos), dtype=bool)
         for a, side in self.outflow:
-            mask |= pos[:, a] < self.lower[a] if side < 0 else pos[:, a] > self.upper[a]
+            mask |= pos[:, a] < self.lower[a] - tie if side < 0 else pos[:, a] > self.upper[a] + tie
         return mask
 
     def minimum_image(self, dx: np.ndarray) -> np.ndarray:

@@ -149,8 +149,8 @@ def make_bodies(scene):
 def check_placement(scene) -> None:
     """Refuse bodies that psph would build wrongly, with a SceneError naming the body's key: a body thinner
     than 2 dx (no solid particle would fill it), a box leaving the domain along a bounded axis, and, at
-    t = 0 and along its prescribed motion to t_end, an immersed body leaving the domain (but through an
-    outflow face, past which it may reach: the solids there lie within the walls' margin) or coming within
+    t = 0 and along its prescribed motion to t_end, an immersed body leaving the domain (but past an outflow
+    face, where its solid particles stop a kernel support plus dx out: the fluid is gone by then) or coming within
     one kernel support of a periodic edge (shapes and their nearest-node search do not wrap), coming
     within dx of a box's walls, or overlapping another immersed body. The motion is sampled so that no
     point of a body moves more than dx between samples (every law's speed stays within its velocity and
@@ -162,7 +162,8 @@ def check_placement(scene) -> None:
     d, dx = scene.domain, scene.domain.dx
     lower, upper = np.asarray(d.lower, dtype=float), np.asarray(d.upper, dtype=float)
     margin = np.where(d.periodic, d.support, 0.0)
-    # an immersed body may reach past an outflow face (a plate the fluid leaves along)
+    # an immersed body may reach past an outflow face (a plate the fluid leaves along): its solid particles
+    # stop a kernel support plus dx past it (boundaries.extended_lattice), further than any fluid there sees
     lower = np.where([(a, -1) in d.outflow_faces() for a in range(2)], -np.inf, lower)
     upper = np.where([(a, 1) in d.outflow_faces() for a in range(2)], np.inf, upper)
     boxes = [(k, b) for k, b in enumerate(scene.bodies) if b.shape == "box"]
@@ -173,7 +174,7 @@ def check_placement(scene) -> None:
         if extent < 2.0 * dx:
             raise SceneError(f"{path}.size", f"{b.name!r} is {extent:g} thick, less than 2 dx = {2 * dx:g}: no "
                              "solid particle would fill it")
-        half = _half_extent(b)
+        half = half_extent(b)
         for a in range(2):  # before any profile is built (a mistyped huge size would take long)
             bounded = not d.periodic[a] or b.shape != "box"
             lo, hi = b.center[a] - half[a], b.center[a] + half[a]
@@ -228,7 +229,7 @@ def _half_size(spec):
     return np.asarray(spec.size, dtype=float) / 2.0
 
 
-def _half_extent(spec):
+def half_extent(spec):
     """Half the axis-aligned extent of a (possibly rotated) rectangle or ellipse (size: its semi-axes)."""
     c, s = abs(math.cos(math.radians(spec.angle))), abs(math.sin(math.radians(spec.angle)))
     if spec.shape == "ellipse":

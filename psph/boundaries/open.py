@@ -25,9 +25,10 @@ import numpy as np
 from psph.parallel.comm import allreduce_max, allreduce_sum
 from psph.particles import Kind
 
-# ties, in rows (dx): a row due within EMIT_TOL of t is emitted now, and a particle joins the fluid only once
-# it is TIE past the buffer's face. A time step can end exactly when a row reaches the face (t_end a
-# multiple of dx / U); positions differ by round-off between rank counts, which must not decide it
+# ties, in rows (dx): a row due within EMIT_TOL of t is emitted now, and a particle joins the fluid (or leaves
+# it through an outflow face) only once it is TIE past the face. A time step can end exactly when a row
+# reaches the face (t_end a multiple of dx / U); positions differ by round-off between rank counts, which
+# must not decide it
 EMIT_TOL = 1e-9
 TIE = 1e-9
 
@@ -178,7 +179,7 @@ class OpenBoundaries:
         for f in self.inflows:
             joined |= (kind == Kind.INLET) & f.joined(pos)
         kind[joined] = Kind.FLUID
-        removed = (kind == Kind.FLUID) & system.domain.past_outflow(pos)
+        removed = (kind == Kind.FLUID) & system.domain.past_outflow(pos, TIE * self.scene.domain.dx)
         new = []
         for k, f in enumerate(self.inflows):
             due = f.emitted(t)

@@ -75,7 +75,7 @@ def _compile(d):
             m00 = m01 = m02 = m11 = m12 = m22 = 0.0
             g0 = g1 = g2 = 0.0
             c0_ = c1_ = c2_ = 0.0
-            row = not (fluid_only and kind[i] != 0)
+            row = not (fluid_only and solid(kind[i]))  # inflow rows too: their neighbours read it
             for k in range(ptr[i], ptr[i + 1]):
                 j = idx[k]
                 x0, x1, x2, rr = pair2(pos, i, j, d)
@@ -241,8 +241,9 @@ class PairCache:
 
 def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pairs=None, grad_c=None):
     """<grad phi>^L_i = L_i sum_j (phi_j - phi_i) grad_i W_ij V_j (seed 001 eq. 15), fused in one pass, for
-    the rows of ptr. fluid_only: sum over fluid and inflow particles only (not solids), and only for fluid
-    rows (walls carry no field, inflow particles a prescribed one). pairs: a PairCache to fill with the
+    the rows of ptr. fluid_only: sum over fluid and inflow particles only (not solids), and only for their
+    rows (walls carry no field; an inflow particle's gradient enters its fluid neighbours'
+    D^rho). pairs: a PairCache to fill with the
     summed pairs inside the support (for delta_ale_rhs).
     grad_c = (coeff, power, w_ref, g): also fill g (rows of ptr) with the corrected grad C of
     compute.shift_velocity.corrected_grad_c in the same pass (the same values, one walk of the lists).

@@ -99,9 +99,10 @@ class ImpingingJetReference:
 
     SPAN = 2.0  # half-width of the compared stretch of the plate, in jet half-widths H
 
-    def __init__(self, scene, walls, out_dir=None, fresh=True):
+    def __init__(self, scene, walls, out_dir=None, resumed_at=None):
         """walls: the scheme's boundaries.clone.WallTerms; out_dir: where wall_pressure.csv goes (None on every
-        rank but one); fresh: start it (else append, for a restart)."""
+        rank but one); resumed_at: a restart's time (the file keeps its rows up to it and continues), else
+        the file starts afresh."""
         self.walls = walls
         jet, plate = scene.inflow[0], scene.bodies[0]
         self.H = 0.5 * (jet.upper[0] - jet.lower[0])
@@ -115,8 +116,12 @@ class ImpingingJetReference:
         self.spread = 2.0 * scene.domain.dx  # the load's hat half-width
         self.centre = int(np.argmin(np.abs(x - self.x0)))
         self.path = None if out_dir is None else out_dir / "wall_pressure.csv"
-        if self.path is not None and fresh:
-            self.path.write_text("time," + ",".join(f"x={v - self.x0:.6g}" for v in x) + "\n")
+        if self.path is not None:
+            header = "time," + ",".join(f"x={v - self.x0:.6g}" for v in x) + "\n"
+            kept = []
+            if resumed_at is not None and self.path.exists():  # rows past the checkpoint are written again
+                kept = [r for r in self.path.read_text().splitlines()[1:] if float(r.split(",")[0]) <= resumed_at]
+            self.path.write_text(header + "".join(r + "\n" for r in kept))
 
     def wall_pressure(self, system, walls) -> tuple:
         """(load, fluid) at the probes over rho0 U^2 / 2 (the fluid's nan where no fluid reaches). Collective."""
@@ -206,7 +211,7 @@ class FluidDriver:
         if scene.diagnostics.impinging_jet:
             self.reference = ImpingingJetReference(scene, self.scheme.walls,
                                                    self.sim.out_dir if comm.rank == 0 else None,
-                                                   fresh=restart is None)
+                                                   resumed_at=self.resumed["time"] if restart else None)
         self.initial_volume = allreduce_sum(self.sim.comm, float(
             self.system.particles.owned("volume")[fluid_mask(self.system)].sum()))
         self.first_dt = None

@@ -6,6 +6,8 @@ Key paths are part of psph's interface (scripts set them with --set): keep them 
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from psph.compute.smoothing import KERNEL_NAMES
 from psph.errors import SceneError
 from psph.scene.validate import option
@@ -492,34 +494,87 @@ class Scene:
         if self.initial.velocity == "inflow" and not self.inflow:
             raise SceneError("initial.velocity", "inflow sets the fluid moving with the first [[inflow]]: the "
                              "scene has none")
+        if d.outflow and not fluid:
+            raise SceneError("domain.outflow", f"outflow faces belong to a flow, not physics.scheme = "
+                             f"{self.physics.scheme!r}")
+        if (self.inflow or d.outflow) and self.packing.iterations > 0:
+            raise SceneError("packing.iterations", "the packing's frame closes no open boundary: pack without "
+                             "[[inflow]] and domain.outflow (or start from the lattice)")
+        for k, face in enumerate(d.outflow):
+            a, side = d.outflow_faces()[k]
+            for j, b in enumerate(self.bodies):
+                if b.shape == "box" and (b.center[a] + side * b.size[a] / 2.0 - (d.upper[a] if side > 0 else
+                                                                                d.lower[a])) * side > -d.dx:
+                    raise SceneError(f"domain.outflow[{k}]", f"bodies[{j}] (a box) has a wall along face {face}: "
+                                     "no fluid would reach it")
         if not self.inflow:
             return
         if not fluid or self.physics.scheme == "riemann_ale":
             raise SceneError("inflow", f"inflow buffers need a delta_ale scheme, not physics.scheme = "
                              f"{self.physics.scheme!r}")
+        boxes = []
         for k, f in enumerate(self.inflow):
-            path = f"inflow[{k}]"
-            if len(f.lower) != d.dimension:
-                raise SceneError(f"{path}.lower", f"expected {d.dimension} entries (domain.dimension)")
-            for a in range(d.dimension):
-                if f.lower[a] < d.lower[a] - 1e-9 * d.dx or f.upper[a] > d.upper[a] + 1e-9 * d.dx:
-                    raise SceneError(f"{path}.lower", f"the buffer leaves the domain along axis {a}")
-                if f.upper[a] - f.lower[a] < d.dx * (1.0 - 1e-9):
-                    raise SceneError(f"{path}.upper", f"the buffer is thinner than dx along axis {a}")
-            a = f.axis
-            if d.periodic[a]:
-                raise SceneError(f"{path}.velocity", f"the buffer's axis {a} is periodic: its particles would come "
-                                 "round again")
-            depth = f.upper[a] - f.lower[a]
-            if depth < d.support * (1.0 - 1e-9):
-                raise SceneError(f"{path}.upper", f"the buffer is {depth:g} deep along its axis {a}: it must be "
-                                 f"at least one kernel support ({d.support:g}) deep, so the fluid beside it has "
-                                 "a full support")
-            if self.bodies and any(b.model == "ghost" for b in self.bodies):
-                raise SceneError(f"{path}", "inflow buffers work with clone walls, not ghost walls")
-        if self.packing.iterations > 0:
-            raise SceneError("packing.iterations", "the packing's frame does not hold an inflow buffer: pack "
-                             "without [[inflow]] (or start from the lattice)")
+            boxes.append(self._check_buffer(k, f))
+        for k, (lo, hi) in enumerate(boxes):
+            for j in range(k):
+                if np.all(np.minimum(hi, boxes[j][1]) - np.maximum(lo, boxes[j][0]) > 1e-9 * d.dx):
+                    raise SceneError(f"inflow[{k}]", f"the buffer overlaps inflow[{j}]'s")
+
+    def _check_buffer(self, k, f):
+        """One inflow buffer: inside the domain, on the fluid's lattice, at least a kernel support deep, its
+        downstream face inside the domain, no fluid upstream of it, no body in it. Returns its corners."""
+        d, path, tol = self.domain, f"inflow[{k}]", 1e-6
+        for key in ("lower", "upper"):
+            if len(getattr(f, key)) != d.dimension:
+                raise SceneError(f"{path}.{key}", f"expected {d.dimension} entries (domain.dimension)")
+        lo, hi = np.asarray(f.lower, dtype=float), np.asarray(f.upper, dtype=float)
+        for a in range(d.dimension):
+            if lo[a] < d.lower[a] - tol * d.dx:
+                raise SceneError(f"{path}.lower", f"the buffer leaves the domain along axis {a}")
+            if hi[a] > d.upper[a] + tol * d.dx:
+                raise SceneError(f"{path}.upper", f"the buffer leaves the domain along axis {a}")
+            for key, value in (("lower", lo[a]), ("upper", hi[a])):
+                cells = (value - d.lower[a]) / d.dx
+                if abs(cells - round(cells)) > tol:
+                    raise SceneError(f"{path}.{key}", f"{key}[{a}] = {value:g} is off the fluid's lattice: give "
+                                     f"domain.lower[{a}] + k dx (dx = {d.dx:g}), so buffer and fluid rows line up")
+        a = f.axis
+        if d.periodic[a]:
+            raise SceneError(f"{path}.velocity", f"the buffer's axis {a} is periodic: its particles would come "
+                             "round again")
+        depth = hi[a] - lo[a]
+        if depth < d.support * (1.0 - tol):
+            raise SceneError(f"{path}.upper", f"the buffer is {depth:g} deep along its axis {a}: it must be at "
+                             f"least one kernel support ({d.support:g}) deep, so the fluid beside it has a full "
+                             "support")
+        downstream = hi[a] if f.velocity[a] > 0 else lo[a]
+        if not d.lower[a] + tol * d.dx < downstream < d.upper[a] - tol * d.dx:
+            raise SceneError(f"{path}.velocity", f"it points out of the domain: the buffer's downstream face "
+                             f"(axis {a} at {downstream:g}) must lie inside it")
+        fill_lo = np.asarray(self.initial.fill_lower or d.lower, dtype=float)
+        fill_hi = np.asarray(self.initial.fill_upper or d.upper, dtype=float)
+        # the buffer's cross-section upstream of it (the fluid's lattice leaves out the buffer itself)
+        upstream_lo, upstream_hi = lo.copy(), hi.copy()
+        if f.velocity[a] > 0:
+            upstream_lo[a], upstream_hi[a] = d.lower[a] - d.dx, lo[a]
+        else:
+            upstream_lo[a], upstream_hi[a] = hi[a], d.upper[a] + d.dx
+        if self.initial.drop_radius == 0 and np.all(
+                np.minimum(fill_hi, upstream_hi) - np.maximum(fill_lo, upstream_lo) > tol * d.dx):
+            raise SceneError(f"{path}.lower", "fluid fills the buffer's cross-section upstream of it "
+                             "(initial.fill_lower/fill_upper, the whole domain by default): the buffer's rows "
+                             "would run into it")
+        from psph.boundaries.bodies import half_extent
+
+        for j, b in enumerate(self.bodies):
+            if b.shape == "box":
+                continue
+            reach = np.asarray(b.center) + half_extent(b), np.asarray(b.center) - half_extent(b)
+            if np.all(np.minimum(hi[:2], reach[0]) - np.maximum(lo[:2], reach[1]) > 0.0):
+                raise SceneError(path, f"the buffer overlaps bodies[{j}] ({b.name!r}) at t = 0")
+        if any(b.model == "ghost" for b in self.bodies):
+            raise SceneError(path, "inflow buffers work with clone walls, not ghost walls")
+        return lo, hi
 
     def _check_jet(self):
         if not self.diagnostics.impinging_jet:
@@ -538,7 +593,11 @@ class Scene:
         if self.initial.drop_radius > 0:
             return "the drop's rim (initial.drop_radius)"
         axis = self.free_surface_axis()
-        return "" if axis is None else f"the fill region's side along axis {axis} (initial.fill_lower/fill_upper)"
+        if axis is not None:
+            return f"the fill region's side along axis {axis} (initial.fill_lower/fill_upper)"
+        if self.domain.outflow:  # the fluid is cut off there: its particles have half a support
+            return f"the fluid's cut at the outflow faces {', '.join(self.domain.outflow)} (domain.outflow)"
+        return ""
 
     def free_surface_axis(self):
         """The first axis along which the fluid's fill region stops short of the domain (a free surface

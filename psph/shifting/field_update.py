@@ -25,7 +25,7 @@ from psph.compute.neighbours import build_cross_lists
 from psph.errors import NumericalError
 from psph.parallel.comm import allreduce_max, raise_if_any
 from psph.parallel.halo import build_halo_pattern, halo_copies
-from psph.particles import FieldSpec
+from psph.particles import FieldSpec, Kind
 from psph.shifting.iips import SHIFT_FIELD
 
 
@@ -145,24 +145,26 @@ class MovingLeastSquares(NoFieldUpdate):
                           shifted=("old_position",))
         old_pos = np.concatenate([owned_old, got["old_position"]])
         old = np.concatenate([p.owned("old_fields"), got["old_fields"]])
-        new = self._fit(system, p.owned("position"), old_pos, old)
+        # the fluid's rows only: solids and inflow particles keep their own fields (IIPS moved neither)
+        fluid = p.owned("kind") == Kind.FLUID
+        new = self._fit(system, p.owned("position")[fluid], old_pos, old)
         if self.increment:
-            new += p.owned("old_fields")[:, 1:] - self._fit(system, owned_old, old_pos, old)
+            new += p.owned("old_fields")[fluid, 1:] - self._fit(system, owned_old[fluid], old_pos, old)
         error = None
         if not np.all(np.isfinite(new)):
             error = NumericalError("MLS update: a particle has no old neighbour to interpolate from")
         raise_if_any(system.comm, error)
-        vol, rho = p.owned("volume"), p.owned("density")
-        rho[:] = new[:, 1]
-        p.owned("velocity")[:] = new[:, 2:]
+        vol, rho, mass = p.owned("volume"), p.owned("density"), p.owned("mass")
+        rho[fluid] = new[:, 1]
+        p.owned("velocity")[fluid] = new[:, 2:]
         if scheme.variant == 0:
-            vol[:] = new[:, 0]
-            p.owned("mass")[:] = rho * vol
+            vol[fluid] = new[:, 0]
+            mass[fluid] = rho[fluid] * vol[fluid]
         elif scheme.variant == 1:
-            vol[:] = p.owned("mass") / rho
+            vol[fluid] = mass[fluid] / rho[fluid]
         else:
-            p.owned("mass")[:] = p.owned("volume0") * rho
-        p.owned("pressure")[:] = scheme.eos.pressure(rho)
+            mass[fluid] = p.owned("volume0")[fluid] * rho[fluid]
+        p.owned("pressure")[fluid] = scheme.eos.pressure(rho[fluid])
 
 
 def make_field_update(scene):
