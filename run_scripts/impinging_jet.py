@@ -98,8 +98,9 @@ def main():
                            f"{method}, H/dx = {n}", {"ls": STYLE[method]}))
     window = f"t U/H in [{args.average_from:g}, {args.t_end:g}]"
     print(write_table(args.out / "jet", [
-        "H/dx", "shifting", "p0 / (rho U^2/2)", "p0 error", "p0 std (ringing)", f"RMS profile error |x| <= {SPAN:g} H",
-        "cl (pressure + viscous)", "cl / -2 - 1", "min spacing / dx", "wall s"], rows,
+        "H/dx", "shifting", "p0 / (rho U^2/2)", "p0 error", "p0 std (ringing)",
+        f"RMS profile error, x within {SPAN:g} H", "cl (pressure + viscous)", "cl / -2 - 1", "min spacing / dx",
+        "wall s"], rows,
         title=f"Impinging jet against Taylor's wall solution: averages over {window}",
         note="Command: " + command_line()))
     if profiles:

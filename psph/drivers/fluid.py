@@ -3,7 +3,8 @@ scheme or IIPS after each step (thesis 000 ch. 9: Procedure B, then the scene's 
 
 Each step: dt from the CFL condition (thesis eq. 5.52) and the viscous limit 0.125 h^2 / nu; a neighbour
 rebuild if the step could outrun the skin; the integrator's stages; the shifting law's end-of-step update;
-IIPS and its field update when the scene asks; checks (NaN, density outside the weakly compressible range,
+the open boundaries' rows emitted, joined and removed (psph.boundaries.open); IIPS and its field update
+when the scene asks; checks (NaN, density outside the weakly compressible range,
 escaped particles, collapsing time step) that stop the run with the step, time, particle and a diagnostic
 snapshot. history.csv every `output.history_every` steps: time, dt, kinetic energy, total mass and
 momentum, total-volume error eps_V (seed 001 eq. 27), max |rho/rho0 - 1|, L2/Linf(grad C), the smallest
