@@ -14,8 +14,8 @@ upstream face and D its depth:
 so every row travels on the same lattice and the buffer lets |U| rho0 dx^(d-1) of mass in per unit area
 and time, whatever the time step. Which rows exist depends on t only: runs on any number of ranks emit
 the same particles with the same gids. At an outflow face (domain.outflow) fluid particles that crossed it
-are removed. Each change of the particle set is followed by a neighbour rebuild (changes are rare: a row
-every dx / |U| of time).
+are removed. Each change of the particle set is followed by a neighbour rebuild, at most one per step
+(README, "Open boundaries": Cost).
 """
 
 import math

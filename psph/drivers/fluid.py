@@ -89,8 +89,8 @@ class ImpingingJetReference:
                 right-hand side) spread along it by a hat of half-width 2 dx, -sum_i F_i,y hat(x_i - x_k); its
                 integral is the plate's pressure force (a narrower hat samples the particles that sit still at
                 the stagnation point: with dx, the time-averaged load there was 0.92 between 1.03 either side)
-        fluid   the fluid's pressure there, Shepard-interpolated from the fluid particles (biased towards the
-                first row's, which the wall model sets: README, "Open boundaries")
+        fluid   the fluid's pressure there, Shepard-interpolated from the fluid particles (weighted towards
+                the first row's, which a disordered wall layer raises: README, "Impinging jet")
     Columns: the load at the stagnation point (`stagnation_pressure`, 1 exactly in the analytic solution),
     the fluid's there (`stagnation_pressure_fluid`) and the load's RMS error over |x - x0| <= 2 H
     (`wall_pressure_error`). The force on the plate (cl_pressure + cl_viscous with the plate's
@@ -124,9 +124,9 @@ class ImpingingJetReference:
                 kept = [r for r in self.path.read_text().splitlines()[1:] if float(r.split(",")[0]) <= resumed_at]
             self.path.write_text(header + "".join(r + "\n" for r in kept))
 
-    def wall_pressure(self, system, walls) -> tuple:
+    def wall_pressure(self, system) -> tuple:
         """(load, fluid) at the probes over rho0 U^2 / 2 (the fluid's nan where no fluid reaches). Collective."""
-        p, scale = system.particles, 0.5 * self.rho * self.U ** 2
+        p, scale, walls = system.particles, 0.5 * self.rho * self.U ** 2, self.walls
         mask = fluid_mask(system)
         sums = shepard_sums(system.kernel, p.owned("position")[mask], p.owned("pressure")[mask],
                             p.owned("volume")[mask], self.probes)
@@ -139,7 +139,7 @@ class ImpingingJetReference:
     def errors(self, system, t, kinetic):
         from psph.analytic import impinging_jet_wall
 
-        measured, fluid = self.wall_pressure(system, self.walls)
+        measured, fluid = self.wall_pressure(system)
         if self.path is not None:
             with open(self.path, "a") as f:
                 f.write(f"{t!r}," + ",".join(f"{v:.8g}" for v in measured) + "\n")
