@@ -20,7 +20,7 @@ within sqrt(2) h of x_i is exactly the cone). Neighbours on the region's edge, t
 outside. h is psph's smoothing length, half its kernels' support; Marrone et al. scale the region with their
 own kernel's h (README, Free surfaces). Solid particles count in M_i (a wall fills the support) but not in
 the scan region: fluid facing a wall across an air gap (a jet's front coming down on a plate, a tank's
-contact line under the wall's solids above it) is at a surface.
+contact line under the wall's solids above it) is at a surface as long as lambda_i stays in the scan band.
 """
 
 import numpy as np
