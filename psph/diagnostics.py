@@ -71,17 +71,18 @@ def distribution_report(system, wavelength: float, grad=None) -> dict:
     return {"L2_grad_c": l2, "Linf_grad_c": linf, "L2_dfdx": l2_dfdx}
 
 
-def shepard_sums(kernel, pos, values, volumes, probes) -> np.ndarray:
+def shepard_sums(kernel, pos, values, volumes, probes) -> tuple:
     """(sum_j phi_j W(x_k - x_j) V_j, sum_j W(x_k - x_j) V_j) over the particles given, for every probe x_k:
-    the numerator and denominator of the Shepard interpolation phi(x_k) (to be added over ranks). Local."""
+    the numerator (of the shape of phi's rows) and denominator of the Shepard interpolation phi(x_k), to be
+    added over ranks. Local."""
     from scipy.spatial import cKDTree
 
-    out = np.zeros((len(probes), 2))
+    num = np.zeros((len(probes),) + values.shape[1:])
+    den = np.zeros(len(probes))
     if len(pos) == 0:
-        return out
-    near = cKDTree(pos).query_ball_point(probes, kernel.support)
-    for k, js in enumerate(near):
+        return num, den
+    for k, js in enumerate(cKDTree(pos).query_ball_point(probes, kernel.support)):
         if js:
             w = kernel.value(np.linalg.norm(pos[js] - probes[k], axis=1)) * volumes[js]
-            out[k] = (w @ values[js], w.sum())
-    return out
+            num[k], den[k] = np.tensordot(w, values[js], axes=1), w.sum()
+    return num, den

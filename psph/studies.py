@@ -216,15 +216,11 @@ def last_snapshot(out, index=-1) -> tuple:
 def shepard_sample(pos, vol, values, points, kernel):
     """Kernel (Shepard) interpolation sum_j W_j V_j f_j / sum_j W_j V_j of particle `values` at `points`
     (probes, e.g. a centreline), from the particles within the kernel support."""
-    from scipy.spatial import cKDTree
+    from psph.diagnostics import shepard_sums
 
-    tree = cKDTree(pos)
-    out = np.full((len(points),) + values.shape[1:], np.nan)
-    for k, neighbours in enumerate(tree.query_ball_point(points, kernel.support)):
-        if neighbours:
-            w = kernel.value(np.linalg.norm(pos[neighbours] - points[k], axis=1)) * vol[neighbours]
-            out[k] = np.tensordot(w, values[neighbours], axes=1) / w.sum()
-    return out
+    num, den = shepard_sums(kernel, pos, values, vol, points)
+    with np.errstate(invalid="ignore", divide="ignore"):  # nan where no particle reaches
+        return num / den.reshape((-1,) + (1,) * (num.ndim - 1))
 
 
 def _tiled_unit_box(pos, vol, h_over_dx):

@@ -152,3 +152,17 @@ def test_the_cavity_study_refuses_a_setting_a_wall_model_cannot_take(tmp_path, m
     assert info.value.code == 2
     assert "ghost walls: bodies[0].model:" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_shepard_sample_reproduces_a_linear_field_inside_and_is_nan_outside():
+    """psph.studies.shepard_sample (on diagnostics.shepard_sums): on a full lattice the Shepard interpolation
+    of a linear field is exact at a probe whose support is symmetric; a probe no particle reaches gives nan."""
+    from psph.compute.smoothing import make_kernel
+    from psph.studies import shepard_sample
+
+    kernel = make_kernel("wendland_c6", 2, 0.1)
+    grid = np.stack(np.meshgrid(np.arange(20) * 0.05, np.arange(20) * 0.05, indexing="ij"), -1).reshape(-1, 2)
+    values = np.stack([2.0 * grid[:, 0] + 1.0, grid[:, 1]], axis=1)
+    out = shepard_sample(grid, np.full(len(grid), 0.0025), values, np.array([[0.5, 0.5], [5.0, 5.0]]), kernel)
+    assert np.allclose(out[0], [2.0, 0.5], atol=1e-12)
+    assert np.isnan(out[1]).all()

@@ -128,13 +128,13 @@ class ImpingingJetReference:
         """(load, fluid) at the probes over rho0 U^2 / 2 (the fluid's nan where no fluid reaches). Collective."""
         p, scale, walls = system.particles, 0.5 * self.rho * self.U ** 2, self.walls
         mask = fluid_mask(system)
-        sums = shepard_sums(system.kernel, p.owned("position")[mask], p.owned("pressure")[mask],
-                            p.owned("volume")[mask], self.probes)
+        num, den = shepard_sums(system.kernel, p.owned("position")[mask], p.owned("pressure")[mask],
+                                p.owned("volume")[mask], self.probes)
         s = np.abs(walls.particle_force_at[:, 0][None, :] - self.probes[:, 0][:, None]) / self.spread
         load = -(np.maximum(1.0 - s, 0.0) / self.spread) @ walls.particle_force[:, 1]
-        total = allreduce_sum(system.comm, np.concatenate([sums, load[:, None]], axis=1))
+        num, den, load = allreduce_sum(system.comm, np.stack([num, den, load]))
         with np.errstate(invalid="ignore", divide="ignore"):
-            return total[:, 2] / scale, total[:, 0] / total[:, 1] / scale
+            return load / scale, num / den / scale
 
     def errors(self, system, t, kinetic):
         from psph.analytic import impinging_jet_wall

@@ -15,6 +15,11 @@ from psph.scene.validate import option
 OUTFLOW_FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
 
 
+def _overlap(lo, hi, other_lo, other_hi, margin=0.0) -> bool:
+    """Do boxes [lo, hi] and [other_lo, other_hi] share more than `margin` along every axis?"""
+    return bool(np.all(np.minimum(hi, other_hi) - np.maximum(lo, other_lo) > margin))
+
+
 @dataclass(frozen=True)
 class DomainSpec:
     dimension: int = option(doc="number of space dimensions", choices=(1, 2, 3))
@@ -517,7 +522,7 @@ class Scene:
             boxes.append(self._check_buffer(k, f))
         for k, (lo, hi) in enumerate(boxes):
             for j in range(k):
-                if np.all(np.minimum(hi, boxes[j][1]) - np.maximum(lo, boxes[j][0]) > 1e-9 * d.dx):
+                if _overlap(lo, hi, *boxes[j], 1e-9 * d.dx):
                     raise SceneError(f"inflow[{k}]", f"the buffer overlaps inflow[{j}]'s")
 
     def _check_buffer(self, k, f):
@@ -559,8 +564,7 @@ class Scene:
             upstream_lo[a], upstream_hi[a] = d.lower[a] - d.dx, lo[a]
         else:
             upstream_lo[a], upstream_hi[a] = hi[a], d.upper[a] + d.dx
-        if self.initial.drop_radius == 0 and np.all(
-                np.minimum(fill_hi, upstream_hi) - np.maximum(fill_lo, upstream_lo) > tol * d.dx):
+        if self.initial.drop_radius == 0 and _overlap(fill_lo, fill_hi, upstream_lo, upstream_hi, tol * d.dx):
             raise SceneError(f"{path}.lower", "fluid fills the buffer's cross-section upstream of it "
                              "(initial.fill_lower/fill_upper, the whole domain by default): the buffer's rows "
                              "would run into it")
@@ -569,8 +573,7 @@ class Scene:
         for j, b in enumerate(self.bodies):
             if b.shape == "box":
                 continue
-            reach = np.asarray(b.center) + half_extent(b), np.asarray(b.center) - half_extent(b)
-            if np.all(np.minimum(hi[:2], reach[0]) - np.maximum(lo[:2], reach[1]) > 0.0):
+            if _overlap(lo[:2], hi[:2], np.asarray(b.center) - half_extent(b), np.asarray(b.center) + half_extent(b)):
                 raise SceneError(path, f"the buffer overlaps bodies[{j}] ({b.name!r}) at t = 0")
         if any(b.model == "ghost" for b in self.bodies):
             raise SceneError(path, "inflow buffers work with clone walls, not ghost walls")
