@@ -8,9 +8,11 @@ untouched (`-iips_pc_type hypre -log_view`). Errors print one line `psph: error:
 
 import argparse
 import os
+import signal
 import sys
 import traceback
 
+from psph import stop
 from psph.errors import PsphError, SceneError, UsageError
 
 
@@ -201,7 +203,11 @@ def cmd_run(args, petsc_options, comm) -> int:
     log(f"psph: running scene {scene.name!r} on {comm.size} rank(s)"
         + (f", continuing {args.restart}" if restart else "") + f" ({' '.join(sys.argv[1:]) or 'run'})")
     kwargs = {"restart": restart} if restart else {}  # static runs write no checkpoints
-    summary = driver_for(scene)(scene, comm, out, log=log, progress=not args.quiet, **kwargs).run()
+    stop.install(comm)
+    try:
+        summary = driver_for(scene)(scene, comm, out, log=log, progress=not args.quiet, **kwargs).run()
+    finally:
+        stop.uninstall()
     log(f"psph: {summary['n_particles']} particles, {summary['steps']} steps, "
         f"{summary['wall_time_s']:.2f} s; results in {out}")
     return 0
@@ -242,8 +248,9 @@ def main(argv=None) -> int:
         collective = isinstance(err, (SceneError, UsageError)) or getattr(err, "collective", False)
         if comm.size == 1 or collective:
             if comm.rank == 0:
-                print(f"psph: error: {err}", file=sys.stderr, flush=True)
-                _append_log(f"psph: error: {err}")
+                line = f"psph: {err}" if isinstance(err, stop.Stopped) else f"psph: error: {err}"
+                print(line, file=sys.stderr, flush=True)
+                _append_log(line)
             return err.exit_code
         print(f"psph: error on rank {comm.rank}: {err}", file=sys.stderr, flush=True)
         _append_log(f"psph: error on rank {comm.rank}: {err}")
@@ -256,11 +263,15 @@ def main(argv=None) -> int:
         if comm.size > 1:
             comm.Abort(141)
         return 141  # 128 + SIGPIPE
-    except KeyboardInterrupt:
-        print("psph: interrupted", file=sys.stderr, flush=True)
+    except KeyboardInterrupt as err:
+        signum = getattr(err, "signum", signal.SIGINT)
+        if comm.rank == 0:
+            print(f"psph: stopped at once by {signal.Signals(signum).name}; nothing saved past the last checkpoint",
+                  file=sys.stderr, flush=True)
+        _append_log(f"psph: stopped at once by {signal.Signals(signum).name} on rank {comm.rank}")
         if comm.size > 1:
-            comm.Abort(130)
-        return 130
+            comm.Abort(128 + signum)
+        return 128 + signum
     except Exception:
         return _internal_error(comm)
 

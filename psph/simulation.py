@@ -5,7 +5,7 @@ from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
-from psph import __version__
+from psph import __version__, stop
 from psph.compute.smoothing import make_kernel
 from psph.compute.warmup import warm_up
 from psph.domain import Domain
@@ -80,10 +80,10 @@ class Simulation:
             return bool(self.comm.bcast(time.monotonic() - last_wall >= 60.0 * out.checkpoint_minutes, root=0))
         return False
 
-    def checkpoint(self, step, t, driver: dict) -> None:
+    def checkpoint(self, step, t, driver: dict) -> Path:
         """Rebuild the lists (a restart must rebuild them, so the continued run stays bit for bit) and write
         OUT/checkpoint_NNNNNN.h5 with the particles, history, snapshot index, scene and the driver's
-        state `driver` (JSON-able). Collective."""
+        state `driver` (JSON-able); returns its path. Collective."""
         from psph.io.checkpoint import write_checkpoint
 
         self.system.rebuild(rebalance=False)
@@ -91,6 +91,17 @@ class Simulation:
             "scene": to_table(self.scene), "driver": driver, "history": self.history.rows,
             "snapshots": self.snapshots.checkpoint_state()})
         self.log(f"step {step}, t = {t:.4g}: checkpoint {path.name}")
+        return path
+
+    def stop_requested(self) -> bool:
+        """Whether a signal asked the run to stop (psph.stop). Collective."""
+        return bool(stop.requested(self.comm))
+
+    def stop(self, message: str) -> None:
+        """End a run asked to stop: flush the history and raise psph.stop.Stopped with `message` (what was
+        saved where). Collective."""
+        self.history.flush()
+        raise stop.Stopped(stop.requested(self.comm), message)
 
     def progress(self, t_start, t_end):
         """A Progress display for a time loop (rank 0, if the run shows progress)."""

@@ -31,6 +31,7 @@ from psph.schemes.integrators import INTEGRATORS, STAGE_REACH
 from psph.shifting.field_update import make_field_update
 from psph.shifting.iips import pre_procedure
 from psph.simulation import Simulation
+from psph.stop import checkpoint_message
 from psph.system import ListsExpired
 
 DT_COLLAPSE = 1e-6  # a time step below this fraction of the first one is a breakdown
@@ -255,8 +256,8 @@ class FluidDriver:
                      f"{pre['time_s']:.1f} s")
         return pre
 
-    def checkpoint(self, step, t, totals, next_output) -> None:
-        self.sim.checkpoint(step, t, {
+    def checkpoint(self, step, t, totals, next_output):
+        return self.sim.checkpoint(step, t, {
             "step": step, "time": t, "totals": totals, "next_output": next_output, "first_dt": self.first_dt,
             "initial_volume": self.initial_volume,
             "iips": self.iips.checkpoint_state() if self.iips is not None else None,
@@ -472,6 +473,9 @@ class FluidDriver:
                 if t < t_end * (1.0 - 1e-12) and sim.checkpoint_due(step, last_checkpoint):
                     self.checkpoint(step, t, totals, next_output)
                     last_checkpoint = time.monotonic()
+                if t < t_end * (1.0 - 1e-12) and sim.stop_requested():
+                    progress.close()
+                    sim.stop(checkpoint_message(step, t, self.checkpoint(step, t, totals, next_output)))
                 progress.update(step, t, dt, **({"newton": totals["iips_newton"], "ksp": totals["iips_linear"]}
                                                 if self.iips is not None else {}))
             progress.close()

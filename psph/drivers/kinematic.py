@@ -17,6 +17,7 @@ from psph.profiling import phase
 from psph.shifting import make_shifting
 from psph.shifting.iips import pre_procedure
 from psph.simulation import Simulation
+from psph.stop import checkpoint_message
 
 
 class KinematicDriver:
@@ -66,6 +67,12 @@ class KinematicDriver:
         sim.history.append({"time": 0.0, "step": 0, **report, "newton": 0, "ksp_iterations": 0, **totals})
         sim.snapshots.write(system.particles, step=0, time=0.0, extra={"grad_c": grad_c(system)})
         return report
+
+    def checkpoint(self, step, t, totals, next_output, report):
+        shifting = getattr(self.shifting, "checkpoint_state", None)
+        return self.sim.checkpoint(step, t, {"step": step, "time": t, "totals": totals, "next_output": next_output,
+                                             "report": report, "pre": self.pre,
+                                             "shifting": shifting() if shifting else None})
 
     def run(self) -> dict:
         sim, scene = self.sim, self.scene
@@ -118,11 +125,11 @@ class KinematicDriver:
                     sim.snapshots.write(system.particles, step=step, time=t)
                     next_output += every
                 if step < self.n_steps and sim.checkpoint_due(step, last_checkpoint):
-                    shifting = getattr(self.shifting, "checkpoint_state", None)
-                    sim.checkpoint(step, t, {"step": step, "time": t, "totals": totals, "next_output": next_output,
-                                             "report": report, "pre": self.pre,
-                                             "shifting": shifting() if shifting else None})
+                    self.checkpoint(step, t, totals, next_output, report)
                     last_checkpoint = time.monotonic()
+                if step < self.n_steps and sim.stop_requested():
+                    progress.close()
+                    sim.stop(checkpoint_message(step, t, self.checkpoint(step, t, totals, next_output, report)))
             progress.close()
         step, t = state["step"], state["time"]
         sim.history.flush()

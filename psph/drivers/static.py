@@ -48,6 +48,8 @@ class StaticDriver:
         sim.log(f"iteration 0: L2(grad C) = {report['L2_grad_c']:.4e}, L2(df/dx) = {report['L2_dfdx']:.4e} "
                 f"(Cartesian {reference:.4e})")
 
+        stopped = []
+
         def on_iteration(info):
             nonlocal report
             elapsed["shifting_time_s"] += info["newton_time_s"]
@@ -57,13 +59,16 @@ class StaticDriver:
                                 "ksp_iterations": info["ksp_iterations"], **elapsed})
             sim.log(f"iteration {info['newton']}: L2(grad C) = {report['L2_grad_c']:.4e}, "
                     f"L2(df/dx) = {report['L2_dfdx']:.4e}, KSP iterations {info['ksp_iterations']}")
-            return stop_ratio > 0 and report["L2_dfdx"] <= stop_ratio * reference
+            stopped.append(sim.stop_requested())
+            return stopped[-1] or (stop_ratio > 0 and report["L2_dfdx"] <= stop_ratio * reference)
 
         with sim.diagnose_failures(lambda: (len(sim.history.rows), 0.0)):
             result = self.shifting.correct(system, on_iteration, iterations=scene.shifting.max_iterations, step=0)
         iterations = result.iterations
         if iterations:
-            sim.snapshots.write(system.particles, step=iterations, time=0.0, extra={"grad_c": grad_c(system)})
+            path = sim.snapshots.write(system.particles, step=iterations, time=0.0, extra={"grad_c": grad_c(system)})
+            if stopped[-1]:
+                sim.stop(f"the state after iteration {iterations} is in {path} (static runs write no checkpoint)")
         return sim.summary(steps=iterations, final={**report, "L2_dfdx_cartesian": reference},
                            shifting_time_s=elapsed["shifting_time_s"],
                            linear_iterations=elapsed["linear_iterations"])

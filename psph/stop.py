@@ -1,0 +1,86 @@
+"""Stopping a run on request, with its state saved.
+
+`psph run` catches SIGTERM (`kill`, a batch system's time limit), SIGINT (Ctrl-C) and SIGUSR1 (what
+OpenMPI's mpiexec passes on to every rank; with Slurm, `#SBATCH --signal=B:USR1@120`). The first one
+only raises a flag: the run ends the step in progress, writes a checkpoint and the history, and exits
+with 128 + the signal's number and one line saying how to continue. A second signal stops at once, with
+nothing saved past the last checkpoint.
+
+The flag is checked collectively (a max-reduction over the ranks, once per step), so every rank stops
+after the same step even when the signal reached them at different moments.
+"""
+
+import os
+import signal
+import threading
+
+from psph.errors import PsphError
+
+SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGUSR1)
+
+_state = {"installed": False, "signum": 0, "rank": 0}
+
+
+class Stopped(PsphError):
+    """A run stopped on request; the exit code is 128 + the signal's number. Raised on every rank."""
+
+    collective = True
+
+    def __init__(self, signum: int, message: str):
+        self.signum = signum
+        self.exit_code = 128 + signum
+        super().__init__(f"stopped by {signal.Signals(signum).name}: {message}")
+
+
+class ForcedStop(KeyboardInterrupt):
+    """A second signal: stop at once."""
+
+    def __init__(self, signum: int):
+        self.signum = signum
+        super().__init__(signal.Signals(signum).name)
+
+
+def _handler(signum, frame):
+    if _state["signum"]:
+        raise ForcedStop(signum)
+    _state["signum"] = signum
+    if _state["rank"] == 0:  # os.write: print() may be in the middle of a progress line
+        os.write(2, f"\npsph: {signal.Signals(signum).name} received: stopping after this step with a checkpoint "
+                    "(send it again to stop at once)\n".encode())
+
+
+def install(comm) -> None:
+    """Catch SIGNALS in this process (main thread only; elsewhere, nothing). Call on every rank."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    _state.update(installed=True, signum=0, rank=comm.rank)
+    for sig in SIGNALS:
+        signal.signal(sig, _handler)
+
+
+def uninstall() -> None:
+    """Give the signals back to Python's defaults."""
+    if not _state["installed"]:
+        return
+    _state.update(installed=False, signum=0)
+    for sig in SIGNALS:
+        signal.signal(sig, signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL)
+
+
+def requested(comm) -> int:
+    """The signal some rank was asked to stop by (0 if none, or if `install` did not run). Collective
+    when installed on every rank (as `psph run` does)."""
+    if not _state["installed"]:
+        return 0
+    return int(comm.allreduce(_state["signum"], op=_max()))
+
+
+def checkpoint_message(step: int, t: float, path) -> str:
+    """What a time-dependent run says when it stops: where, and how to continue."""
+    return f"state at step {step}, t = {t:.6g} saved in {path}; continue with: psph run --restart {path}"
+
+
+def _max():
+    from mpi4py import MPI
+
+    return MPI.MAX
