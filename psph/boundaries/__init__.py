@@ -3,7 +3,7 @@
 import numpy as np
 
 from psph.boundaries.bodies import make_bodies
-from psph.boundaries.geometry import inside
+from psph.boundaries.geometry import inside, shape_spec
 from psph.particles import FieldSpec
 
 SOLID_FIELDS = (FieldSpec("body", (), np.int64), FieldSpec("ref_position", ("d",)), FieldSpec("normal", ("d",)),
@@ -29,9 +29,8 @@ def fluid_mask(scene, pos) -> np.ndarray:
     if hi:
         keep &= np.all(pos <= np.asarray(hi), axis=1)
     for b in scene.bodies:
-        spec = ("ellipse" if b.shape == "ellipse" else "rectangle", b.center, b.size, b.angle)
-        is_in = inside(spec, pos)
-        keep &= is_in if b.shape == "box" else ~is_in
+        is_in = inside(shape_spec(b), pos)
+        keep &= is_in if b.container else ~is_in
     if scene.inflow:
         from psph.boundaries.open import make_inflows
 

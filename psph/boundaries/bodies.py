@@ -11,7 +11,15 @@ import math
 
 import numpy as np
 
-from psph.boundaries.geometry import ellipse_profile, inside, rectangle_profile, solid_particles
+from psph.boundaries.geometry import (
+    distance_to_polygon,
+    ellipse_profile,
+    inside,
+    polygon_profile,
+    rectangle_profile,
+    shape_spec,
+    solid_particles,
+)
 from psph.particles import Kind
 
 SPHERIC6 = (2.8209512, 0.525652151, 0.14142151)  # amplitude, centre, width of the benchmark acceleration
@@ -72,10 +80,12 @@ class Body:
         ds = dx / 4.0
         if spec.shape == "ellipse":
             self.profile = ellipse_profile(spec.center, spec.size, spec.angle, ds, fluid_inside=False)
+        elif spec.shape == "polygon":
+            self.profile = polygon_profile(spec.vertices, ds)
         else:
             self.profile = rectangle_profile(spec.center, spec.size, spec.angle, ds,
                                              fluid_inside=spec.shape == "box")
-        self.center0 = np.asarray(spec.center, dtype=np.float64)
+        self.center0 = np.asarray(spec.center or np.mean(spec.vertices, axis=0), dtype=np.float64)
         self.velocity = np.asarray(spec.motion.velocity or (0.0, 0.0), dtype=np.float64)
         # drag acts along the flow seen from the body: against its motion, or along the free stream (+x
         # without one) for a body at rest
@@ -85,7 +95,7 @@ class Body:
         self.omega = spec.motion.angular_velocity
         self.law = MotionLaw(spec.motion)
         self.turning = MotionLaw(spec.motion, spec.motion.turning_law)
-        self.kind = Kind.WALL if spec.shape == "box" else Kind.BODY
+        self.kind = Kind.WALL if spec.container else Kind.BODY
         self.no_slip = spec.wall == "no_slip"
         self.lid = np.zeros(len(self.profile.nodes), dtype=bool)
         if spec.lid_velocity:  # nodes on the top side of the box, its two corners excepted
@@ -95,7 +105,10 @@ class Body:
         self.lid_velocity = np.asarray(spec.lid_velocity or (0.0, 0.0), dtype=np.float64)
         if spec.reference_length > 0:
             self.reference_length = spec.reference_length
-        else:
+        elif spec.shape == "polygon":  # its width
+            lo, hi = bounds(spec)
+            self.reference_length = hi[0] - lo[0]
+        else:  # an ellipse's major axis, a rectangle's width
             self.reference_length = 2.0 * spec.size[0] if spec.shape == "ellipse" else spec.size[0]
 
     @property
@@ -127,9 +140,7 @@ class Body:
 
     def solid_particles(self, lattice, thickness):
         """Reference positions, normals, distances and closest nodes of this body's solid particles."""
-        spec = (("ellipse" if self.spec.shape == "ellipse" else "rectangle"), self.spec.center, self.spec.size,
-                self.spec.angle)
-        pos, node, dist = solid_particles(self.profile, spec, lattice, thickness)
+        pos, node, dist = solid_particles(self.profile, shape_spec(self.spec), lattice, thickness)
         return pos, self.profile.normals[node], dist, node
 
 
@@ -166,28 +177,27 @@ def check_placement(scene) -> None:
     # stop a kernel support plus dx past it (boundaries.extended_lattice), further than any fluid there sees
     lower = np.where([(a, -1) in d.outflow_faces() for a in range(2)], -np.inf, lower)
     upper = np.where([(a, 1) in d.outflow_faces() for a in range(2)], np.inf, upper)
-    boxes = [(k, b) for k, b in enumerate(scene.bodies) if b.shape == "box"]
+    boxes = [(k, b) for k, b in enumerate(scene.bodies) if b.container]
     immersed = []
     for k, b in enumerate(scene.bodies):
         path = f"bodies[{k}]"
-        extent = 2.0 * min(b.size) if b.shape == "ellipse" else min(b.size)
+        extent = 2.0 * min(b.size) if b.shape == "ellipse" else min(b.size or bounds(b)[1] - bounds(b)[0])
         if extent < 2.0 * dx:
-            raise SceneError(f"{path}.size", f"{b.name!r} is {extent:g} thick, less than 2 dx = {2 * dx:g}: no "
-                             "solid particle would fill it")
-        half = half_extent(b)
+            raise SceneError(f"{path}.{'vertices' if b.shape == 'polygon' else 'size'}", f"{b.name!r} is "
+                             f"{extent:g} thick, less than 2 dx = {2 * dx:g}: no solid particle would fill it")
+        lo, hi = bounds(b)
+        key = {"box": "size", "polygon": "vertices"}.get(b.shape, "center")
         for a in range(2):  # before any profile is built (a mistyped huge size would take long)
-            bounded = not d.periodic[a] or b.shape != "box"
-            lo, hi = b.center[a] - half[a], b.center[a] + half[a]
-            box_lo, box_hi = (d.lower[a], d.upper[a]) if b.shape == "box" else (lower[a], upper[a])
-            if bounded and (lo < box_lo - 1e-9 * dx or hi > box_hi + 1e-9 * dx):
-                raise SceneError(f"{path}.size" if b.shape == "box" else f"{path}.center",
-                                 f"{b.name!r} leaves the domain along axis {a}"
-                                 + (": the fluid at the domain's edge would have no wall" if b.shape == "box" else ""))
+            bounded = not d.periodic[a] or not b.container
+            box_lo, box_hi = (d.lower[a], d.upper[a]) if b.container else (lower[a], upper[a])
+            if bounded and (lo[a] < box_lo - 1e-9 * dx or hi[a] > box_hi + 1e-9 * dx):
+                raise SceneError(f"{path}.{key}", f"{b.name!r} leaves the domain along axis {a}"
+                                 + (": the fluid at the domain's edge would have no wall" if b.container else ""))
         dt = scene.time.cfl * d.h / scene.physics.sound_speed
         if "oscillate" in (b.motion.law, b.motion.turning_law) and b.motion.period < PERIOD_STEPS * dt:
             raise SceneError(f"{path}.motion.period", f"{b.motion.period:g} is shorter than {PERIOD_STEPS} time "
                              f"steps (cfl h / c0 = {dt:.3g}): the oscillation would not be resolved")
-        if b.shape != "box":
+        if not b.container:
             immersed.append((k, Body(b, k, 4.0 * dx, (1.0, 0.0))))  # nodes every dx are enough here
     if not immersed:
         return
@@ -215,8 +225,7 @@ def check_placement(scene) -> None:
                                      f"at t = {t:g}" + (f" (or comes within a kernel support, {margin[a]:g}, of "
                                                         "its periodic edge)" if d.periodic[a] else ""))
             for j, box in boxes:
-                local = np.abs((x - np.asarray(box.center)) @ _rot(box.angle))
-                if np.any(local > _half_size(box) - dx):
+                if np.any(~inside(shape_spec(box), x) | (within_walls(box, x) < dx)):
                     raise SceneError(key, f"{body.name!r} comes within dx of the walls of "
                                      f"bodies[{j}] ({box.name!r}) at t = {t:g}")
             for j, other in immersed:
@@ -225,8 +234,21 @@ def check_placement(scene) -> None:
                     raise SceneError(culprit, f"{body.name!r} overlaps bodies[{j}] ({other.name!r}) at t = {t:g}")
 
 
-def _half_size(spec):
-    return np.asarray(spec.size, dtype=float) / 2.0
+def within_walls(spec, points) -> np.ndarray:
+    """Distance of points inside a container (box or polygon) to its walls."""
+    if spec.shape == "polygon":
+        return distance_to_polygon(spec.vertices, points)
+    local = np.abs((points - np.asarray(spec.center)) @ _rot(spec.angle))
+    return (np.asarray(spec.size, dtype=float) / 2.0 - local).min(axis=1)
+
+
+def bounds(spec) -> tuple:
+    """(lower, upper) corners of the axis-aligned box around a body at t = 0."""
+    if spec.shape == "polygon":
+        v = np.asarray(spec.vertices, dtype=float)
+        return v.min(axis=0), v.max(axis=0)
+    center = np.asarray(spec.center, dtype=float)
+    return center - half_extent(spec), center + half_extent(spec)
 
 
 def half_extent(spec):
@@ -235,7 +257,7 @@ def half_extent(spec):
     if spec.shape == "ellipse":
         a, b = spec.size
         return np.array([math.hypot(a * c, b * s), math.hypot(a * s, b * c)])
-    w, h = _half_size(spec)
+    w, h = np.asarray(spec.size, dtype=float) / 2.0
     return np.array([w * c + h * s, w * s + h * c])
 
 
@@ -244,5 +266,4 @@ def _inside(body, t, points):
     c, rot = body.rigid(t)[:2]
     spec = body.spec
     reference = (points - c) @ rot + body.center0
-    return inside(("ellipse" if spec.shape == "ellipse" else "rectangle", spec.center, spec.size, spec.angle),
-                  reference)
+    return inside(shape_spec(spec), reference)

@@ -54,14 +54,17 @@ class WallTerms:
 
     def trespassers(self, pos, t, margin):
         """(row, body name) of the first of `pos` (fluid positions) that lies more than `margin` inside an
-        immersed body or outside a box at time t, or None."""
-        from psph.boundaries.geometry import inside
+        immersed body or outside a container (box, polygon) at time t, or None."""
+        from psph.boundaries.bodies import within_walls
+        from psph.boundaries.geometry import inside, shape_spec
 
         for b in self.bodies:
             center, rot = b.rigid(t)[:2]
             angle = b.spec.angle + np.degrees(np.arctan2(rot[1, 0], rot[0, 0]))
             shape = "ellipse" if b.spec.shape == "ellipse" else "rectangle"
-            if b.spec.shape == "box":
+            if b.spec.shape == "polygon":  # fixed
+                bad = ~inside(shape_spec(b.spec), pos) & (within_walls(b.spec, pos) > margin)
+            elif b.spec.shape == "box":
                 bad = ~inside((shape, center, [s + 2.0 * margin for s in b.spec.size], angle), pos)
             else:
                 size = [max(s - (margin if shape == "ellipse" else 2.0 * margin), 0.0) for s in b.spec.size]

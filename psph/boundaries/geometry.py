@@ -8,7 +8,8 @@ distance, so that a solid particle sits where a fluid particle would. Each solid
 tangent and node index of its closest body node and keeps its distance s_j to the profile (seed 004 eq. 5-7).
 
 Shapes: `box` (the fluid is inside: the outer walls of a tank or cavity), `rectangle` and `ellipse` (the
-fluid is outside: immersed bodies), each with a centre, a size and an angle.
+fluid is outside: immersed bodies), each with a centre, a size and an angle; `polygon` (the fluid is
+inside: a tank of any straight-sided shape, e.g. seed 002's trapezoidal tank), given by its corners.
 """
 
 from dataclasses import dataclass
@@ -73,9 +74,54 @@ def ellipse_profile(center, semi_axes, angle_deg, ds, fluid_inside=False) -> Pro
     return Profile(np.asarray(center) + nodes @ rot.T, normals @ rot.T, fluid_inside)
 
 
+def counterclockwise(vertices) -> np.ndarray:
+    """The polygon's corners as an (m, 2) array, reordered counter-clockwise if given clockwise."""
+    v = np.asarray(vertices, dtype=np.float64)
+    area2 = np.sum(v[:, 0] * np.roll(v[:, 1], -1) - np.roll(v[:, 0], -1) * v[:, 1])
+    return v if area2 > 0 else v[::-1].copy()
+
+
+def polygon_profile(vertices, ds) -> Profile:
+    """Nodes every ~ds along a polygon's sides, the fluid inside; the normal points out of the polygon
+    (out of the fluid) and a corner node takes the bisector of its two sides' normals."""
+    v = counterclockwise(vertices)
+    edges = np.roll(v, -1, axis=0) - v
+    lengths = np.linalg.norm(edges, axis=1)
+    outward = np.stack([edges[:, 1], -edges[:, 0]], axis=1) / lengths[:, None]  # right of a counter-clockwise side
+    nodes, normals = [], []
+    for k in range(len(v)):
+        count = max(int(round(lengths[k] / ds)), 1)
+        for s in range(count):
+            nodes.append(v[k] + edges[k] * s / count)
+            n = outward[k] + (outward[k - 1] if s == 0 else 0.0)
+            normals.append(n / np.linalg.norm(n))
+    return Profile(np.array(nodes), np.array(normals), True)
+
+
+def distance_to_polygon(vertices, points) -> np.ndarray:
+    """Distance of every point to the polygon's sides."""
+    v = np.asarray(vertices, dtype=np.float64)
+    a, b = v, np.roll(v, -1, axis=0)
+    ab = b - a
+    rel = points[:, None, :] - a[None, :, :]
+    along = np.clip((rel * ab).sum(axis=2) / (ab * ab).sum(axis=1), 0.0, 1.0)
+    return np.linalg.norm(rel - along[:, :, None] * ab[None, :, :], axis=2).min(axis=1)
+
+
+def shape_spec(body) -> tuple:
+    """What `inside` needs to know of a scene body (a BodySpec)."""
+    if body.shape == "polygon":
+        return ("polygon", body.vertices, None, 0.0)
+    return ("ellipse" if body.shape == "ellipse" else "rectangle", body.center, body.size, body.angle)
+
+
 def inside(profile_spec, pos) -> np.ndarray:
     """Mask of points inside the shape (its interior, whichever side the fluid is on)."""
     shape, center, size, angle = profile_spec
+    if shape == "polygon":  # center: the corners
+        from matplotlib.path import Path
+
+        return Path(np.asarray(center, dtype=np.float64)).contains_points(pos)
     local = (pos - np.asarray(center)) @ _rotation(angle)
     if shape == "ellipse":
         return (local[:, 0] / size[0]) ** 2 + (local[:, 1] / size[1]) ** 2 < 1.0

@@ -134,12 +134,14 @@ class MotionSpec:
 @dataclass(frozen=True)
 class BodySpec:
     name: str = option(doc="body name (suffix of its force columns when a scene has several)")
-    shape: str = option(doc="box (fluid inside: tank or cavity walls), rectangle or ellipse (immersed)",
-                        choices=("box", "rectangle", "ellipse"))
-    center: tuple[float, ...] = option(doc="centre", length=2)
-    size: tuple[float, ...] = option(doc="box/rectangle: width and height; ellipse: semi-axes a and b",
-                                     length=2, gt=0.0)
-    angle: float = option(0.0, doc="rotation of the shape [degrees]")
+    shape: str = option(doc="box or polygon (fluid inside: tank or cavity walls), rectangle or ellipse (immersed)",
+                        choices=("box", "polygon", "rectangle", "ellipse"))
+    center: tuple[float, ...] = option((), doc="centre (not for a polygon)")
+    size: tuple[float, ...] = option((), doc="box/rectangle: width and height; ellipse: semi-axes a and b (not for "
+                                     "a polygon)", gt=0.0)
+    angle: float = option(0.0, doc="rotation of the shape [degrees] (not for a polygon)")
+    vertices: tuple[tuple[float, ...], ...] = option((), doc="polygon: its corners [[x, y], ...] in order, either "
+                                                    "sense (the fluid is inside)")
     wall: str = option("no_slip", doc="no_slip or free_slip", choices=("no_slip", "free_slip"))
     model: str = option("clone", doc="clone: solid particles with local mirroring (seed 004); ghost: fixed ghost "
                         "particles, mirror images of the fluid across a straight wall (seed 001 section 6.2; "
@@ -147,11 +149,25 @@ class BodySpec:
     lid_velocity: tuple[float, ...] = option((), doc="box: tangential velocity of its top side (a cavity lid)")
     motion: MotionSpec = option(MotionSpec(), doc="prescribed rigid motion")
     reference_length: float = option(0.0, doc="length D of the force coefficients 2 F / (rho0 U^2 D) (0: the "
-                                     "width for rectangles, the major axis for ellipses)", ge=0.0)
+                                     "width for rectangles and boxes, the major axis for ellipses, the x extent "
+                                     "for polygons)", ge=0.0)
+
+    @property
+    def container(self) -> bool:
+        """Whether the fluid is inside (tank walls) rather than around (an immersed body)."""
+        return self.shape in ("box", "polygon")
 
     def check(self, path):
         if not self.name.strip():
             raise SceneError(f"{path}.name", "give the body a name (its force columns carry it)")
+        if self.shape == "polygon":
+            self._check_polygon(path)
+        else:
+            for key in ("center", "size"):
+                if len(getattr(self, key)) != 2:
+                    raise SceneError(f"{path}.{key}", f"expected 2 entries, got {len(getattr(self, key))}")
+            if self.vertices:
+                raise SceneError(f"{path}.vertices", f"corners define a polygon, not a {self.shape}")
         if self.lid_velocity and (self.shape != "box" or len(self.lid_velocity) != 2):
             raise SceneError(f"{path}.lid_velocity", "a lid is the top side of a box: give 2 entries")
         if self.lid_velocity and self.lid_velocity[1] != 0.0:
@@ -161,9 +177,10 @@ class BodySpec:
             raise SceneError(f"{path}.model", "ghost walls mirror across straight walls: an axis-aligned box "
                              "(shape = box, angle = 0)")
         m = self.motion
-        if self.shape == "box" and (m.law != "fixed" or m.turning_law != "fixed"):
+        if self.container and (m.law != "fixed" or m.turning_law != "fixed"):
             key = "law" if m.law != "fixed" else "rotation_law"
-            raise SceneError(f"{path}.motion.{key}", "boxes stay fixed (give the lid a velocity instead)")
+            raise SceneError(f"{path}.motion.{key}", f"a {self.shape} (the fluid's container) stays fixed"
+                             + (" (give the lid a velocity instead)" if self.shape == "box" else ""))
         if m.velocity and len(m.velocity) != 2:
             raise SceneError(f"{path}.motion.velocity", f"give 2 entries, got {len(m.velocity)}")
         turns = m.turning_law == m.law and m.angular_velocity  # the law moves the rotation
@@ -180,6 +197,44 @@ class BodySpec:
             raise SceneError(f"{path}.motion.angular_velocity", "the rotation's law is fixed: give motion."
                              + ("rotation_law" if m.rotation_law else "law or motion.rotation_law")
                              + " or drop the angular velocity")
+
+    def _check_polygon(self, path):
+        for key in ("center", "size"):
+            if getattr(self, key):
+                raise SceneError(f"{path}.{key}", "a polygon is given by its corners (vertices) alone")
+        if self.angle != 0.0:
+            raise SceneError(f"{path}.angle", "a polygon is given by its corners (vertices): turn them instead")
+        v = self.vertices
+        if len(v) < 3:
+            raise SceneError(f"{path}.vertices", f"a polygon needs at least 3 corners, got {len(v)}")
+        for k, corner in enumerate(v):
+            if len(corner) != 2:
+                raise SceneError(f"{path}.vertices[{k}]", f"expected 2 entries [x, y], got {len(corner)}")
+        m = len(v)
+        span = max(max(c[0] for c in v) - min(c[0] for c in v), max(c[1] for c in v) - min(c[1] for c in v))
+        for k in range(m):
+            if math.dist(v[k], v[(k + 1) % m]) <= 1e-12 * span:
+                raise SceneError(f"{path}.vertices[{(k + 1) % m}]", f"repeats corner {k}")
+        for k in range(m):  # sides that do not share a corner must not meet
+            for j in range(k + 2, m - (k == 0)):
+                if _segments_cross(v[k], v[(k + 1) % m], v[j], v[(j + 1) % m]):
+                    raise SceneError(f"{path}.vertices", f"side {k} (corners {k}-{(k + 1) % m}) crosses side {j} "
+                                     f"(corners {j}-{(j + 1) % m}): the polygon must be simple")
+
+
+def _segments_cross(a, b, c, d) -> bool:
+    """Whether the closed segments ab and cd share a point."""
+    def orient(p, q, r):
+        value = (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0])
+        return (value > 0) - (value < 0)
+
+    def on(p, q, r):  # r on segment pq, given collinear
+        return min(p[0], q[0]) <= r[0] <= max(p[0], q[0]) and min(p[1], q[1]) <= r[1] <= max(p[1], q[1])
+
+    o1, o2, o3, o4 = orient(a, b, c), orient(a, b, d), orient(c, d, a), orient(c, d, b)
+    if o1 != o2 and o3 != o4:
+        return True
+    return any(o == 0 and on(p, q, r) for o, p, q, r in ((o1, a, b, c), (o2, a, b, d), (o3, c, d, a), (o4, c, d, b)))
 
 
 @dataclass(frozen=True)
@@ -505,13 +560,14 @@ class Scene:
         if (self.inflow or d.outflow) and self.packing.iterations > 0:
             raise SceneError("packing.iterations", "the packing's frame closes no open boundary: pack without "
                              "[[inflow]] and domain.outflow (or start from the lattice)")
+        from psph.boundaries.bodies import bounds
+
         for k, face in enumerate(d.outflow):
             a, side = d.outflow_faces()[k]
             for j, b in enumerate(self.bodies):
-                if b.shape == "box" and (b.center[a] + side * b.size[a] / 2.0 - (d.upper[a] if side > 0 else
-                                                                                d.lower[a])) * side > -d.dx:
-                    raise SceneError(f"domain.outflow[{k}]", f"bodies[{j}] (a box) has a wall along face {face}: "
-                                     "no fluid would reach it")
+                if b.container and (bounds(b)[side > 0][a] - (d.upper[a] if side > 0 else d.lower[a])) * side > -d.dx:
+                    raise SceneError(f"domain.outflow[{k}]", f"bodies[{j}] (a {b.shape}) has a wall along face "
+                                     f"{face}: no fluid would reach it")
         if not self.inflow:
             return
         if not fluid or self.physics.scheme == "riemann_ale":
@@ -568,12 +624,12 @@ class Scene:
             raise SceneError(f"{path}.lower", "fluid fills the buffer's cross-section upstream of it "
                              "(initial.fill_lower/fill_upper, the whole domain by default): the buffer's rows "
                              "would run into it")
-        from psph.boundaries.bodies import half_extent
+        from psph.boundaries.bodies import bounds
 
         for j, b in enumerate(self.bodies):
-            if b.shape == "box":
+            if b.container:
                 continue
-            if _overlap(lo[:2], hi[:2], np.asarray(b.center) - half_extent(b), np.asarray(b.center) + half_extent(b)):
+            if _overlap(lo[:2], hi[:2], *bounds(b)):
                 raise SceneError(path, f"the buffer overlaps bodies[{j}] ({b.name!r}) at t = 0")
         if any(b.model == "ghost" for b in self.bodies):
             raise SceneError(path, "inflow buffers work with clone walls, not ghost walls")

@@ -205,7 +205,7 @@ def test_a_lid_on_a_periodic_y_axis_is_refused(model):
     (["bodies.1.motion.rotation_law=fixed", "bodies.1.motion.angular_velocity=1.0"],
      "bodies[1].motion.angular_velocity", "the rotation's law is fixed: give motion.rotation_law"),
     (["bodies.0.motion.rotation_law=oscillate", "bodies.0.motion.angular_velocity=1.0"],
-     "bodies[0].motion.rotation_law", "boxes stay fixed"),
+     "bodies[0].motion.rotation_law", "a box (the fluid's container) stays fixed"),
     (["bodies.1.motion.law=oscillate", "bodies.1.motion.velocity=[-1.0, 0.0]", "bodies.1.motion.period=10.0"],
      "bodies[1].motion",
      "within dx of the walls of bodies[0]"),
