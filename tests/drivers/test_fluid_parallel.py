@@ -75,6 +75,7 @@ def test_riemann_ale_run_matches_serial(comm, mpi_tmp_path, shifting, update, th
                                "initial.sigma_over_dx=0.05"], 1e-7),
     ("lid_driven_cavity.toml", [*CAVITY_DELTA_PLUS, "physics.viscosity=morris"], 1e-11),
     ("hydrostatic_tank.toml", [], 1e-11),
+    ("trapezoidal_tank.toml", [], 1e-11),
     ("inclined_ellipse.toml", ["domain.dx=0.2", "physics.free_stream_ramp=0.05"], 1e-11),
     ("moving_square.toml", ["domain.dx=0.1", "time.t_end=0.3", "bodies.1.motion.law=ramp",
                             "bodies.1.motion.ramp_time=0.1", "bodies.1.motion.velocity=[0.3, 0.0]",
