@@ -163,7 +163,8 @@ def check_placement(scene) -> None:
     t = 0 and along its prescribed motion to t_end, an immersed body leaving the domain (but past an outflow
     face, where its solid particles stop a kernel support plus dx out: the fluid is gone by then) or coming within
     one kernel support of a periodic edge (shapes and their nearest-node search do not wrap), coming
-    within dx of a box's walls, or overlapping another immersed body. The motion is sampled so that no
+    within dx of a container's walls, overlapping another immersed body, or (moving) entering an inflow
+    buffer. The motion is sampled so that no
     point of a body moves more than dx between samples (every law's speed stays within its velocity and
     angular velocity), over one period when every moving body oscillates with the same period, and with
     at most MOTION_SAMPLES samples (coarser for a longer motion). An oscillation shorter than
@@ -201,6 +202,8 @@ def check_placement(scene) -> None:
             immersed.append((k, Body(b, k, 4.0 * dx, (1.0, 0.0))))  # nodes every dx are enough here
     if not immersed:
         return
+    buffers = [(np.asarray(f.lower, dtype=float), np.asarray(f.upper, dtype=float)) for f in scene.inflow
+               if len(f.lower) == len(f.upper) == 2]
     times = [0.0]
     moving = [body for _, body in immersed if body.moves]
     if moving:
@@ -232,6 +235,9 @@ def check_placement(scene) -> None:
                 if j != k and np.any(_inside(other, t, x)):
                     culprit = f"bodies[{j}].motion" if t > 0.0 and other.moves and not body.moves else key
                     raise SceneError(culprit, f"{body.name!r} overlaps bodies[{j}] ({other.name!r}) at t = {t:g}")
+            for j, (lo, hi) in enumerate(buffers):  # at t = 0 the scene's buffer check names the buffer
+                if t > 0.0 and body.moves and np.any(np.all((x > lo) & (x < hi), axis=1)):
+                    raise SceneError(key, f"{body.name!r} enters inflow[{j}]'s buffer at t = {t:g}")
 
 
 def within_walls(spec, points) -> np.ndarray:

@@ -131,6 +131,8 @@ def test_a_retried_step_emits_joins_and_removes_its_rows_once(tmp_path):
     (["inflow=[{lower=[-0.3,1.6],upper=[0.3,2.0],velocity=[0.0,-1.0]},"
       "{lower=[-0.1,1.6],upper=[0.5,2.0],velocity=[0.0,-1.0]}]"], "inflow[1]"),
     (["bodies=[{name='b',shape='rectangle',center=[0.0,1.9],size=[0.2,0.2]}]"], "inflow[0]"),
+    (["bodies=[{name='b',shape='rectangle',center=[0.0,1.0],size=[0.2,0.2],"  # moving into the buffer
+      "motion={law='constant',velocity=[0.0,1.0]}}]"], "bodies[0].motion"),
     (["physics.scheme=riemann_ale"], "inflow"),
     (["physics.scheme=none"], "domain.outflow"),
     (["packing.iterations=10"], "packing.iterations"),
