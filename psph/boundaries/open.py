@@ -14,8 +14,12 @@ upstream face and D its depth:
 so every row travels on the same lattice and the buffer lets |U| rho0 dx^(d-1) of mass in per unit area
 and time, whatever the time step. Which rows exist depends on t only: runs on any number of ranks emit
 the same particles with the same gids. At an outflow face (domain.outflow) fluid particles that crossed it
-are removed. Each change of the particle set is followed by a neighbour rebuild, at most one per step
-(README, "Open boundaries": Cost).
+are removed; with `domain.outflow_buffer` they become buffer particles (Kind.OUTLET) instead, removed one
+kernel support past the face, whose density, pressure and velocity are set after every step to the Shepard
+average of their fluid neighbours (a zero-gradient extrapolation, compute.sums.shepard_from_fluid). The
+fluid beside the face then has a full support and sees there the state it would see inside: a sound wave
+passes out (2% reflected) instead of being reflected as from a free surface (65%). Each change of the
+particle set is followed by a neighbour rebuild, at most one per step (README, "Open boundaries": Cost).
 """
 
 import math
@@ -137,7 +141,11 @@ def describe_open(scene) -> list:
         lines.append(f"inflow[{k}]: buffer {tuple(f.lower)} - {tuple(f.upper)}, {f.rows} rows of "
                      f"{len(f.section)} particles at velocity {tuple(f.velocity)}, a row every "
                      f"{f.dx / f.speed:.4g} time units")
-    if scene.domain.outflow:
+    if scene.domain.outflow and scene.domain.outflow_buffer:
+        lines.append(f"outflow faces {', '.join(scene.domain.outflow)}: fluid past them becomes a buffer one kernel "
+                     "support deep, its density and velocity extrapolated from the fluid (Shepard average), "
+                     "then is removed")
+    elif scene.domain.outflow:
         lines.append(f"outflow faces {', '.join(scene.domain.outflow)}: fluid particles past them are removed")
     return lines
 
@@ -168,6 +176,11 @@ class OpenBoundaries:
         self.next_gid = int(allreduce_max(system.comm, int(p.owned("gid").max()) if p.n_owned else -1)) + 1
         self.emitted = [0] * len(self.inflows)
         self.totals = {"joined": 0, "emitted": 0, "removed": 0}
+        self.buffer = scene.domain.outflow_buffer
+        if self.buffer:
+            from psph.schemes.eos import make_eos
+
+            self.eos = make_eos(scene.physics)
 
     def apply(self, system, t) -> dict:
         """At time t: buffer particles past their downstream face join the fluid, rows due are emitted (on
@@ -179,7 +192,12 @@ class OpenBoundaries:
         for f in self.inflows:
             joined |= (kind == Kind.INLET) & f.joined(pos)
         kind[joined] = Kind.FLUID
-        removed = (kind == Kind.FLUID) & system.domain.past_outflow(pos, TIE * self.scene.domain.dx)
+        tie = TIE * self.scene.domain.dx
+        if self.buffer:  # fluid past a face joins the buffer, which lets it go a kernel support further
+            kind[(kind == Kind.FLUID) & system.domain.past_outflow(pos, tie)] = Kind.OUTLET
+            removed = (kind == Kind.OUTLET) & system.domain.past_outflow(pos, self.scene.domain.support + tie)
+        else:
+            removed = (kind == Kind.FLUID) & system.domain.past_outflow(pos, tie)
         new = []
         for k, f in enumerate(self.inflows):
             due = f.emitted(t)
@@ -191,6 +209,7 @@ class OpenBoundaries:
         counts = allreduce_sum(system.comm, np.array([joined.sum(), removed.sum()], dtype=np.int64))
         out = {"joined": int(counts[0]), "emitted": n_new, "removed": int(counts[1])}
         if not (out["joined"] or out["emitted"] or out["removed"]):
+            self._extrapolate(system)
             return out
         if out["removed"]:
             p.set_owned({name: arr[~removed] for name, arr in p.owned_arrays().items()})
@@ -202,9 +221,26 @@ class OpenBoundaries:
             p.append_owned({k: v for k, v in arrays.items() if k in p}, fill={"body": -1})
         self.next_gid += n_new
         system.rebuild()
+        self._extrapolate(system)
         for key in self.totals:
             self.totals[key] += out[key]
         return out
+
+    def _extrapolate(self, system) -> None:
+        """Set the outflow buffer's density, pressure, mass and velocity from the fluid beside it (lists
+        current). Collective."""
+        if not self.buffer:
+            return
+        from psph.compute.sums import shepard_from_fluid
+
+        p = system.particles
+        system.refresh(["density", "velocity"])  # the fluid's halo copies as the step left them
+        rows = np.flatnonzero(p.owned("kind") == Kind.OUTLET)
+        shepard_from_fluid(p["position"], p["volume"], p["kind"], rows, system.nbr_ptr, system.nbr_idx,
+                           system.kernel.params, p["density"], p["velocity"])
+        p.owned("pressure")[rows] = self.eos.pressure(p.owned("density")[rows])
+        p.owned("mass")[rows] = p.owned("density")[rows] * p.owned("volume")[rows]
+        system.refresh(["density", "pressure", "mass", "velocity"])
 
     def checkpoint_state(self) -> dict:
         return {"next_gid": self.next_gid, "emitted": list(self.emitted), "totals": dict(self.totals)}

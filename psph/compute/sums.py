@@ -283,3 +283,30 @@ def nearest_distance(pos, ptr, idx, same, out):
             if rr < best:
                 best = rr
         out[i] = np.sqrt(best)
+
+
+@njit(cache=True)
+def shepard_from_fluid(pos, vol, kind, rows, ptr, idx, kp, density, velocity):
+    """For every row i of `rows` (owned), the Shepard average over its fluid neighbours j (kind 0) of the
+    density and the velocity, sum_j f_j W_ij V_j / sum_j W_ij V_j: the zero-gradient extrapolation an
+    outflow buffer holds (psph.boundaries.open). A row with no fluid within its support keeps its values.
+    Fills density[i] and velocity[i] in place."""
+    d = pos.shape[1]
+    for i in rows:
+        wsum, rho = 0.0, 0.0
+        u0, u1, u2 = 0.0, 0.0, 0.0
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            if kind[j] != 0:
+                continue
+            r = np.sqrt(pair2(pos, i, j, d)[3])
+            w = kernel_w(r, kp) * vol[j]
+            wsum += w
+            rho += w * density[j]
+            v0, v1, v2 = load(velocity, j, d)
+            u0 += w * v0
+            u1 += w * v1
+            u2 += w * v2
+        if wsum > 0.0:
+            density[i] = rho / wsum
+            store(velocity, i, d, u0 / wsum, u1 / wsum, u2 / wsum)

@@ -32,6 +32,10 @@ class DomainSpec:
     outflow: tuple[str, ...] = option((), doc="open faces of the box (x-, x+, y-, y+, z-, z+ on non-periodic "
                                       "axes) through which fluid leaves: a fluid particle past one is removed "
                                       "(README, \"Open boundaries\")")
+    outflow_buffer: bool = option(False, doc="keep the fluid past an outflow face for one kernel support, its "
+                                  "density and velocity extrapolated from the fluid every step, so that sound "
+                                  "leaves (2% of a pulse reflected, against 65% without: README, \"Open "
+                                  "boundaries\")")
 
     def check(self, path):
         faces = OUTFLOW_FACES[: 2 * self.dimension]
@@ -43,6 +47,8 @@ class DomainSpec:
                                  "there comes back on the other side")
         if len(set(self.outflow)) != len(self.outflow):
             raise SceneError(f"{path}.outflow", f"faces listed twice: {list(self.outflow)}")
+        if self.outflow_buffer and not self.outflow:
+            raise SceneError(f"{path}.outflow_buffer", "there is no outflow face (domain.outflow) to buffer")
         for a in range(self.dimension):
             if not self.upper[a] > self.lower[a]:
                 raise SceneError(f"{path}.upper[{a}]", f"must exceed lower[{a}] = {self.lower[a]}, "
@@ -557,6 +563,9 @@ class Scene:
         if d.outflow and not fluid:
             raise SceneError("domain.outflow", f"outflow faces belong to a flow, not physics.scheme = "
                              f"{self.physics.scheme!r}")
+        if d.outflow_buffer and self.physics.scheme == "riemann_ale":
+            raise SceneError("domain.outflow_buffer", "outflow buffers need a delta_ale scheme, not "
+                             "physics.scheme = 'riemann_ale'")
         if (self.inflow or d.outflow) and self.packing.iterations > 0:
             raise SceneError("packing.iterations", "the packing's frame closes no open boundary: pack without "
                              "[[inflow]] and domain.outflow (or start from the lattice)")

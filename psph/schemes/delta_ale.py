@@ -56,7 +56,8 @@ class DeltaALE:
         self.shift = make_velocity_shift(scene)
         self.surface = make_free_surface(scene)
         self.pairs = PairCache()  # the support's pairs, from renormalised_gradient to delta_ale_rhs
-        self.inflow = bool(scene.inflow)  # rows of Kind.INLET keep their prescribed fields
+        # rows of Kind.INLET and OUTLET keep the fields psph.boundaries.open prescribes
+        self.prescribed = bool(scene.inflow) or scene.domain.outflow_buffer
         self.walls = None
         if scene.bodies:
             from psph.boundaries.clone import WallTerms
@@ -202,9 +203,10 @@ class DeltaALE:
                 self.walls.add(system, self, t, d_rho, d_mom)
         if self.free_stream is not None:
             self._drive_free_stream(system, t, d_mom)
-        if self.inflow:  # inflow particles move at their prescribed velocity, with fields unchanged
-            inlet = p.owned("kind") == Kind.INLET
-            d_rho[inlet], d_mass[inlet], d_mom[inlet] = 0.0, 0.0, 0.0
+        if self.prescribed:  # open-boundary particles move at their prescribed velocity, fields unchanged
+            kind = p.owned("kind")
+            fixed = (kind == Kind.INLET) | (kind == Kind.OUTLET)
+            d_rho[fixed], d_mass[fixed], d_mom[fixed] = 0.0, 0.0, 0.0
         transport = p.owned("velocity") + (p.owned("shift_velocity") if self.shift.active else 0.0)
         out = {"position": transport, "density": d_rho}
         if self.variant == 0:
