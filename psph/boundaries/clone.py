@@ -163,11 +163,18 @@ class WallTerms:
         from the last right-hand side: drag along the flow seen from the body (against a moving body's
         velocity, along physics.free_stream or +x for a body at rest), lift 90 degrees anticlockwise from it;
         and the moment coefficient 2 T / (rho0 U^2 D^2) of the torque about the body's centre, anticlockwise
-        positive (each pair's force applied at the solid particle's node on the profile). Collective."""
+        positive (each pair's force applied at the solid particle's node on the profile); and of every
+        clone-wall container (box, polygon), the force the fluid exerts on it, force_x_NAME and force_y_NAME,
+        pressure and viscous parts together, in the scene's units (per unit depth in 2-D): for water at
+        rest, its weight. Collective."""
         force = allreduce_sum(comm, self.force.copy())
         torque = allreduce_sum(comm, self.torque.copy())
         immersed = [b for b in self.bodies if b.kind == Kind.BODY]
         out = {}
+        for b in self.clones:
+            if b.kind == Kind.WALL:
+                total = force[b.index].sum(axis=0)
+                out[f"force_x_{b.name}"], out[f"force_y_{b.name}"] = float(total[0]), float(total[1])
         for b in immersed:
             scale = 2.0 / (self.rho0 * self.u_ref ** 2 * b.reference_length)
             suffix = f"_{b.name}" if len(immersed) > 1 else ""

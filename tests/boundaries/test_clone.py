@@ -241,8 +241,9 @@ def test_several_bodies_get_suffixed_columns_and_their_own_forces(tmp_path):
     p["velocity"][:] = 0.0
     walls.add(system, driver.scheme, 0.0, np.zeros(p.n_local), np.zeros((p.n_local, 2)))
     coeff = walls.body_forces(MPI.COMM_SELF)
-    assert sorted(coeff) == sorted(f"{c}_{part}_{name}" for c in ("cd", "cl", "cm")
-                                   for part in ("pressure", "viscous") for name in ("first", "second"))
+    tank = scene.bodies[0].name
+    assert sorted(coeff) == sorted([f"{c}_{part}_{name}" for c in ("cd", "cl", "cm") for part in ("pressure", "viscous")
+                                    for name in ("first", "second")] + [f"force_x_{tank}", f"force_y_{tank}"])
     assert coeff["cl_pressure_first"] == pytest.approx(0.6, rel=0.05)
     assert coeff["cl_pressure_second"] == pytest.approx(0.4, rel=0.05)
     assert abs(coeff["cd_pressure_first"]) < 0.01 and abs(coeff["cd_pressure_second"]) < 0.01

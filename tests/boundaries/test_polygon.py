@@ -64,8 +64,8 @@ def test_a_polygon_on_a_box_corners_runs_as_the_box(tmp_path):
 
 def test_the_trapezoidal_tank_fills_the_lattice_and_holds_water_at_rest(tmp_path):
     """H/dx = 10 to t sqrt(g/H) = 2: the clone walls' solids complete the fluid's lattice along the
-    inclined wall (grad Gamma is round-off, so the packing has nothing to do), the water stays at rest
-    and its pressure hydrostatic (at H/dx = 25 and 50: README, Walls)."""
+    inclined wall (grad Gamma is round-off, so the packing has nothing to do), the water stays at rest,
+    its pressure hydrostatic (at H/dx = 25 and 50: README, Walls), and its weight on the tank."""
     scene = load_scene(TRAPEZOID, ["domain.dx=0.1", "time.t_end=2.0", "output.every=0", "output.history_every=10",
                                    "packing.iterations=20"])
     driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path)
@@ -78,8 +78,11 @@ def test_the_trapezoidal_tank_fills_the_lattice_and_holds_water_at_rest(tmp_path
     cells = (np.arange(16) + 0.5) * 0.1
     x, y = np.meshgrid(cells, cells[:10], indexing="ij")  # the lattice points inside the trapezoid below y = 1
     assert np.count_nonzero(fluid) == np.count_nonzero(x < 1.0 + y / 2.0) == 125
-    late = [r["max_speed"] for r in read_history(tmp_path / "history.csv") if r["time"] >= 1.0]
-    assert max(late) < 5e-3  # in sqrt(g H); 1e-3 at H/dx = 25
+    rows = [r for r in read_history(tmp_path / "history.csv") if r["time"] >= 1.0]
+    assert max(r["max_speed"] for r in rows) < 5e-3  # in sqrt(g H); 1e-3 at H/dx = 25
+    weight = rows[-1]["total_mass"]  # g = 1: the walls carry the water's weight, and no net sideways push
+    for r in rows:
+        assert abs(r["force_y_tank"] / weight + 1.0) < 0.02 and abs(r["force_x_tank"]) < 0.01 * weight
     error = p.owned("pressure")[fluid] - (1.0 - pos[fluid, 1])
     assert np.sqrt(np.mean(error**2)) < 0.03  # in rho0 g H
 
