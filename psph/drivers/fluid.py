@@ -24,7 +24,9 @@ from psph.compute.sums import nearest_distance
 from psph.diagnostics import fluid_mask, grad_c, norms, shepard_sums
 from psph.errors import NumericalError
 from psph.initial import reset_initial_fields
+from psph.io.history import start_series
 from psph.parallel.comm import allreduce_max, allreduce_min, allreduce_sum, raise_if_any
+from psph.probes import Probes
 from psph.profiling import phase
 from psph.schemes import make_scheme
 from psph.schemes.integrators import INTEGRATORS, STAGE_REACH
@@ -119,11 +121,7 @@ class ImpingingJetReference:
         self.centre = int(np.argmin(np.abs(x - self.x0)))
         self.path = None if out_dir is None else out_dir / "wall_pressure.csv"
         if self.path is not None:
-            header = "time," + ",".join(f"x={v - self.x0:.6g}" for v in x) + "\n"
-            kept = []
-            if resumed_at is not None and self.path.exists():  # rows past the checkpoint are written again
-                kept = [r for r in self.path.read_text().splitlines()[1:] if float(r.split(",")[0]) <= resumed_at]
-            self.path.write_text(header + "".join(r + "\n" for r in kept))
+            start_series(self.path, "time," + ",".join(f"x={v - self.x0:.6g}" for v in x), resumed_at)
 
     def wall_pressure(self, system) -> tuple:
         """(load, fluid) at the probes over rho0 U^2 / 2 (the fluid's nan where no fluid reaches). Collective."""
@@ -174,6 +172,9 @@ class FluidDriver:
         if scene.diagnostics.impinging_jet:
             lines.append("diagnostics against Taylor's wall pressure of an impinging jet (thesis eq. 3.3): "
                          "stagnation pressure, RMS error over |x| <= 2 H")
+        if scene.output.probes:
+            lines.append(f"{len(scene.output.probes)} probe(s): pressure and velocity at every history row in "
+                         "OUT/probes.csv (Shepard interpolation of the fluid)")
         k = scene.packing
         if k.iterations:
             lines.append(f"particle packing first (seed 002 eq. 2.16): at most {k.iterations} iterations, alpha = "
@@ -214,6 +215,10 @@ class FluidDriver:
             self.reference = ImpingingJetReference(scene, self.scheme.walls,
                                                    self.sim.out_dir if comm.rank == 0 else None,
                                                    resumed_at=self.resumed["time"] if restart else None)
+        self.probes = None
+        if scene.output.probes:
+            self.probes = Probes(scene, self.sim.out_dir if comm.rank == 0 else None,
+                                 resumed_at=self.resumed["time"] if restart else None)
         self.initial_volume = allreduce_sum(self.sim.comm, float(
             self.system.particles.owned("volume")[fluid_mask(self.system)].sum()))
         self.first_dt = None
@@ -381,6 +386,8 @@ class FluidDriver:
             out.update(self.reference.errors(self.system, t, sums[0]))
         if self.scheme.walls is not None:
             out.update(self.scheme.walls.body_forces(comm))
+        if self.probes is not None:
+            self.probes.record(self.system, t)
         return out
 
     def check(self, step, t, dt) -> None:

@@ -73,6 +73,16 @@ def _fmt(value):
     return value
 
 
+def start_series(path, header: str, resumed_at=None) -> None:
+    """Start a CSV time series at `path` (its first column is the time): with the `header` line only, or, on
+    a restart at time `resumed_at`, with the rows up to it kept (the rows after it are written again)."""
+    path = Path(path)
+    kept = []
+    if resumed_at is not None and path.exists():
+        kept = [r for r in path.read_text().splitlines()[1:] if float(r.split(",")[0]) <= resumed_at]
+    path.write_text(header + "\n" + "".join(r + "\n" for r in kept))
+
+
 def read_history(path) -> list:
     """Rows of a history.csv as dicts of floats (empty cells -> None)."""
     with open(path, newline="") as f:

@@ -433,6 +433,9 @@ class OutputSpec:
                                    ge=0)
     checkpoint_minutes: float = option(0.0, doc="flow and kinematic runs: wall-clock minutes between checkpoints "
                                        "(0: none)", ge=0.0)
+    probes: tuple[tuple[float, ...], ...] = option((), doc="flow runs: points [[x, y], ...] where the fluid's "
+                                                   "pressure and velocity go to OUT/probes.csv at every history "
+                                                   "row (Shepard interpolation; nan where no fluid reaches)")
 
 
 @dataclass(frozen=True)
@@ -644,6 +647,18 @@ class Scene:
             raise SceneError(path, "inflow buffers work with clone walls, not ghost walls")
         return lo, hi
 
+    def _check_probes(self, fluid):
+        d = self.domain
+        if self.output.probes and not fluid:
+            raise SceneError("output.probes", f"probes sample a flow, not physics.scheme = {self.physics.scheme!r}")
+        for k, point in enumerate(self.output.probes):
+            if len(point) != d.dimension:
+                raise SceneError(f"output.probes[{k}]", f"expected {d.dimension} entries (domain.dimension), "
+                                 f"got {len(point)}")
+            for a in range(d.dimension):
+                if not d.lower[a] <= point[a] <= d.upper[a]:
+                    raise SceneError(f"output.probes[{k}]", f"{list(point)} lies outside the domain along axis {a}")
+
     def _check_jet(self):
         if not self.diagnostics.impinging_jet:
             return
@@ -707,6 +722,7 @@ class Scene:
         self._check_packing(fluid)
         self._check_open(fluid)
         self._check_jet()
+        self._check_probes(fluid)
         surface = self.describe_free_surface()
         if fluid and surface and (method != "none" or self.iips.pre_newton > 0):
             ghosts = [k for k, b in enumerate(self.bodies) if b.model == "ghost"]
