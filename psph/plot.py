@@ -1,4 +1,4 @@
-"""`psph plot OUT_DIR`: PNG figures of a run (particle fields of the last snapshot, diagnostics history) or
+"""`psph plot OUT_DIR`: PNG figures of a run (particle fields of the last snapshot, diagnostics history, probes) or
 of a study (a directory of runs: error against resolution and against wall time).
 
 A run directory holds summary.json / history.csv / snapshots; a study directory holds run directories.
@@ -49,7 +49,8 @@ def plot(out_dir, fig_dir=None) -> list:
     runs = sorted(d for d in out_dir.iterdir() if (d / "summary.json").is_file())
     if (out_dir / "history.csv").is_file():
         fig_dir.mkdir(parents=True, exist_ok=True)
-        return [p for p in (plot_history(out_dir, fig_dir), plot_fields(out_dir, fig_dir)) if p]
+        return [p for p in (plot_history(out_dir, fig_dir), plot_fields(out_dir, fig_dir),
+                            plot_probes(out_dir, fig_dir)) if p]
     if runs:
         fig_dir.mkdir(parents=True, exist_ok=True)
         return plot_study(runs, fig_dir)
@@ -78,6 +79,30 @@ def plot_history(run_dir: Path, fig_dir: Path):
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     return _save(plt, fig, fig_dir / "history.png", f"{run_dir.name}: diagnostics history")
+
+
+def plot_probes(run_dir: Path, fig_dir: Path):
+    """probes.png: pressure and speed at every probe (output.probes) against time; None without probes."""
+    from psph.io.history import read_history
+    from psph.probes import NAME
+
+    if not (run_dir / NAME).is_file():
+        return None
+    rows = read_history(run_dir / NAME)
+    if not rows:
+        return None
+    plt = _pyplot()
+    fig, (ax_p, ax_u) = plt.subplots(1, 2, figsize=(9.0, 3.4))
+    t = np.array([r["time"] for r in rows])
+    for k in range(sum(c.startswith("p_") for c in rows[0])):
+        velocity = [c for c in rows[0] if c[0] in "uvw" and c[1:] == f"_{k}"]
+        ax_p.plot(t, [r[f"p_{k}"] for r in rows], label=f"probe {k}")
+        ax_u.plot(t, [np.sqrt(sum(r[c] ** 2 for c in velocity)) for r in rows], label=f"probe {k}")
+    for ax, what in ((ax_p, "pressure"), (ax_u, "speed")):
+        ax.set_xlabel("time", fontsize=8)
+        ax.set_title(what, fontsize=9)
+        ax.legend(fontsize=7)
+    return _save(plt, fig, fig_dir / "probes.png", f"{run_dir.name}: probes (output.probes)")
 
 
 def _grad_c_magnitude(run_dir: Path, data: dict):

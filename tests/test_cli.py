@@ -127,13 +127,13 @@ def test_quiet_run_logs_to_file_and_plots(tmp_path):
     for dx in (0.1, 0.05):
         out = runs / f"tgv_dx{dx}"
         res = run_psph("run", CASES / "taylor_green.toml", "--out", out, "--quiet", "--set", f"domain.dx={dx}",
-                       "--set", "time.t_end=0.05")
+                       "--set", "time.t_end=0.05", "--set", "output.probes=[[0.25, 0.25], [0.5, 0.5]]")
         assert res.returncode == 0 and res.stdout == "", res.stdout + res.stderr
         log = (out / "psph.log").read_text()
         assert "psph: running scene 'taylor_green'" in log and "results in" in log
     res = run_psph("plot", runs / "tgv_dx0.05")
     assert res.returncode == 0, res.stderr
-    for name in ("history.png", "fields.png"):
+    for name in ("history.png", "fields.png", "probes.png"):
         assert (runs / "tgv_dx0.05" / "figures" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     res = run_psph("plot", runs, "--figures", tmp_path / "figs")
     assert res.returncode == 0, res.stderr
