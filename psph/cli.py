@@ -206,8 +206,11 @@ def cmd_run(args, petsc_options, comm) -> int:
     stop.install(comm)
     try:
         summary = driver_for(scene)(scene, comm, out, log=log, progress=not args.quiet, **kwargs).run()
+        late = stop.requested(comm)
     finally:
         stop.uninstall()
+    if late:  # the signal came during the last step or the final writes: nothing was cut short
+        log(f"psph: {signal.Signals(late).name} came as the run ended: it is complete")
     log(f"psph: {summary['n_particles']} particles, {summary['steps']} steps, "
         f"{summary['wall_time_s']:.2f} s; results in {out}")
     return 0

@@ -18,7 +18,7 @@ from psph.errors import PsphError
 
 SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGUSR1)
 
-_state = {"installed": False, "signum": 0, "rank": 0}
+_state = {"installed": False, "signum": 0, "rank": 0, "previous": {}}
 
 
 class Stopped(PsphError):
@@ -54,17 +54,16 @@ def install(comm) -> None:
     if threading.current_thread() is not threading.main_thread():
         return
     _state.update(installed=True, signum=0, rank=comm.rank)
-    for sig in SIGNALS:
-        signal.signal(sig, _handler)
+    _state["previous"] = {sig: signal.signal(sig, _handler) for sig in SIGNALS}
 
 
 def uninstall() -> None:
-    """Give the signals back to Python's defaults."""
+    """Give the signals back to the handlers `install` replaced."""
     if not _state["installed"]:
         return
     _state.update(installed=False, signum=0)
-    for sig in SIGNALS:
-        signal.signal(sig, signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL)
+    for sig, previous in _state["previous"].items():
+        signal.signal(sig, signal.SIG_DFL if previous is None else previous)
 
 
 def requested(comm) -> int:

@@ -98,6 +98,14 @@ def test_sigterm_stops_after_the_step_with_a_checkpoint_the_restart_equals_the_w
     same_history(out, tmp_path / "whole")
 
 
+def test_a_stop_on_a_checkpoint_step_writes_it_once(tmp_path):
+    out = tmp_path / "stopped"
+    done = run_signalling(tmp_path, ["run", *FLUID, "--out", out, "--checkpoint-every", "3"], "SIGTERM", at=6)
+    assert done.returncode == 128 + 15, done.stderr
+    assert [p.name for p in out.glob("checkpoint_*")] == ["checkpoint_000006.h5"]
+    assert (out / "psph.log").read_text().count("checkpoint checkpoint_000006.h5") == 1
+
+
 def test_a_signal_on_one_rank_stops_every_rank_after_the_same_step(tmp_path):
     """SIGUSR1 (what mpiexec forwards to the ranks) reaching rank 1 only: both ranks stop after step 6,
     and the 2-rank restart equals the 2-rank run that was never stopped."""

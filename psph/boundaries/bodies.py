@@ -186,6 +186,9 @@ def check_placement(scene) -> None:
         if extent < 2.0 * dx:
             raise SceneError(f"{path}.{'vertices' if b.shape == 'polygon' else 'size'}", f"{b.name!r} is "
                              f"{extent:g} thick, less than 2 dx = {2 * dx:g}: no solid particle would fill it")
+        if b.shape == "polygon" and any(d.periodic):
+            raise SceneError(f"{path}.shape", f"{b.name!r}: a polygon closes the fluid on every side, which a "
+                             "periodic axis does not allow (domain.periodic; a box spanning one keeps its plates)")
         lo, hi = bounds(b)
         key = {"box": "size", "polygon": "vertices"}.get(b.shape, "center")
         for a in range(2):  # before any profile is built (a mistyped huge size would take long)

@@ -127,7 +127,7 @@ class WallTerms:
             ghost_rhs(p["position"], p["volume"], p["density"], p["velocity"], du, p["pressure"], rows, *images,
                       w["axis"], w["coord"], w["velocity"], w["no_slip"], system.kernel.params, scheme.c0,
                       scheme.rho0, eos_b, GAMMA, scheme.mu, scheme.morris, self.gravity, scheme.variant,
-                      scheme.shift.active, scheme.tensile, d_rho, d_mom)
+                      scheme.shift.active, scheme.switch, d_rho, d_mom)
 
     def _add_clones(self, system, scheme, t, du, eos_b, d_rho, d_mom):
         p = system.particles
@@ -138,7 +138,7 @@ class WallTerms:
                   self.no_slip,
                   system.nbr_ptr, system.nbr_idx, system.kernel.params, scheme.c0, scheme.rho0, eos_b, GAMMA,
                   scheme.mu, scheme.morris, self.gravity, self.ds, scheme.variant, scheme.shift.active,
-                  scheme.tensile, self.centers, d_rho, d_mom, self.force, self.torque, self.particle_force)
+                  scheme.switch, self.centers, d_rho, d_mom, self.force, self.torque, self.particle_force)
 
     def _ghost_images(self, system):
         """Owned fluid rows within a support of a ghost wall and the images they see."""

@@ -193,8 +193,11 @@ class OpenBoundaries:
             joined |= (kind == Kind.INLET) & f.joined(pos)
         kind[joined] = Kind.FLUID
         tie = TIE * self.scene.domain.dx
-        if self.buffer:  # fluid past a face joins the buffer, which lets it go a kernel support further
-            kind[(kind == Kind.FLUID) & system.domain.past_outflow(pos, tie)] = Kind.OUTLET
+        if self.buffer:  # fluid past a face joins the buffer, which lets it go a kernel support further (and
+            # buffer carried back inside by the extrapolated velocity is fluid again)
+            past = system.domain.past_outflow(pos, tie)
+            kind[(kind == Kind.FLUID) & past] = Kind.OUTLET
+            kind[(kind == Kind.OUTLET) & ~past] = Kind.FLUID
             removed = (kind == Kind.OUTLET) & system.domain.past_outflow(pos, self.scene.domain.support + tie)
         else:
             removed = (kind == Kind.FLUID) & system.domain.past_outflow(pos, tie)
@@ -234,7 +237,8 @@ class OpenBoundaries:
         from psph.compute.sums import shepard_from_fluid
 
         p = system.particles
-        system.refresh(["density", "velocity"])  # the fluid's halo copies as the step left them
+        # the fluid's halo copies as the step left them, and the kinds this step changed (fluid into buffer)
+        system.refresh(["kind", "density", "velocity"])
         rows = np.flatnonzero(p.owned("kind") == Kind.OUTLET)
         shepard_from_fluid(p["position"], p["volume"], p["kind"], rows, system.nbr_ptr, system.nbr_idx,
                            system.kernel.params, p["density"], p["velocity"])

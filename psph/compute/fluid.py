@@ -140,7 +140,7 @@ def _compile(d):
             gi0, gi1, gi2 = load(grad_rho, i, d)
             rho_i = rho[i]
             p_i = prs[i]
-            switch = tensile_switch and p_i < 0.0
+            switch = tensile_switch[i] != 0 and p_i < 0.0
             div_u = 0.0
             div_du = 0.0
             div_rdu = 0.0
@@ -265,11 +265,19 @@ def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, pairs, kp, c0, de
     d_mom = du/dt (eq. 23 and 25; d_mass untouched). vol holds the operators' volumes (V = m / rho, or V0
     for variant 2). with_shift = False skips every du-term (du is then not read). delta_m = 0 switches D^m
     off. fluid_only: fluid rows only (the walls' pairs: psph.compute.walls). morris: Morris' viscous
-    operator instead of seed 001 eq. 11.
+    operator instead of seed 001 eq. 11. tensile_switch: int8 per particle, 1 where p_j - p_i replaces
+    p_j + p_i when p_i < 0 (seed 004 eq. 3: not in the free-surface region), or a bool for all of them.
     """
     _KERNELS[pos.shape[1]][1](pos, vol, rho, mass, vel, du, prs, grad_rho, pairs.ptr, pairs.idx, pairs.f, kp[1],
-                              c0, delta, delta_m, mu, morris, gravity, variant, with_shift, tensile_switch, kind,
-                              fluid_only, d_rho, d_mass, d_mom)
+                              c0, delta, delta_m, mu, morris, gravity, variant, with_shift,
+                              switch_rows(tensile_switch, len(pos)), kind, fluid_only, d_rho, d_mass, d_mom)
+
+
+def switch_rows(tensile_switch, n) -> np.ndarray:
+    """The tensile switch per particle (int8): the array given, or a bool for all n particles."""
+    if isinstance(tensile_switch, np.ndarray):
+        return tensile_switch
+    return np.full(n, int(bool(tensile_switch)), dtype=np.int8)
 
 
 @njit(cache=True)

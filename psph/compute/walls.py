@@ -118,7 +118,8 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
     of each solid particle's own closest node (u_b of eq. 6-7; the same as the fluid particle's closest
     node's on a smooth rigid wall, and the consistent choice at the corners of a lid).
     no_slip: per body; eos_b > 0 selects Tait (p = eos_b ((rho/rho0)^gamma - 1)), else linear.
-    tensile_switch: p_j - p_i instead of p_j + p_i in the particle's pressure force where p_i < 0 (eq. 3).
+    tensile_switch: per particle, 1 where p_j - p_i replaces p_j + p_i in its pressure force when p_i < 0
+    (eq. 3; 0 in the free-surface region and where the switch is off).
     force: (n_bodies, 2, 2) pressure and viscous force of the fluid on each body; torque: (n_bodies, 2), about
     centers, each pair's force applied at the solid particle's wall node x_j - s_j n_j; particle_force: (n_owned,
     2), each fluid row's pressure force on the solids (zero for the other rows), for the wall's load along it.
@@ -132,7 +133,7 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
         xi0, xi1 = pos[i, 0], pos[i, 1]
         ui0, ui1 = vel[i, 0], vel[i, 1]
         rho_i, p_i, v_i = rho[i], prs[i], vol[i]
-        switch = tensile_switch and p_i < 0.0
+        switch = tensile_switch[i] != 0 and p_i < 0.0
         di0 = du[i, 0] if with_shift else 0.0
         di1 = du[i, 1] if with_shift else 0.0
         # eq. 5 (sign corrected): is the particle behind some solid particle's wall?
@@ -314,7 +315,7 @@ def ghost_rhs(pos, vol, rho, vel, du, prs, rows, img_ptr, img_j, img_w, w_axis, 
         ui0, ui1 = vel[i, 0], vel[i, 1]
         di0 = du[i, 0] if with_shift else 0.0
         di1 = du[i, 1] if with_shift else 0.0
-        switch = tensile_switch and p_i < 0.0
+        switch = tensile_switch[i] != 0 and p_i < 0.0
         cont = gp0 = gp1 = vs0 = vs1 = sh0 = sh1 = 0.0
         for k in range(img_ptr[r], img_ptr[r + 1]):
             j = img_j[k]

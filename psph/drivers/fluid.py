@@ -274,8 +274,7 @@ class FluidDriver:
         t = state["time"]
         with phase("fluid_step"):
             system.prepare_step(self.reach * dt * vmax)
-            if self.scheme.shift.active:  # the step's surface flags, for the shifting law's du
-                self.scheme.surface.detect(system)
+            self.scheme.detect_surface(system)  # the step's flags, for the shifting law and the tensile switch
             totals["steps_redone"] += self._integrate(t, dt, state["step"] + 1)
             self.scheme.end_step(system, dt)
             if self.scheme.walls is not None:  # solids exactly where their bodies are at t + dt
@@ -477,12 +476,13 @@ class FluidDriver:
                     sim.snapshots.write(system.particles, step=step, time=t)
                     sim.log(f"t = {t:.4g}, step {step}, dt = {dt:.3g}")
                     next_output += every
+                written = None  # this step's checkpoint, if one was due
                 if t < t_end * (1.0 - 1e-12) and sim.checkpoint_due(step, last_checkpoint):
-                    self.checkpoint(step, t, totals, next_output)
+                    written = self.checkpoint(step, t, totals, next_output)
                     last_checkpoint = time.monotonic()
                 if t < t_end * (1.0 - 1e-12) and sim.stop_requested():
                     progress.close()
-                    sim.stop(checkpoint_message(step, t, self.checkpoint(step, t, totals, next_output)))
+                    sim.stop(checkpoint_message(step, t, written or self.checkpoint(step, t, totals, next_output)))
                 progress.update(step, t, dt, **({"newton": totals["iips_newton"], "ksp": totals["iips_linear"]}
                                                 if self.iips is not None else {}))
             progress.close()

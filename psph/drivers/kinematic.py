@@ -124,12 +124,14 @@ class KinematicDriver:
                     sim.history.flush()
                     sim.snapshots.write(system.particles, step=step, time=t)
                     next_output += every
+                written = None  # this step's checkpoint, if one was due
                 if step < self.n_steps and sim.checkpoint_due(step, last_checkpoint):
-                    self.checkpoint(step, t, totals, next_output, report)
+                    written = self.checkpoint(step, t, totals, next_output, report)
                     last_checkpoint = time.monotonic()
                 if step < self.n_steps and sim.stop_requested():
                     progress.close()
-                    sim.stop(checkpoint_message(step, t, self.checkpoint(step, t, totals, next_output, report)))
+                    sim.stop(checkpoint_message(step, t, written or self.checkpoint(step, t, totals, next_output,
+                                                                                   report)))
             progress.close()
         step, t = state["step"], state["time"]
         sim.history.flush()

@@ -67,7 +67,7 @@ class StaticDriver:
         iterations = result.iterations
         if iterations:
             path = sim.snapshots.write(system.particles, step=iterations, time=0.0, extra={"grad_c": grad_c(system)})
-            if stopped[-1]:
+            if stopped and stopped[-1]:  # (a failed first iteration reports none)
                 sim.stop(f"the state after iteration {iterations} is in {path} (static runs write no checkpoint)")
         return sim.summary(steps=iterations, final={**report, "L2_dfdx_cartesian": reference},
                            shifting_time_s=elapsed["shifting_time_s"],

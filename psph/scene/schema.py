@@ -221,6 +221,14 @@ class BodySpec:
         for k in range(m):
             if math.dist(v[k], v[(k + 1) % m]) <= 1e-12 * span:
                 raise SceneError(f"{path}.vertices[{(k + 1) % m}]", f"repeats corner {k}")
+        area2 = sum(v[k][0] * v[(k + 1) % m][1] - v[(k + 1) % m][0] * v[k][1] for k in range(m))
+        if abs(area2) <= 1e-12 * span * span:
+            raise SceneError(f"{path}.vertices", "the corners enclose no area")
+        for k in range(m):  # a side running back along the one before it
+            a, b, c = v[k - 1], v[k], v[(k + 1) % m]
+            e, f = (b[0] - a[0], b[1] - a[1]), (c[0] - b[0], c[1] - b[1])
+            if abs(e[0] * f[1] - e[1] * f[0]) <= 1e-12 * span * span and e[0] * f[0] + e[1] * f[1] < 0:
+                raise SceneError(f"{path}.vertices[{k}]", "the polygon folds back on itself at this corner")
         for k in range(m):  # sides that do not share a corner must not meet
             for j in range(k + 2, m - (k == 0)):
                 if _segments_cross(v[k], v[(k + 1) % m], v[j], v[(j + 1) % m]):

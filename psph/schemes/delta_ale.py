@@ -6,8 +6,8 @@
 
 with the equation of state of psph.schemes.eos, viscosity mu = rho0 U L / Re through the pi_ij operator
 (eq. 11, K = 2(d+2); or Morris' with physics.viscosity = "morris"), gravity, the diffusive terms D^rho
-(delta = 0.1) and D^m (eq. 14), the tensile switch (p_j - p_i where p_i < 0, everywhere: not switched off
-near free surfaces as seed 004 eq. 3 has it) and the shifting velocity du of an explicit law
+(delta = 0.1) and D^m (eq. 14), the tensile switch (p_j - p_i where p_i < 0 outside the free-surface
+region: seed 004 eq. 3) and the shifting velocity du of an explicit law
 (psph.shifting.velocity) with its du-terms (eq. 12); without shifting those terms are skipped. Near a free
 surface the shifting velocity is restricted by psph.boundaries.free_surface (thesis eq. 6.29). Inflow
 particles (psph.boundaries.open) take part in the sums as fluid but get no rates: they keep their fields.
@@ -16,7 +16,7 @@ The kernels are in psph.compute.fluid.
 
 import numpy as np
 
-from psph.boundaries.free_surface import make_free_surface
+from psph.boundaries.free_surface import FreeSurface, make_free_surface
 from psph.compute.fluid import (
     PairCache,
     add_uniform_acceleration,
@@ -55,6 +55,12 @@ class DeltaALE:
         self.eos = make_eos(phys)
         self.shift = make_velocity_shift(scene)
         self.surface = make_free_surface(scene)
+        # seed 004 eq. 3: the tensile switch stays off in the free-surface region (the surface particles and
+        # their neighbours), which a scene with a free surface detects at every step even without shifting
+        self.tic_surface = None
+        if self.tensile and self.name != "riemann_ale" and scene.describe_free_surface():
+            self.tic_surface = self.surface if self.surface.active else FreeSurface(scene.free_surface)
+        self.switch = np.zeros(0, dtype=np.int8)  # the tensile switch per particle, set by each rhs
         self.pairs = PairCache()  # the support's pairs, from renormalised_gradient to delta_ale_rhs
         # rows of Kind.INLET and OUTLET keep the fields psph.boundaries.open prescribes
         self.prescribed = bool(scene.inflow) or scene.domain.outflow_buffer
@@ -81,7 +87,9 @@ class DeltaALE:
             lines.append(f"free stream {tuple(self.free_stream)} reached at t = {self.free_stream_ramp:g}: a "
                          "uniform force sets the fluid's total momentum (periodic wind tunnel)")
         if self.tensile:
-            lines.append("tensile-instability switch (p_j - p_i where p_i < 0)")
+            lines.append("tensile-instability switch (p_j - p_i where p_i < 0" + (
+                ", off in the free-surface region: seed 004 eq. 3, the surface detected every step)"
+                if self.tic_surface is not None else ")"))
         lines.append(self.shift.describe())
         if self.walls is not None:
             lines += self.walls.describe()
@@ -93,7 +101,8 @@ class DeltaALE:
                  FieldSpec("grad_rho", ("d",)), FieldSpec("volume0")]
         if self.shift.active:
             specs.append(FieldSpec("shift_velocity", ("d",)))
-        specs += list(self.shift.fields) + list(self.surface.fields)
+        surface = self.tic_surface if self.tic_surface is not None else self.surface
+        specs += list(self.shift.fields) + list(surface.fields)
         if self.walls is not None:
             from psph.boundaries import SOLID_FIELDS
 
@@ -177,6 +186,23 @@ class DeltaALE:
             system.refresh(["position"])
 
     # -------------------------------------------------------------------- rhs
+    def detect_surface(self, system) -> None:
+        """The step's free-surface flags, where the shifting law or the tensile switch needs them. Collective."""
+        if self.shift.active and self.surface.active:
+            self.surface.detect(system)
+        elif self.tic_surface is not None:
+            self.tic_surface.detect(system)
+
+    def tensile_rows(self, system) -> np.ndarray:
+        """1 where the tensile switch may act (p_i < 0 then uses p_j - p_i), 0 where it is off or in the
+        free-surface region (seed 004 eq. 3), per local particle."""
+        p = system.particles
+        if not self.tensile:
+            return np.zeros(p.n_local, dtype=np.int8)
+        if self.tic_surface is None:
+            return np.ones(p.n_local, dtype=np.int8)
+        return (p["free_surface"] == 0).astype(np.int8)
+
     def rhs(self, system, t, dt) -> dict:
         """d(state)/dt at the current state (owned rows). Collective (halo exchanges)."""
         p = system.particles
@@ -189,6 +215,7 @@ class DeltaALE:
         self.shift_and_density_gradient(system, dt, fluid_only=walls)
         du = p["shift_velocity"] if self.shift.active else p["velocity"]  # (not read without a shift)
         system.refresh(["grad_rho"])
+        self.switch = self.tensile_rows(system)
         kp = system.kernel.params
         n, d = p.n_owned, p.dim
         d_rho = np.zeros(n)
@@ -196,7 +223,7 @@ class DeltaALE:
         d_mom = np.zeros((n, d))
         delta_ale_rhs(p["position"], p["volume"], p["density"], p["mass"], p["velocity"], du, p["pressure"],
                       p["grad_rho"], self.pairs, kp, self.c0, self.delta, self.delta_m,
-                      self.mu, self.gravity, self.variant, self.shift.active, self.tensile, p["kind"], walls,
+                      self.mu, self.gravity, self.variant, self.shift.active, self.switch, p["kind"], walls,
                       d_rho, d_mass, d_mom, morris=self.morris)
         if walls:
             with phase("walls"):

@@ -89,7 +89,7 @@ def test_the_trapezoidal_tank_fills_the_lattice_and_holds_water_at_rest(tmp_path
 
 @pytest.mark.parametrize("sets,key,words", [
     (["bodies.0.vertices=[[0.0, 0.0], [1.0, 0.0]]"], "bodies[0].vertices", "at least 3 corners, got 2"),
-    (["bodies.0.vertices=[[0.0, 0.0], [1.6, 1.2], [1.0, 0.0], [0.0, 1.2]]"], "bodies[0].vertices",
+    (["bodies.0.vertices=[[0.0, 0.0], [1.6, 1.2], [1.0, 0.0], [0.0, 0.8]]"], "bodies[0].vertices",
      "side 0 (corners 0-1) crosses side 2 (corners 2-3): the polygon must be simple"),
     (["bodies.0.vertices=[[0.0, 0.0], [0.0, 0.0], [1.0, 0.0], [0.0, 1.2]]"], "bodies[0].vertices[1]",
      "repeats corner 0"),
@@ -102,6 +102,10 @@ def test_the_trapezoidal_tank_fills_the_lattice_and_holds_water_at_rest(tmp_path
     (["bodies.0.motion.law=constant", "bodies.0.motion.velocity=[1.0, 0.0]"], "bodies[0].motion.law",
      "a polygon (the fluid's container) stays fixed"),
     (["bodies.0.model=ghost"], "bodies[0].model", "an axis-aligned box"),
+    (["bodies.0.vertices=[[0.0, 0.0], [1.2, 1.2], [0.6, 0.6]]"], "bodies[0].vertices", "enclose no area"),
+    (["bodies.0.vertices=[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [1.0, 0.5], [0.0, 1.0]]"], "bodies[0].vertices[2]",
+     "folds back on itself"),
+    (["domain.periodic=[true, false]"], "bodies[0].shape", "a periodic axis does not allow"),
 ])
 def test_bad_polygons_are_refused_by_key(sets, key, words):
     load_scene(TRAPEZOID, ["domain.dx=0.1"])
