@@ -83,3 +83,38 @@ def test_equations_of_state_invert():
         assert eos.pressure(np.array([1.0]))[0] == 0.0
     tait = TaitEOS(10.0, 1.0)  # p = c0^2 rho0 / 7 ((rho/rho0)^7 - 1): slope c0^2 at rho0
     assert (tait.pressure(np.array([1.0 + 1e-7])) / 1e-7)[0] == pytest.approx(100.0, rel=1e-5)
+
+
+def test_tensile_switch_is_off_in_the_free_surface_region(tmp_path):
+    """Seed 004 eq. 3: at a uniform negative pressure the switch (p_j - p_i) cancels the pressure force
+    everywhere it acts; in the free-surface region (surface particles and their neighbours) the plus form
+    stays, which pushes the surface in as the free-surface condition requires."""
+    from psph.drivers.fluid import FluidDriver
+    from psph.particles import Kind
+    from psph.scene.load import load_scene
+    from tests.helpers import CASES
+
+    scene = load_scene(CASES / "elliptical_drop.toml", ["domain.dx=0.1", "packing.iterations=0",
+                                                          "physics.tensile_switch=true", "initial.sigma_over_dx=0.1"])
+    driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path)
+    scheme, system = driver.scheme, driver.system
+    assert scheme.tic_surface is not None and not scheme.shift.active  # detected for the switch alone
+    p = system.particles
+    p.owned("pressure")[:] = -0.1
+    p.owned("velocity")[:] = 0.0
+    scheme.detect_surface(system)
+    region = p.owned("free_surface") != 0
+    fluid = p.owned("kind") == Kind.FLUID
+    assert 0 < np.count_nonzero(region) < np.count_nonzero(fluid)
+
+    def acceleration(tensile, tic_surface):
+        scheme.tensile, scheme.tic_surface = tensile, tic_surface
+        rates = scheme.rhs(system, 0.0, 1e-3)
+        return np.asarray(rates["momentum" if "momentum" in rates else "velocity"]).copy()
+
+    surface = scheme.tic_surface
+    seed004, plus, everywhere = acceleration(True, surface), acceleration(False, None), acceleration(True, None)
+    interior = fluid & ~region
+    assert np.array_equal(seed004[region], plus[region])
+    assert np.array_equal(seed004[interior], everywhere[interior])
+    assert np.abs(everywhere[region] - plus[region]).max() > 0.1 * np.abs(plus[region]).max() > 0.0
