@@ -222,7 +222,7 @@ def cmd_keys(args, petsc_options, comm) -> int:
 
     if comm.rank == 0:
         for key, kind, default, doc in describe_keys(Scene):
-            print(f"{key:34s} {kind:17s} {'required' if default == 'required' else _toml_value(default):>12s}  {doc}")
+            print(f"{key:34s} {kind:24s} {'required' if default == 'required' else _toml_value(default):>12s}  {doc}")
     return 0
 
 

@@ -144,7 +144,10 @@ def describe_keys(cls, path: str = ""):
         tp = hints[f.name]
         if dataclasses.is_dataclass(tp):
             rows += describe_keys(tp, key)
-        else:
-            default = "required" if f.default is REQUIRED else f.default
-            rows.append((key, _type_name(tp), default, f.metadata.get("doc", "")))
+            continue
+        default = "required" if f.default is REQUIRED else f.default
+        rows.append((key, _type_name(tp), default, f.metadata.get("doc", "")))
+        item = typing.get_args(tp)[0] if typing.get_origin(tp) is tuple else None
+        if dataclasses.is_dataclass(item):  # an array of tables ([[bodies]]): the keys of each entry
+            rows += describe_keys(item, f"{key}[]")
     return rows

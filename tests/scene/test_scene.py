@@ -125,7 +125,7 @@ def test_every_key_is_documented():
     assert all(doc for _, _, _, doc in rows)
     keys = {k for k, _, _, _ in rows}
     assert {"domain.dx", "time.t_end", "output.every", "shifting.method", "initial.sigma_over_dx",
-            "initial.seed"} <= keys
+            "initial.seed", "bodies[].vertices", "bodies[].motion.law", "inflow[].velocity"} <= keys
 
 
 def ghost_cavity(**changes):
