@@ -60,7 +60,6 @@ class DeltaALE:
         self.tic_surface = None
         if self.tensile and self.name != "riemann_ale" and scene.describe_free_surface():
             self.tic_surface = self.surface if self.surface.active else FreeSurface(scene.free_surface)
-        self.switch = np.zeros(0, dtype=np.int8)  # the tensile switch per particle, set by each rhs
         self.pairs = PairCache()  # the support's pairs, from renormalised_gradient to delta_ale_rhs
         # rows of Kind.INLET and OUTLET keep the fields psph.boundaries.open prescribes
         self.prescribed = bool(scene.inflow) or scene.domain.outflow_buffer
@@ -215,7 +214,6 @@ class DeltaALE:
         self.shift_and_density_gradient(system, dt, fluid_only=walls)
         du = p["shift_velocity"] if self.shift.active else p["velocity"]  # (not read without a shift)
         system.refresh(["grad_rho"])
-        self.switch = self.tensile_rows(system)
         kp = system.kernel.params
         n, d = p.n_owned, p.dim
         d_rho = np.zeros(n)
@@ -223,7 +221,8 @@ class DeltaALE:
         d_mom = np.zeros((n, d))
         delta_ale_rhs(p["position"], p["volume"], p["density"], p["mass"], p["velocity"], du, p["pressure"],
                       p["grad_rho"], self.pairs, kp, self.c0, self.delta, self.delta_m,
-                      self.mu, self.gravity, self.variant, self.shift.active, self.switch, p["kind"], walls,
+                      self.mu, self.gravity, self.variant, self.shift.active, self.tensile_rows(system), p["kind"],
+                      walls,
                       d_rho, d_mass, d_mom, morris=self.morris)
         if walls:
             with phase("walls"):
