@@ -86,3 +86,16 @@ def shepard_sums(kernel, pos, values, volumes, probes) -> tuple:
             w = kernel.value(np.linalg.norm(pos[js] - probes[k], axis=1)) * volumes[js]
             num[k], den[k] = np.tensordot(w, values[js], axes=1), w.sum()
     return num, den
+
+
+def interpolate_fluid(system, values, points) -> np.ndarray:
+    """Shepard interpolation at `points` of the owned rows' `values` (rows of any shape) over the fluid
+    particles of every rank (shepard_sums, summed over the ranks: independent of their number); nan where
+    no fluid lies within a kernel support. Collective."""
+    p = system.particles
+    mask = fluid_mask(system)
+    num, den = shepard_sums(system.kernel, p.owned("position")[mask], values[mask], p.owned("volume")[mask], points)
+    flat = num.reshape(len(points), -1)
+    total = allreduce_sum(system.comm, np.concatenate([flat, den[:, None]], axis=1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return (total[:, :-1] / total[:, -1:]).reshape(num.shape)

@@ -2,16 +2,15 @@
 history row, in OUT/probes.csv (time, then p_k, u_k, v_k[, w_k] for probe k of the list), as pressure
 sensors and velocity probes of an experiment. Each value is the Shepard interpolation of the fluid
 particles within a kernel support, sum_j f_j W(x_k - x_j) V_j / sum_j W(x_k - x_j) V_j
-(diagnostics.shepard_sums), summed over the ranks, so it does not depend on their number; a probe with
+(diagnostics.interpolate_fluid), summed over the ranks, so it does not depend on their number; a probe with
 no fluid within its support (dry, or behind a wall) reads nan. A restart keeps the rows up to its
 checkpoint and writes the rest again.
 """
 
 import numpy as np
 
-from psph.diagnostics import fluid_mask, shepard_sums
+from psph.diagnostics import interpolate_fluid
 from psph.io.history import start_series
-from psph.parallel.comm import allreduce_sum
 
 NAME = "probes.csv"
 
@@ -29,13 +28,8 @@ class Probes:
     def sample(self, system) -> np.ndarray:
         """(probes, 1 + d): pressure and velocity at every probe (nan where no fluid reaches). Collective."""
         p = system.particles
-        mask = fluid_mask(system)
-        values = np.concatenate([p.owned("pressure")[mask, None], p.owned("velocity")[mask]], axis=1)
-        num, den = shepard_sums(system.kernel, p.owned("position")[mask], values, p.owned("volume")[mask],
-                                self.points)
-        total = allreduce_sum(system.comm, np.concatenate([num, den[:, None]], axis=1))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return total[:, :-1] / total[:, -1:]
+        values = np.concatenate([p.owned("pressure")[:, None], p.owned("velocity")], axis=1)
+        return interpolate_fluid(system, values, self.points)
 
     def record(self, system, t) -> None:
         """Sample and append a row at time t (rank 0 writes). Collective."""

@@ -21,7 +21,7 @@ from psph.analytic import taylor_green, taylor_green_kinetic_energy
 from psph.boundaries.free_surface import make_free_surface
 from psph.boundaries.open import describe_open, make_open_boundaries
 from psph.compute.sums import nearest_distance
-from psph.diagnostics import fluid_mask, grad_c, norms, shepard_sums
+from psph.diagnostics import fluid_mask, grad_c, interpolate_fluid, norms
 from psph.errors import NumericalError
 from psph.initial import reset_initial_fields
 from psph.io.history import start_series
@@ -125,15 +125,11 @@ class ImpingingJetReference:
 
     def wall_pressure(self, system) -> tuple:
         """(load, fluid) at the probes over rho0 U^2 / 2 (the fluid's nan where no fluid reaches). Collective."""
-        p, scale, walls = system.particles, 0.5 * self.rho * self.U ** 2, self.walls
-        mask = fluid_mask(system)
-        num, den = shepard_sums(system.kernel, p.owned("position")[mask], p.owned("pressure")[mask],
-                                p.owned("volume")[mask], self.probes)
+        scale, walls = 0.5 * self.rho * self.U ** 2, self.walls
+        fluid = interpolate_fluid(system, system.particles.owned("pressure"), self.probes)
         s = np.abs(walls.particle_force_at[:, 0][None, :] - self.probes[:, 0][:, None]) / self.spread
-        load = -(np.maximum(1.0 - s, 0.0) / self.spread) @ walls.particle_force[:, 1]
-        num, den, load = allreduce_sum(system.comm, np.stack([num, den, load]))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return load / scale, num / den / scale
+        load = allreduce_sum(system.comm, -(np.maximum(1.0 - s, 0.0) / self.spread) @ walls.particle_force[:, 1])
+        return load / scale, fluid / scale
 
     def errors(self, system, t, kinetic):
         from psph.analytic import impinging_jet_wall
