@@ -226,8 +226,8 @@ class BodySpec:
             raise SceneError(f"{path}.vertices", "the corners enclose no area")
         for k in range(m):  # a side running back along the one before it
             a, b, c = v[k - 1], v[k], v[(k + 1) % m]
-            e, f = (b[0] - a[0], b[1] - a[1]), (c[0] - b[0], c[1] - b[1])
-            if abs(e[0] * f[1] - e[1] * f[0]) <= 1e-12 * span * span and e[0] * f[0] + e[1] * f[1] < 0:
+            if abs(_cross(a, b, c)) <= 1e-12 * span * span and (b[0] - a[0]) * (c[0] - b[0]) + (b[1] - a[1]) * (
+                    c[1] - b[1]) < 0:
                 raise SceneError(f"{path}.vertices[{k}]", "the polygon folds back on itself at this corner")
         for k in range(m):  # sides that do not share a corner must not meet
             for j in range(k + 2, m - (k == 0)):
@@ -236,10 +236,15 @@ class BodySpec:
                                      f"(corners {j}-{(j + 1) % m}): the polygon must be simple")
 
 
+def _cross(p, q, r) -> float:
+    """(q - p) x (r - p): positive when p, q, r turn anticlockwise."""
+    return (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0])
+
+
 def _segments_cross(a, b, c, d) -> bool:
     """Whether the closed segments ab and cd share a point."""
     def orient(p, q, r):
-        value = (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0])
+        value = _cross(p, q, r)
         return (value > 0) - (value < 0)
 
     def on(p, q, r):  # r on segment pq, given collinear

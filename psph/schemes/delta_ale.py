@@ -9,8 +9,9 @@ with the equation of state of psph.schemes.eos, viscosity mu = rho0 U L / Re thr
 (delta = 0.1) and D^m (eq. 14), the tensile switch (p_j - p_i where p_i < 0 outside the free-surface
 region: seed 004 eq. 3) and the shifting velocity du of an explicit law
 (psph.shifting.velocity) with its du-terms (eq. 12); without shifting those terms are skipped. Near a free
-surface the shifting velocity is restricted by psph.boundaries.free_surface (thesis eq. 6.29). Inflow
-particles (psph.boundaries.open) take part in the sums as fluid but get no rates: they keep their fields.
+surface the shifting velocity is restricted by psph.boundaries.free_surface (thesis eq. 6.29). Inflow and
+outflow-buffer particles (psph.boundaries.open) take part in the sums as fluid but get no rates: their
+fields are prescribed there.
 The kernels are in psph.compute.fluid.
 """
 
