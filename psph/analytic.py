@@ -14,6 +14,9 @@ Elliptical drop (seed 002 section 3.4, eq. 3.19-3.20; Monaghan 1994): see Ellipt
 
 Jet impinging normally on an infinite flat plate (Michell 1890, Taylor 1966; thesis 000 eq. 3.3, misprinted
 there): see impinging_jet_wall.
+
+Dam break (seed 001 section 6.3): the pressure and acceleration of the incompressible fluid at the instant the
+dam is removed, see dam_break_initial.
 """
 
 import numpy as np
@@ -46,6 +49,36 @@ def couette_startup(y, t, *, U=1.0, H=1.0, nu=1.0, terms=200):
     n = np.arange(1, terms + 1)[:, None]
     series = 2.0 * U * (-1.0) ** n / (n * np.pi) * np.sin(n * np.pi * y / H) * np.exp(-nu * (n * np.pi / H) ** 2 * t)
     return U * y / H + series.sum(axis=0)
+
+
+def dam_break_initial(pos, *, H=1.0, B=2.0, rho=1.0, g=1.0, terms=400):
+    """(p (n,), a (n, 2)) at the points pos of a column of fluid H deep and B long, between a wall at x = 0 and
+    a bottom at y = 0, at rest under gravity g along -y, at the instant its dam (x = B) is removed: the
+    incompressible fluid's initial pressure and acceleration a = -grad p / rho - g e_y (the impulsive start of
+    a dam break; the problem of Pohle 1950). Starting from rest, du/dt = -grad p / rho + g with div u = 0 makes
+    p harmonic, with grad p . n = rho g . n on the walls and p = 0 on the free surfaces y = H and x = B.
+    The hydrostatic rho g (H - y) meets all but x = B; the series
+        p = rho g (H - y) - sum_n a_n cos(k_n y) cosh(k_n x) / cosh(k_n B),   k_n = (2 n + 1) pi / (2 H),
+        a_n = (2 / H) int_0^H rho g (H - y) cos(k_n y) dy = 2 rho g / (H k_n^2)
+    cancels it there term by term (each term is harmonic, has no normal derivative at x = 0 or y = 0, and
+    vanishes at y = H). tests/test_analytic.py checks the equation and the four boundary conditions. The
+    pressure is continuous; the acceleration grows like log(1/r) at the corner (B, 0) where the free face
+    meets the bottom (the series of a_x converges slowly there). nan outside the column 0 <= x <= B, 0 <= y <= H."""
+    pos = np.asarray(pos, float)
+    inside = (pos[:, 0] >= 0.0) & (pos[:, 0] <= B) & (pos[:, 1] >= 0.0) & (pos[:, 1] <= H)
+    x, y = np.where(inside, pos[:, 0], 0.0)[None, :], np.where(inside, pos[:, 1], 0.0)[None, :]
+    k = ((2 * np.arange(terms) + 1) * np.pi / (2.0 * H))[:, None]
+    a = 2.0 * rho * g / (H * k * k)
+    # cosh(k x) / cosh(k B) and sinh(k x) / cosh(k B), written without overflow for large k B
+    decay = np.exp(k * (x - B)) / (1.0 + np.exp(-2.0 * k * B))
+    ch, sh = decay * (1.0 + np.exp(-2.0 * k * x)), decay * (1.0 - np.exp(-2.0 * k * x))
+    cos, sin = np.cos(k * y), np.sin(k * y)
+    p = rho * g * (H - y[0]) - (a * cos * ch).sum(axis=0)
+    acc = np.empty((len(pos), 2))
+    acc[:, 0] = (a * k * cos * sh).sum(axis=0) / rho
+    acc[:, 1] = -(a * k * sin * ch).sum(axis=0) / rho  # the hydrostatic part's -grad p / rho cancels g
+    p[~inside], acc[~inside] = np.nan, np.nan
+    return p, acc
 
 
 def impinging_jet_wall(x, H=1.0, U=1.0, rho=1.0):

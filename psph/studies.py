@@ -196,6 +196,30 @@ def write_histories(path, labels, runs, columns) -> None:
             writer.writerows([*label, r["time"], *(r[c] for c in columns)] for r in run.history)
 
 
+# nine points inside the dam break's column (H = 1, B = 2: cases/dam_break.toml) where the release's pressure
+# is compared with the incompressible one, as `output.probes`
+DAM_BREAK_INSIDE = np.array([[x, y] for y in (0.25, 0.5, 0.75) for x in (0.5, 1.0, 1.5)])
+DAM_BREAK_PROBES = "output.probes=[" + ",".join(f"[{x:g},{y:g}]" for x, y in DAM_BREAK_INSIDE) + "]"
+
+
+def release_pressure_errors(out) -> tuple:
+    """(error, start, swing): at the DAM_BREAK_INSIDE probes of a run of cases/dam_break.toml in `out`, its pressure
+    averaged over the run (trapezoidal in time) less the incompressible initial pressure
+    (analytic.dam_break_initial), the same for the hydrostatic start, and the pressure's range over the run
+    after its first tenth (the sound of the release), in rho0 g H (H = rho0 = g = 1, B = 2)."""
+    from psph.analytic import dam_break_initial
+
+    H, B = 1.0, 2.0
+
+    rows = read_history(Path(out) / "probes.csv")
+    t = np.array([r["time"] for r in rows])
+    p = np.array([[r[f"p_{k}"] for k in range(len(DAM_BREAK_INSIDE))] for r in rows])
+    mean = (0.5 * (p[1:] + p[:-1]) * np.diff(t)[:, None]).sum(axis=0) / (t[-1] - t[0])
+    exact, _ = dam_break_initial(DAM_BREAK_INSIDE, H=H, B=B)
+    swing = np.ptp(p[t > t[0] + 0.1 * (t[-1] - t[0])], axis=0)
+    return mean - exact, H - DAM_BREAK_INSIDE[:, 1] - exact, swing
+
+
 def first_iteration(history, predicate):
     """(row) of the first history row satisfying predicate, or None."""
     for row in history:

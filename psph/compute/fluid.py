@@ -117,8 +117,8 @@ def _compile(d):
 
     @njit(cache=True)
     def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, ptr, idx, cf, h, c0, delta, delta_m, mu,
-                      morris, gravity, variant, with_shift, tensile_switch, kind, fluid_only, d_rho, d_mass,
-                      d_mom):
+                      morris, gravity, variant, with_shift, tensile_switch, diffusive, kind, fluid_only, d_rho,
+                      d_mass, d_mom):
         kk = 2.0 * (d + 2)
         c_rho = 2.0 * delta * h * c0
         c_m = 2.0 * delta_m * h * c0
@@ -141,6 +141,7 @@ def _compile(d):
             rho_i = rho[i]
             p_i = prs[i]
             switch = tensile_switch[i] != 0 and p_i < 0.0
+            diffuse_i = diffusive[i] != 0
             div_u = 0.0
             div_du = 0.0
             div_rdu = 0.0
@@ -179,12 +180,13 @@ def _compile(d):
                         vs1 += pi * w1
                     if d > 2:
                         vs2 += pi * w2
-                # diffusive terms: F_ij = -f
-                gj0, gj1, gj2 = load(grad_rho, j, d)
-                psi = (rho[j] - rho_i) + 0.5 * dot(gi0 + gj0, gi1 + gj1, gi2 + gj2, x0, x1, x2, d)
-                diff_rho -= psi * fv
-                if use_dm:
-                    diff_m -= (mass[j] - mass[i]) * f * sqrt_vol[j]
+                # diffusive terms: F_ij = -f; on a pair only where both particles take part (antisymmetric)
+                if diffuse_i and diffusive[j] != 0:
+                    gj0, gj1, gj2 = load(grad_rho, j, d)
+                    psi = (rho[j] - rho_i) + 0.5 * dot(gi0 + gj0, gi1 + gj1, gi2 + gj2, x0, x1, x2, d)
+                    diff_rho -= psi * fv
+                    if use_dm:
+                        diff_m -= (mass[j] - mass[i]) * f * sqrt_vol[j]
                 if with_shift:
                     dj0, dj1, dj2 = load(du, j, d)
                     div_du += dot(dj0 - di0, dj1 - di1, dj2 - di2, w0, w1, w2, d)
@@ -257,7 +259,7 @@ def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pa
 
 def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, pairs, kp, c0, delta, delta_m, mu,
                   gravity, variant, with_shift, tensile_switch, kind, fluid_only, d_rho, d_mass, d_mom,
-                  morris=False):
+                  morris=False, diffusive=True):
     """Time derivatives of the owned particles (rows of pairs) for the delta-ALE-SPH family.
 
     pairs: the PairCache that renormalised_gradient filled at the same positions (with the same kind and
@@ -267,17 +269,20 @@ def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, pairs, kp, c0, de
     off. fluid_only: fluid rows only (the walls' pairs: psph.compute.walls). morris: Morris' viscous
     operator instead of seed 001 eq. 11. tensile_switch: int8 per particle, 1 where p_j - p_i replaces
     p_j + p_i when p_i < 0 (seed 004 eq. 3: not in the free-surface region), or a bool for all of them.
+    diffusive: int8 per particle, 1 where it takes part in D^rho and D^m (a pair diffuses where both do: seed
+    001 section 6.3), or a bool for all of them.
     """
     _KERNELS[pos.shape[1]][1](pos, vol, rho, mass, vel, du, prs, grad_rho, pairs.ptr, pairs.idx, pairs.f, kp[1],
                               c0, delta, delta_m, mu, morris, gravity, variant, with_shift,
-                              switch_rows(tensile_switch, len(pos)), kind, fluid_only, d_rho, d_mass, d_mom)
+                              switch_rows(tensile_switch, len(pos)), switch_rows(diffusive, len(pos)), kind,
+                              fluid_only, d_rho, d_mass, d_mom)
 
 
-def switch_rows(tensile_switch, n) -> np.ndarray:
-    """The tensile switch per particle (int8): the array given, or a bool for all n particles."""
-    if isinstance(tensile_switch, np.ndarray):
-        return tensile_switch
-    return np.full(n, int(bool(tensile_switch)), dtype=np.int8)
+def switch_rows(switch, n) -> np.ndarray:
+    """A switch per particle (int8): the array given, or a bool for all n particles."""
+    if isinstance(switch, np.ndarray):
+        return switch
+    return np.full(n, int(bool(switch)), dtype=np.int8)
 
 
 @njit(cache=True)

@@ -6,7 +6,8 @@ rebuild if the step could outrun the skin; the integrator's stages; the shifting
 the open boundaries' rows emitted, joined and removed (psph.boundaries.open); IIPS and its field update
 when the scene asks; checks (NaN, density outside the weakly compressible range,
 escaped particles, collapsing time step) that stop the run with the step, time, particle and a diagnostic
-snapshot. history.csv every `output.history_every` steps: time, dt, kinetic energy, total mass and
+snapshot. history.csv every `output.history_every` steps: time, dt, kinetic energy (with gravity not along a
+periodic axis, the potential energy -sum m g . x too), total mass and
 momentum, total-volume error eps_V (seed 001 eq. 27), max |rho/rho0 - 1|, L2/Linf(grad C), the smallest
 distance between two fluid particles over dx (`min_spacing`: pairing that grad C misses), IIPS work, and
 against an analytic solution (Taylor-Green) L2|v_x - v_xA| (thesis eq. 3.8) and the kinetic-energy error.
@@ -44,7 +45,9 @@ class TaylorGreenReference:
 
     def __init__(self, scene):
         d, ph = scene.domain, scene.physics
-        self.kw = dict(U=ph.reference_velocity, L=d.upper[0] - d.lower[0], rho=ph.density, reynolds=ph.reynolds)
+        side = d.upper[0] - d.lower[0]
+        self.kw = dict(U=ph.reference_velocity, L=side, rho=ph.density,
+                       reynolds=ph.reference_velocity * side / ph.kinematic_viscosity(d))
         self.lower = d.lower
 
     def errors(self, system, t, kinetic):
@@ -145,6 +148,31 @@ class ImpingingJetReference:
                 "wall_pressure_error": float(np.sqrt(np.mean(err ** 2)))}
 
 
+class DamBreakReference:
+    """A dam break (seed 001 section 6.3, diagnostics.dam_break): the fluid column fills initial.fill_lower
+    .. fill_upper against the tank's back wall (x = fill_lower[0]) and collapses along +x. Columns, in the
+    units of the scene (H = the column's height, sqrt(g H) the velocity):
+        front_x        the surge front, the largest x of a fluid particle, from the back wall (B - dx/2 at
+                       t = 0, B the column's length); Ritter's dry-bed shallow-water front runs at 2 sqrt(g H),
+                       the upper bound of the experiments' fronts
+        column_height  the residual height at the back wall, the highest fluid particle within dx of it (H - dx/2
+                       at t = 0)
+    The potential energy (history column potential_energy, with any gravity) gives the energy budget."""
+
+    def __init__(self, scene):
+        lower = scene.initial.fill_lower or scene.domain.lower
+        self.wall, self.bottom = lower[0], lower[1]
+        self.dx = scene.domain.dx
+
+    def errors(self, system, t, kinetic):
+        pos = system.particles.owned("position")[fluid_mask(system)]
+        back = pos[:, 0] < self.wall + self.dx
+        front, height = allreduce_max(system.comm, np.array([
+            pos[:, 0].max() - self.wall if len(pos) else -np.inf,
+            pos[back, 1].max() - self.bottom if back.any() else -np.inf]))
+        return {"front_x": float(front), "column_height": float(height)}
+
+
 REFERENCES = {"taylor_green": TaylorGreenReference, "elliptical_drop": EllipticalDropReference}
 
 
@@ -165,6 +193,8 @@ class FluidDriver:
         if scene.initial.velocity == "elliptical_drop":
             lines.append("diagnostics against the analytic elliptical drop (seed 002 section 3.4): semi-axes, "
                          "pressure")
+        if scene.diagnostics.dam_break:
+            lines.append("dam-break diagnostics (seed 001 section 6.3): surge front and residual column height")
         if scene.diagnostics.impinging_jet:
             lines.append("diagnostics against Taylor's wall pressure of an impinging jet (thesis eq. 3.3): "
                          "stagnation pressure, RMS error over |x| <= 2 H")
@@ -207,6 +237,8 @@ class FluidDriver:
             if self.pre is not None:
                 self.iips.set_initial_linf(self.pre["linf"])
         self.reference = REFERENCES[scene.initial.velocity](scene) if scene.initial.velocity in REFERENCES else None
+        if scene.diagnostics.dam_break:
+            self.reference = DamBreakReference(scene)
         if scene.diagnostics.impinging_jet:
             self.reference = ImpingingJetReference(scene, self.scheme.walls,
                                                    self.sim.out_dir if comm.rank == 0 else None,
@@ -215,6 +247,9 @@ class FluidDriver:
         if scene.output.probes:
             self.probes = Probes(scene, self.sim.out_dir if comm.rank == 0 else None,
                                  resumed_at=self.resumed["time"] if restart else None)
+        # the potential energy, where gravity has no component along a periodic axis (x wraps there)
+        g = self.scheme.gravity
+        self.potential = bool(np.any(g)) and not any(g[a] and scene.domain.periodic[a] for a in range(len(g)))
         self.initial_volume = allreduce_sum(self.sim.comm, float(
             self.system.particles.owned("volume")[fluid_mask(self.system)].sum()))
         self.first_dt = None
@@ -275,6 +310,7 @@ class FluidDriver:
             self.scheme.end_step(system, dt)
             if self.scheme.walls is not None:  # solids exactly where their bodies are at t + dt
                 self.scheme.walls.place(system, t + dt)
+                self._reflect(step=state["step"] + 1, t=t + dt, totals=totals)
             # V = m / rho changed: IIPS and diagnostics read halo volumes and positions (an end of step
             # past half the skin rebuilds the lists, which carries every halo field)
             if not system.update():
@@ -303,6 +339,20 @@ class FluidDriver:
                 sim.log(f"step {step}, t = {t:.4g}: {report.message}")
         system.check_escaped()
         self.check(step, t, dt)
+
+    def _reflect(self, step, t, totals) -> None:
+        """Fluid particles that crossed a box container's side are put back (WallTerms.reflect); the history's
+        wall_reflections counts them and the log names the first step of each run that needed it."""
+        p = self.system.particles
+        fluid = np.flatnonzero(fluid_mask(self.system))
+        pos, vel = p.owned("position")[fluid], p.owned("velocity")[fluid]
+        count = int(allreduce_sum(self.sim.comm, self.scheme.walls.reflect(pos, vel)))
+        if count:
+            p.owned("position")[fluid], p.owned("velocity")[fluid] = pos, vel
+            if not totals["wall_reflections"]:
+                self.sim.log(f"psph: step {step}, t = {t:.6g}: {count} fluid particle(s) crossed a wall of a box "
+                             "container and were mirrored back (history column wall_reflections)")
+            totals["wall_reflections"] += count
 
     def _integrate(self, t, dt, step) -> int:
         """Integrate one step from t; if a stage went further than the neighbour lists hold, rebuild them at
@@ -375,6 +425,9 @@ class FluidDriver:
                "max_density_variation": drho, "max_volume_variation": dvol, "L2_grad_c": l2, "Linf_grad_c": linf}
         for a in range(p.dim):
             out[f"momentum_{'xyz'[a]}"] = sums[3 + a]
+        if self.potential:  # -sum m g . x: kinetic + potential energy falls by the dissipation
+            out["potential_energy"] = allreduce_sum(comm, -float((m[mask] * (p.owned("position")[mask]
+                                                                             @ self.scheme.gravity)).sum()))
         if surface.active:
             out["surface_particles"] = surface.count(self.system)
         if self.reference is not None:
@@ -428,7 +481,7 @@ class FluidDriver:
         every = scene.output.every
         next_output = every if every > 0 else math.inf
         totals = {"iips_time_s": 0.0, "iips_newton": 0, "iips_linear": 0, "iips_calls": 0, "iips_failures": 0,
-                  "retries": 0, "steps_redone": 0, "step_time_s": 0.0}
+                  "retries": 0, "steps_redone": 0, "wall_reflections": 0, "step_time_s": 0.0}
         state = {"step": 0, "time": 0.0}
         if self.resumed:
             state = {"step": self.resumed["step"], "time": self.resumed["time"]}

@@ -304,6 +304,11 @@ class FreeSurfaceSpec:
                                     "Marrone et al.'s scan region decides", gt=0.0, lt=1.0)
     lambda_normal: float = option(0.4, doc="explicit shifting near the free surface (thesis eq. 6.29): du = 0 "
                                   "below this lambda, du . n = 0 above", ge=0.0, lt=1.0)
+    lambda_diffusion: float = option(0.0, doc="delta_ale family with a free surface: the diffusive terms D^rho "
+                                     "and D^m act on a pair of fluid particles only where both have lambda above "
+                                     "this (seed 001 section 6.3: 0.2, no diffusion in thin jets and drops, where "
+                                     "the renormalisation is ill-conditioned; the pair rule keeps D^m's mass "
+                                     "conservation); 0: everywhere", ge=0.0, lt=1.0)
 
     def check(self, path):
         if not self.lambda_surface < self.lambda_interior:
@@ -327,6 +332,11 @@ class PhysicsSpec:
                                        "of the shifting laws)", gt=0.0)
     reference_length: float = option(1.0, doc="reference length L (Re = U L / nu)", gt=0.0)
     reynolds: float = option(100.0, doc="Reynolds number U L / nu", gt=0.0)
+    artificial_viscosity: float = option(0.0, doc="alpha of Monaghan's artificial viscosity, in place of "
+                                         "reynolds where > 0: nu = alpha h c0 / (2 (d + 2)), which makes the "
+                                         "pi_ij operator of seed 001 eq. 11 the artificial-viscosity term alpha h "
+                                         "c0 rho0 sum_j pi_ij grad_i W_ij V_j / K (seed 001 section 6.3 runs its "
+                                         "dam break with it); 0: nu = U L / reynolds", ge=0.0, le=1.0)
     sound_speed: float = option(10.0, doc="speed of sound c0 (kinematic: dt = cfl dx / c0)", gt=0.0)
     density: float = option(1.0, doc="reference density rho0", gt=0.0)
     eos: str = option("linear", doc="equation of state: linear p = c0^2 (rho - rho0), or tait (thesis eq. 5.4, "
@@ -360,6 +370,12 @@ class PhysicsSpec:
     max_volume_variation: float = option(0.5, doc="delta_ale: stop when a particle volume drifts by more than "
                                          "this fraction of its initial value (seed 001 fig. 6: without D^m "
                                          "volumes drift by 50%)", gt=0.0)
+
+    def kinematic_viscosity(self, domain) -> float:
+        """nu: U L / reynolds, or alpha h c0 / (2 (d + 2)) with an artificial viscosity alpha."""
+        if self.artificial_viscosity > 0.0:
+            return self.artificial_viscosity * domain.h * self.sound_speed / (2.0 * (domain.dimension + 2))
+        return self.reference_velocity * self.reference_length / self.reynolds
 
     def check(self, path):
         if self.gravity and len(self.gravity) not in (1, 2, 3):
@@ -459,6 +475,10 @@ class DiagnosticsSpec:
     impinging_jet: bool = option(False, doc="fluid runs: compare the wall pressure with Taylor's solution for a "
                                  "jet impinging normally on a plate (thesis eq. 3.3): the jet is inflow[0] (along "
                                  "-y, half-width H its half cross-section), the plate the top of bodies[0]")
+    dam_break: bool = option(False, doc="fluid runs: history columns front_x (the surge front, from the back "
+                             "wall) and column_height (the fluid's height at the back wall) of a dam break: the "
+                             "fluid column initial.fill_lower .. fill_upper collapses along +x under gravity along "
+                             "-y (seed 001 section 6.3)")
     stop_at_cartesian: float = option(
         0.0, doc="static runs: stop shifting once L2(d f/dx) <= this x its Cartesian-lattice value (0: never)",
         ge=0.0)
@@ -683,6 +703,21 @@ class Scene:
         if not self.bodies or self.bodies[0].shape != "rectangle" or self.bodies[0].angle != 0.0:
             raise SceneError(key, "needs bodies[0], an unrotated rectangle whose top is the plate")
 
+    def _check_dam_break(self):
+        if not self.diagnostics.dam_break:
+            return
+        key, d = "diagnostics.dam_break", self.domain
+        if self.physics.scheme not in FLUID_SCHEMES or d.dimension != 2:
+            raise SceneError(key, "needs a 2-D fluid scene")
+        g = self.physics.gravity
+        if len(g) != 2 or g[0] != 0.0 or g[1] >= 0.0:
+            raise SceneError(key, "needs physics.gravity along -y, [0, -g]")
+        if not self.initial.fill_upper or self.initial.fill_upper[0] > d.upper[0] - 0.5 * d.dx:
+            raise SceneError(key, "needs initial.fill_upper short of the domain along x: the column collapses "
+                             "along +x")
+        if self.diagnostics.impinging_jet:
+            raise SceneError(key, "a scene is a dam break or an impinging jet (diagnostics.impinging_jet), not both")
+
     def describe_free_surface(self) -> str:
         """Where the fluid has a free surface, in words ("" for none): a drop's rim, or the fill region
         stopping short of the domain."""
@@ -735,14 +770,23 @@ class Scene:
         self._check_packing(fluid)
         self._check_open(fluid)
         self._check_jet()
+        self._check_dam_break()
         self._check_probes(fluid)
         surface = self.describe_free_surface()
-        if fluid and surface and (method != "none" or self.iips.pre_newton > 0):
+        if fluid and surface and (method != "none" or self.iips.pre_newton > 0
+                                  or self.free_surface.lambda_diffusion > 0.0):
             ghosts = [k for k, b in enumerate(self.bodies) if b.model == "ghost"]
             if ghosts:
-                raise SceneError(f"bodies[{ghosts[0]}].model", f"shifting with a free surface ({surface}) needs "
+                what = "shifting" if method != "none" or self.iips.pre_newton > 0 else \
+                    "free_surface.lambda_diffusion"
+                raise SceneError(f"bodies[{ghosts[0]}].model", f"{what} with a free surface ({surface}) needs "
                                  "clone walls: ghost walls have no solid particles, so the free-surface detection "
                                  "would take the fluid along them for a surface")
+        if self.free_surface.lambda_diffusion > 0.0 and not (fluid and surface
+                                                               and self.physics.scheme != "riemann_ale"):
+            raise SceneError("free_surface.lambda_diffusion", "switches the diffusive terms of a delta_ale scheme off "
+                             "near a free surface: this scene has " + ("no free surface" if not surface else
+                                                                     f"physics.scheme = {self.physics.scheme!r}"))
         if fluid and method == "explicit_iterative":
             raise SceneError("shifting.method", "explicit_iterative is for static and kinematic runs; fluid "
                              "schemes take iips or an explicit law (lind, skillen, oger, delta_plus, neuhauser)")

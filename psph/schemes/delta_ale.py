@@ -44,7 +44,7 @@ class DeltaALE:
         self.name = phys.scheme
         self.variant = VARIANTS.get(phys.scheme, 0)  # riemann_ale: V, m and m u evolve, as in variant 0
         self.c0, self.rho0 = phys.sound_speed, phys.density
-        self.nu = phys.reference_velocity * phys.reference_length / phys.reynolds
+        self.nu = phys.kinematic_viscosity(scene.domain)
         self.mu = self.rho0 * self.nu
         self.delta, self.delta_m = phys.delta, phys.delta_m
         dim = scene.domain.dimension
@@ -57,10 +57,13 @@ class DeltaALE:
         self.shift = make_velocity_shift(scene)
         self.surface = make_free_surface(scene)
         # seed 004 eq. 3: the tensile switch stays off in the free-surface region (the surface particles and
-        # their neighbours), which a scene with a free surface detects at every step even without shifting
-        self.tic_surface = None
-        if self.tensile and self.name != "riemann_ale" and scene.describe_free_surface():
-            self.tic_surface = self.surface if self.surface.active else FreeSurface(scene.free_surface)
+        # their neighbours); seed 001 section 6.3: the diffusive terms stay off where lambda is small. A scene
+        # with a free surface detects it at every step for them, even without shifting
+        surface = self.name != "riemann_ale" and bool(scene.describe_free_surface())
+        self.lambda_diffusion = scene.free_surface.lambda_diffusion if surface else 0.0
+        self.step_surface = None
+        if surface and (self.tensile or self.lambda_diffusion > 0.0):
+            self.step_surface = self.surface if self.surface.active else FreeSurface(scene.free_surface)
         self.pairs = PairCache()  # the support's pairs, from renormalised_gradient to delta_ale_rhs
         # rows of Kind.INLET and OUTLET keep the fields psph.boundaries.open prescribes
         self.prescribed = bool(scene.inflow) or scene.domain.outflow_buffer
@@ -89,7 +92,10 @@ class DeltaALE:
         if self.tensile:
             lines.append("tensile-instability switch (p_j - p_i where p_i < 0" + (
                 ", off in the free-surface region: seed 004 eq. 3, the surface detected every step)"
-                if self.tic_surface is not None else ")"))
+                if self.step_surface is not None else ")"))
+        if self.lambda_diffusion > 0.0:
+            lines.append(f"diffusive terms only between fluid particles with lambda > {self.lambda_diffusion:g} "
+                         "(seed 001 section 6.3: none in thin jets and drops)")
         lines.append(self.shift.describe())
         if self.walls is not None:
             lines += self.walls.describe()
@@ -101,7 +107,7 @@ class DeltaALE:
                  FieldSpec("grad_rho", ("d",)), FieldSpec("volume0")]
         if self.shift.active:
             specs.append(FieldSpec("shift_velocity", ("d",)))
-        surface = self.tic_surface if self.tic_surface is not None else self.surface
+        surface = self.step_surface if self.step_surface is not None else self.surface
         specs += list(self.shift.fields) + list(surface.fields)
         if self.walls is not None:
             from psph.boundaries import SOLID_FIELDS
@@ -190,8 +196,10 @@ class DeltaALE:
         """The step's free-surface flags, where the shifting law or the tensile switch needs them. Collective."""
         if self.shift.active and self.surface.active:
             self.surface.detect(system)
-        elif self.tic_surface is not None:
-            self.tic_surface.detect(system)
+        elif self.step_surface is not None:
+            self.step_surface.detect(system)
+        if self.lambda_diffusion > 0.0:  # read on the halo rows too
+            system.refresh(["surface_lambda"])
 
     def tensile_rows(self, system) -> np.ndarray:
         """1 where the tensile switch may act (p_i < 0 then uses p_j - p_i), 0 where it is off or in the
@@ -199,9 +207,16 @@ class DeltaALE:
         p = system.particles
         if not self.tensile:
             return np.zeros(p.n_local, dtype=np.int8)
-        if self.tic_surface is None:
+        if self.step_surface is None:
             return np.ones(p.n_local, dtype=np.int8)
         return (p["free_surface"] == 0).astype(np.int8)
+
+    def diffusion_rows(self, system):
+        """1 where a particle takes part in the diffusive terms (lambda above free_surface.lambda_diffusion,
+        seed 001 section 6.3), per local particle; True (all) without the switch."""
+        if self.lambda_diffusion <= 0.0:
+            return True
+        return (system.particles["surface_lambda"] > self.lambda_diffusion).astype(np.int8)
 
     def rhs(self, system, t, dt) -> dict:
         """d(state)/dt at the current state (owned rows). Collective (halo exchanges)."""
@@ -223,8 +238,7 @@ class DeltaALE:
         delta_ale_rhs(p["position"], p["volume"], p["density"], p["mass"], p["velocity"], du, p["pressure"],
                       p["grad_rho"], self.pairs, kp, self.c0, self.delta, self.delta_m,
                       self.mu, self.gravity, self.variant, self.shift.active, self.tensile_rows(system), p["kind"],
-                      walls,
-                      d_rho, d_mass, d_mom, morris=self.morris)
+                      walls, d_rho, d_mass, d_mom, morris=self.morris, diffusive=self.diffusion_rows(system))
         if walls:
             with phase("walls"):
                 self.walls.add(system, self, t, d_rho, d_mom)

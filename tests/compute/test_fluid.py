@@ -12,8 +12,9 @@ from tests.helpers import perturbed_lattice
 
 
 def reference(pos, vol, rho, mass, vel, du, prs, kp_kernel, c0, delta, delta_m, mu, gravity, variant, switch,
-              kind, fluid_only, morris=False):
-    """(grad_rho, d_rho, d_mass, d_mom) from the formulas of compute/fluid.py's docstring, over all pairs."""
+              kind, fluid_only, morris=False, diffusive=None):
+    """(grad_rho, d_rho, d_mass, d_mom) from the formulas of compute/fluid.py's docstring, over all pairs
+    (the diffusive terms over the pairs of two `diffusive` particles, if given)."""
     n, d = pos.shape
     x = pos[:, None, :] - pos[None, :, :]  # x_ij
     r = np.sqrt((x * x).sum(axis=2))
@@ -37,8 +38,9 @@ def reference(pos, vol, rho, mass, vel, du, prs, kp_kernel, c0, delta, delta_m, 
         vs = np.einsum("ij,ija->ia", 2.0 * (d + 2) * np.einsum("ija,ija->ij", dvel, -x) / r2, w)
     psi = rho[None, :] - rho[:, None] + 0.5 * np.einsum("ija,ija->ij", grad_rho[:, None] + grad_rho[None, :], x)
     h = kp_kernel.h
-    diff_rho = 2.0 * delta * h * c0 * (psi * -f * vol[None, :]).sum(axis=1)
-    diff_m = 2.0 * delta_m * h * c0 * ((mass[None, :] - mass[:, None]) * -f * np.sqrt(vol[:, None] * vol)).sum(1)
+    on = np.ones((n, n)) if diffusive is None else diffusive[:, None] & diffusive[None, :]
+    diff_rho = 2.0 * delta * h * c0 * (on * psi * -f * vol[None, :]).sum(axis=1)
+    diff_m = 2.0 * delta_m * h * c0 * (on * (mass[None, :] - mass[:, None]) * -f * np.sqrt(vol[:, None] * vol)).sum(1)
     ddj = np.einsum("ja,ija->ij", du, w)  # du_j . grad_i W_ij V_j
     ddi = np.einsum("ia,ija->ij", du, w)
     div_du = np.einsum("ija,ija->i", du[None, :, :] - du[:, None, :], w)
@@ -88,6 +90,39 @@ def test_kernels_match_brute_force_sums(dim, variant, walls, morris):
                         walls, *got, morris=morris)
     for name, a, b in zip(("d_rho", "d_mass", "d_mom"), got, want[1:]):
         assert np.abs(a - b).max() <= 1e-10 * max(np.abs(b).max(), 1e-300), name
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_diffusion_switch_acts_on_pairs_and_keeps_the_mass(dim):
+    """free_surface.lambda_diffusion (seed 001 section 6.3): D^rho and D^m act on the pairs of two particles
+    that take part; a particle out of it gets none, the others lose only their pairs with it, and the total
+    mass rate stays zero (D^m antisymmetric pair by pair)."""
+    rng = np.random.default_rng(21 + dim)
+    pos, vol, kern, ptr, idx = perturbed_lattice(rng, dim, {2: 9, 3: 5}[dim])
+    n = len(pos)
+    rho = 1.0 + 0.05 * rng.standard_normal(n)
+    mass = rho * vol * (1.0 + 0.1 * rng.standard_normal(n))
+    vel, du = rng.standard_normal((n, dim)), 0.1 * rng.standard_normal((n, dim))
+    prs, kind = rng.standard_normal(n), np.zeros(n, dtype=np.int8)
+    diffusive = (rng.random(n) > 0.3).astype(np.int8)
+    consts = dict(c0=10.0, delta=0.1, delta_m=0.05, mu=0.01, gravity=np.zeros(dim), variant=0)
+    grad_rho, pairs = np.zeros((n, dim)), fluid.PairCache()
+    fluid.renormalised_gradient(pos, vol, rho, ptr, idx, kern.params, kind, False, grad_rho, pairs)
+    got = {}
+    for name, mask in (("switch", diffusive), ("none", np.zeros(n, dtype=np.int8)), ("all", True)):
+        got[name] = np.zeros(n), np.zeros(n), np.zeros((n, dim))
+        fluid.delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, pairs, kern.params, consts["c0"],
+                            consts["delta"], consts["delta_m"], consts["mu"], consts["gravity"], 0, True, True,
+                            kind, False, *got[name], diffusive=mask)
+    want = reference(pos, vol, rho, mass, vel, du, prs, kern, switch=True, kind=kind, fluid_only=False,
+                     diffusive=diffusive.astype(bool), **consts)
+    for a, b in zip(got["switch"], want[1:]):
+        assert np.abs(a - b).max() <= 1e-10 * np.abs(b).max()
+    out = diffusive == 0
+    for a, b in zip(got["switch"], got["none"]):
+        assert np.array_equal(a[out], b[out])  # no diffusion on a particle out of it
+    assert np.abs(got["switch"][0] - got["all"][0])[~out].max() > 1e-3 * np.abs(got["all"][0]).max()
+    assert abs(got["switch"][1].sum()) < 1e-13 * np.abs(got["switch"][1]).sum()
 
 
 @pytest.mark.parametrize("dim", [2, 3])

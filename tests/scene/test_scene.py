@@ -348,3 +348,32 @@ def test_drops_and_packing_are_refused_where_they_do_not_apply(scene, sets, key,
 def test_packing_is_accepted_with_clone_walls_and_a_free_surface():
     for scene in ("lid_driven_cavity", "hydrostatic_tank", "moving_square"):
         assert load_scene(CASES / f"{scene}.toml", ["packing.iterations=10"]).packing.iterations == 10
+
+
+@pytest.mark.parametrize("scene,sets,key,words", [
+    ("lid_driven_cavity", ["free_surface.lambda_diffusion=0.2"], "free_surface.lambda_diffusion", "no free surface"),
+    ("dam_break", ["physics.scheme=riemann_ale", "bodies=[]"], "free_surface.lambda_diffusion", "riemann_ale"),
+    ("dam_break", ["physics.gravity=[0, 1]"], "diagnostics.dam_break", "gravity along -y"),
+    ("dam_break", ["initial.fill_upper=[5.367, 1.0]"], "diagnostics.dam_break", "short of the domain"),
+    ("taylor_green", ["diagnostics.dam_break=true"], "diagnostics.dam_break", "gravity along -y"),
+    ("dam_break", ["physics.artificial_viscosity=-0.1"], "physics.artificial_viscosity", ">= 0"),
+    ("dam_break", ["physics.gravity=[-1.0]"], "diagnostics.dam_break", "gravity along -y"),
+    ("dam_break", ["initial.fill_upper=[5.36, 1.0]"], "diagnostics.dam_break", "short of the domain"),
+    ("dam_break", ["shifting.method=none", "bodies.0.model=ghost"], "bodies[0].model",
+     "free_surface.lambda_diffusion with a free surface"),
+])
+def test_dam_break_keys_are_refused_where_they_do_not_apply(scene, sets, key, words):
+    with pytest.raises(SceneError) as info:
+        load_scene(CASES / f"{scene}.toml", sets)
+    assert info.value.key == key and words in str(info.value), str(info.value)
+
+
+def test_artificial_viscosity_sets_nu_from_h_and_c0():
+    """nu = alpha h c0 / (2 (d + 2)): Monaghan's artificial viscosity alpha h c0 rho0 sum_j pi_ij grad W V_j
+    with pi_ij = (u_j - u_i) . x_ji / r^2 is the pi_ij operator of seed 001 eq. 11 (K = 2 (d + 2)) with
+    mu K = alpha h c0 rho0; without alpha, nu = U L / Re."""
+    scene = load_scene(CASES / "dam_break.toml")
+    d, ph = scene.domain, scene.physics
+    assert math.isclose(ph.kinematic_viscosity(d), 0.01 * (2 * d.dx) * 20.0 / 8.0, rel_tol=1e-14)
+    plain = load_scene(CASES / "dam_break.toml", ["physics.artificial_viscosity=0", "physics.reynolds=250"])
+    assert math.isclose(plain.physics.kinematic_viscosity(plain.domain), 1.0 / 250.0, rel_tol=1e-14)

@@ -98,7 +98,7 @@ def test_tensile_switch_is_off_in_the_free_surface_region(tmp_path):
                                                           "physics.tensile_switch=true", "initial.sigma_over_dx=0.1"])
     driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path)
     scheme, system = driver.scheme, driver.system
-    assert scheme.tic_surface is not None and not scheme.shift.active  # detected for the switch alone
+    assert scheme.step_surface is not None and not scheme.shift.active  # detected for the switch alone
     p = system.particles
     p.owned("pressure")[:] = -0.1
     p.owned("velocity")[:] = 0.0
@@ -107,14 +107,49 @@ def test_tensile_switch_is_off_in_the_free_surface_region(tmp_path):
     fluid = p.owned("kind") == Kind.FLUID
     assert 0 < np.count_nonzero(region) < np.count_nonzero(fluid)
 
-    def acceleration(tensile, tic_surface):
-        scheme.tensile, scheme.tic_surface = tensile, tic_surface
+    def acceleration(tensile, step_surface):
+        scheme.tensile, scheme.step_surface = tensile, step_surface
         rates = scheme.rhs(system, 0.0, 1e-3)
         return np.asarray(rates["momentum" if "momentum" in rates else "velocity"]).copy()
 
-    surface = scheme.tic_surface
+    surface = scheme.step_surface
     seed004, plus, everywhere = acceleration(True, surface), acceleration(False, None), acceleration(True, None)
     interior = fluid & ~region
     assert np.array_equal(seed004[region], plus[region])
     assert np.array_equal(seed004[interior], everywhere[interior])
     assert np.abs(everywhere[region] - plus[region]).max() > 0.1 * np.abs(plus[region]).max() > 0.0
+
+
+def test_diffusion_switch_follows_the_detected_lambda(tmp_path):
+    """free_surface.lambda_diffusion (seed 001 section 6.3) reaches the kernel: with every lambda below the
+    threshold the rates equal those with delta = delta_m = 0; at the detected lambda of a dam break's column
+    the surface rows lose part of their diffusion and the deep ones keep all of it."""
+    from psph.drivers.fluid import FluidDriver
+    from psph.particles import Kind
+    from psph.scene.load import load_scene
+    from tests.helpers import CASES
+
+    # no shifting: its restriction near the surface reads lambda too
+    scene = load_scene(CASES / "dam_break.toml", ["domain.dx=0.1", "initial.sigma_over_dx=0.2", "shifting.method=none"])
+    driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path)
+    scheme, system = driver.scheme, driver.system
+    p = system.particles
+    rng = np.random.default_rng(3)
+    p.owned("density")[:] *= 1.0 + 0.01 * rng.standard_normal(p.n_owned)  # something to diffuse
+    p.owned("mass")[:] *= 1.0 + 0.01 * rng.standard_normal(p.n_owned)
+    scheme.detect_surface(system)
+    lam = p["surface_lambda"].copy()
+
+    def rates(threshold=0.6, delta=0.1, lam_value=None):
+        scheme.lambda_diffusion, scheme.delta, scheme.delta_m = threshold, delta, delta
+        p["surface_lambda"][:] = lam if lam_value is None else lam_value
+        r = scheme.rhs(system, 0.0, 1e-3)
+        return np.concatenate([np.asarray(r[k]).reshape(p.n_owned, -1) for k in sorted(r)], axis=1)
+
+    fluid = p.owned("kind") == Kind.FLUID
+    assert np.array_equal(rates(lam_value=0.1)[fluid], rates(delta=0.0)[fluid])
+    switched, everywhere = rates(threshold=0.6), rates(threshold=0.0)  # (the column has no lambda below 0.2)
+    low = fluid & (lam[:p.n_owned] <= 0.6)
+    deep = fluid & (p.owned("position")[:, 1] < 0.5) & (p.owned("position")[:, 0] < 1.5)
+    assert low.any() and np.abs(switched[low] - everywhere[low]).max() > 0.0
+    assert np.array_equal(switched[deep], everywhere[deep])
