@@ -193,7 +193,8 @@ class DeltaALE:
 
     # -------------------------------------------------------------------- rhs
     def detect_surface(self, system) -> None:
-        """The step's free-surface flags, where the shifting law or the tensile switch needs them. Collective."""
+        """The step's free-surface flags and lambda, where the shifting law, the tensile switch or the
+        diffusion switch (free_surface.lambda_diffusion) needs them. Collective."""
         if self.shift.active and self.surface.active:
             self.surface.detect(system)
         elif self.step_surface is not None:
