@@ -41,11 +41,13 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--checkpoint-minutes", type=float, metavar="T",
                      help="same as --set output.checkpoint_minutes=T")
     run.add_argument("--out", help="output directory (default: ./<scene name>_out; on restart, the checkpoint's)")
-    run.add_argument("--overwrite", action="store_true", help="replace results already in the output directory")
+    run.add_argument("--overwrite", action="store_true",
+                     help="replace results already in the output directory (psph's own files are removed first)")
     run.add_argument("--allow-large", action="store_true",
                      help="run even if the estimated memory exceeds this machine's")
     run.add_argument("--quiet", action="store_true", help="print nothing but errors (the log file still gets it all)")
-    run.add_argument("--log", metavar="FILE", help="log file (default: OUT/psph.log); messages and errors are appended")
+    run.add_argument("--log", metavar="FILE", help="log file (default: OUT/psph.log, which --overwrite starts "
+                     "afresh); messages and errors are appended")
     info = sub.add_parser("info", help="print the resolved scene, its model terms and estimated size")
     scene_args(info)
     sub.add_parser("keys", help="list every scene key with its type, default and meaning")
@@ -181,7 +183,7 @@ def _scene_and_restart(args, comm):
 
 def cmd_run(args, petsc_options, comm) -> int:
     from psph.drivers import driver_for
-    from psph.io.files import holds_results
+    from psph.io.files import clear_results, holds_results
     from psph.simulation import check_resources
     from psph.solvers.petsc import initialize
 
@@ -196,6 +198,8 @@ def cmd_run(args, petsc_options, comm) -> int:
         raise UsageError(f"output path {out!r} exists and is not a directory")
     initialize(petsc_options)
     if comm.rank == 0:
+        if args.overwrite and not continuing:
+            clear_results(out)
         os.makedirs(out, exist_ok=True)
     _LOG["path"] = os.path.abspath(args.log) if args.log else os.path.join(out, "psph.log")
     comm.Barrier()

@@ -20,7 +20,8 @@ delta-plus shifting, artificial viscosity alpha = 0.01, c0 = 20 sqrt(g H)) and w
   raw (the raw signal carries the sound of the impacts, whose amplitude scales with c0: rho0 c0 |u| at an
   air cavity's collapse), the energy dissipated by t_end as a
   fraction of the potential energy that can be released (the column's against the final flat layer's), the
-  mass drift, eps_V, the largest density variation and the wall time;
+  mass drift, eps_V, the largest density variation, how many times a particle crossed the tank's walls and
+  was mirrored back (WallTerms.reflect) and the wall time;
 - front.png, p1.png, energy.png (and histories.csv with the plotted columns), snapshots.png (the pressure at
   t = 1 .. 8 at the finest resolution).
 """
@@ -145,7 +146,8 @@ def main():
                      float(p1[tp < 4.0].max()), float(p1s[late].max()) if late.any() else float("nan"),
                      float(p1[tp >= 5.0].max()) if late.any() else float("nan"),
                      float((energy[0] - energy[-1]) / released), float(np.abs(mass / mass[0] - 1.0).max()),
-                     h[-1]["volume_error"], max(r["max_density_variation"] for r in h), run.summary["wall_time_s"]])
+                     h[-1]["volume_error"], max(r["max_density_variation"] for r in h), h[-1]["wall_reflections"],
+                     run.summary["wall_time_s"]])
         runs.append(((n,), run))
         print(rows[-1], flush=True)
     print(write_table(args.out / "dam_break",
@@ -153,7 +155,7 @@ def main():
                        "front at the wall, t", f"P1 first peak, {SMOOTHING:g} average", "at t",
                        "P1 first peak, raw", "P1 max t >= 5, average", "raw",
                        f"energy dissipated by t = {args.t_end:g}", "max mass drift", "eps_V(t_end)",
-                       "max density variation", "wall s"], rows,
+                       "max density variation", "wall reflections", "wall s"], rows,
                       title="Dam break, t in sqrt(H/g), lengths in H, pressures in rho0 g H; the front from the "
                             "back wall; the dissipated energy over the potential energy the collapse can release",
                       note=note))

@@ -58,6 +58,19 @@ def test_run_writes_the_output_contract(tmp_path):
     again = run_psph("run", SCENE, "--out", out, "--set", "domain.dx=0.05")
     assert again.returncode == 2 and "already holds results" in again.stderr
     assert json.loads((out / "summary.json").read_text()) == summary
+    # --overwrite removes the replaced run's files (here a longer run's later snapshot and its checkpoint,
+    # which a restart would pick) and nothing else
+    snapshots = sorted(out.glob("snapshot_*.h5"))
+    stale = [out / "snapshot_000007.h5", out / "checkpoint_000000120.h5", out / "figures" / "history.png"]
+    (out / "figures").mkdir()
+    for path in stale:
+        path.write_bytes(b"old")
+    (out / "notes.txt").write_text("mine")
+    again = run_psph("run", SCENE, "--out", out, "--set", "domain.dx=0.05", "--overwrite")
+    assert again.returncode == 0, again.stderr
+    assert not any(path.exists() for path in stale) and (out / "notes.txt").read_text() == "mine"
+    assert (out / "psph.log").read_text().count("running scene") == 1
+    assert sorted(out.glob("snapshot_*.h5")) == snapshots
 
 
 def test_info_lists_the_model_terms():

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from psph.boundaries.bodies import make_bodies
+from psph.boundaries.bodies import bounds, make_bodies
 from psph.boundaries.geometry import inside, shape_spec
 from psph.particles import FieldSpec
 
@@ -39,16 +39,33 @@ def fluid_mask(scene, pos) -> np.ndarray:
     return keep
 
 
-def extended_lattice(scene) -> np.ndarray:
-    """The fluid's lattice continued one solid thickness beyond the domain along non-periodic axes."""
+def extended_lattice(scene, lower=None, upper=None) -> np.ndarray:
+    """The fluid's lattice inside [lower, upper] (default: the domain; an unrotated box container's sides)
+    continued one solid thickness beyond it along non-periodic axes.
+
+    Beyond each side the rows continue from that side, (k + 1/2) dx away from it, so that a container's
+    first solid row sits dx/2 behind its wall as it does when the side lies on the lattice's midlines:
+    otherwise (seed 001's tank, 5.367 H long) the solid rows would stand up to dx behind the wall, the fluid
+    would settle as close to the wall as to them, and cross it."""
     d = scene.domain
-    margin = thickness(scene) + d.dx
+    m = int(np.ceil((thickness(scene) + d.dx) / d.dx))
+    lower = d.lower if lower is None else lower
+    upper = d.upper if upper is None else upper
     axes = []
     for a in range(d.dimension):
-        lo, hi = d.lower[a], d.upper[a]
-        k_lo = -int(np.ceil(margin / d.dx)) if not d.periodic[a] else 0
-        k_hi = int(round((hi - lo) / d.dx)) + (int(np.ceil(margin / d.dx)) if not d.periodic[a] else 0)
-        axes.append(lo + (np.arange(k_lo, k_hi) + 0.5) * d.dx)
+        axis = d.lower[a] + (np.arange(int(round((d.upper[a] - d.lower[a]) / d.dx))) + 0.5) * d.dx
+        if not d.periodic[a]:
+            rows = np.arange(m) + 0.5
+            sides = []
+            for side in (lower[a], upper[a]):  # side = lattice line k dx + offset
+                k = int(round((side - d.lower[a]) / d.dx))
+                offset = side - d.lower[a] - k * d.dx
+                sides.append((k, 0.0 if abs(offset) < 1e-9 * d.dx else offset))
+            (k_lo, off_lo), (k_hi, off_hi) = sides
+            axis = np.concatenate([d.lower[a] + off_lo + (k_lo - rows[::-1]) * d.dx,
+                                   axis[(axis > lower[a]) & (axis < upper[a])],
+                                   d.lower[a] + off_hi + (k_hi + rows) * d.dx])
+        axes.append(axis)
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, d.dimension)
 
 
@@ -60,7 +77,10 @@ def solid_arrays(scene, rank, size, first_gid):
     for body in bodies:
         if body.spec.model == "ghost":  # images of the fluid, made at every stage (psph.compute.walls)
             continue
-        pos, normal, dist, node = body.solid_particles(lattice, thickness(scene))
+        own = lattice
+        if body.spec.shape == "box" and body.spec.angle == 0.0:
+            own = extended_lattice(scene, *bounds(body.spec))
+        pos, normal, dist, node = body.solid_particles(own, thickness(scene))
         parts.append((body, pos, normal, dist, node))
     total = sum(len(p[1]) for p in parts)
     start, stop = total * rank // size, total * (rank + 1) // size

@@ -45,6 +45,10 @@ def jsonable(value):
 
 
 OUTPUT_MARKERS = ("summary.json", "history.csv", "psph.xdmf")
+# everything a run (and `psph plot`) writes into its output directory
+OUTPUT_FILES = OUTPUT_MARKERS + ("psph.log", "probes.csv", "wall_pressure.csv", "packing.csv", "snapshot_*.h5",
+                                 "checkpoint_*.h5", "figures/history.png", "figures/probes.png",
+                                 "figures/fields.png", "figures/convergence.png")
 
 
 def holds_results(directory) -> bool:
@@ -53,3 +57,15 @@ def holds_results(directory) -> bool:
     if not d.is_dir():
         return False
     return any((d / m).exists() for m in OUTPUT_MARKERS) or any(d.glob("snapshot_*.h5"))
+
+
+def clear_results(directory) -> None:
+    """Remove psph's own output from `directory` (OUTPUT_FILES and their unfinished .tmp files), and
+    nothing else: `psph run --overwrite` then leaves no snapshot, checkpoint or log line of the run it
+    replaces (a shorter run would otherwise sit beside the older run's later snapshots, and a restart
+    could pick the older run's checkpoint)."""
+    d = Path(directory)
+    for pattern in OUTPUT_FILES:
+        for path in [*d.glob(pattern), *d.glob(pattern + ".tmp")]:
+            if path.is_file():
+                path.unlink()

@@ -124,3 +124,29 @@ def test_translation_and_rotation_follow_their_own_laws():
     assert np.allclose((xp - xm) / (2 * e), u, atol=1e-7) and np.allclose((up - um) / (2 * e), acc, atol=1e-6)
     assert Body(BodySpec(name="b", shape="ellipse", center=(1.0, 2.0), size=(1.0, 0.5),
                          motion=MotionSpec(rotation_law="oscillate", angular_velocity=1.0)), 0, 0.1, (1.0, 0.0)).moves
+
+
+@pytest.mark.parametrize("case, sets", [("dam_break", ["domain.dx=0.025"]), ("dam_break", ["domain.dx=0.05"]),
+                                        ("dam_break", ["domain.dx=0.1"]),
+                                        ("hydrostatic_tank", ["bodies.0.center=[0.96,0.607]",
+                                                              "bodies.0.size=[1.83,1.111]"])])
+def test_a_container_s_solid_rows_stand_from_each_of_its_sides(case, sets):
+    """A box container whose sides are not on the lattice's midlines (seed 001's tank, 5.367 x 3; a tank
+    inside its domain, off the lattice): behind every side the solid rows stand dx/2, 3 dx/2, ... away, as
+    behind a side on the midlines, and fill one support."""
+    from psph.boundaries import solid_arrays, thickness
+    from psph.boundaries.bodies import bounds
+    from psph.scene.load import load_scene
+
+    scene = load_scene(f"cases/{case}.toml", sets)
+    dx = scene.domain.dx
+    solids = solid_arrays(scene, 0, 1, 0)
+    pos, dist = solids["position"], solids["wall_distance"]
+    lower, upper = bounds(scene.bodies[0])
+    rows = (np.arange(int(np.ceil(thickness(scene) / dx))) + 0.5) * dx
+    for a in range(2):
+        for side, beyond in ((lower[a], pos[:, a] < lower[a]), (upper[a], pos[:, a] > upper[a])):
+            gaps = np.unique(np.round(np.abs(pos[beyond, a] - side), 12))
+            assert np.allclose(gaps, rows[rows <= thickness(scene) + 1e-12], rtol=0.0, atol=1e-12)
+    inside = np.all((pos > lower) & (pos < upper), axis=1)
+    assert not inside.any() and dist.min() == pytest.approx(dx / 2)
