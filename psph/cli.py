@@ -191,18 +191,24 @@ def cmd_run(args, petsc_options, comm) -> int:
     check_resources(scene, allow_large=args.allow_large)
     default_out = os.path.dirname(os.path.abspath(args.restart)) if restart else f"{scene.name}_out"
     out = os.path.abspath(args.out or default_out)
-    continuing = restart is not None and out == os.path.dirname(os.path.abspath(args.restart))
+    continuing = restart is not None and os.path.realpath(out) == os.path.dirname(os.path.realpath(args.restart))
     if holds_results(out) and not args.overwrite and not continuing:
         raise UsageError(f"output directory {out!r} already holds results; choose another --out or pass --overwrite")
     if os.path.exists(out) and not os.path.isdir(out):
         raise UsageError(f"output path {out!r} exists and is not a directory")
     initialize(petsc_options)
+    failure = None
     if comm.rank == 0:
-        if args.overwrite and not continuing:
-            clear_results(out)
-        os.makedirs(out, exist_ok=True)
+        try:
+            if args.overwrite and not continuing:
+                clear_results(out)
+            os.makedirs(out, exist_ok=True)
+        except OSError as err:  # every rank stops with it, none waits for rank 0
+            failure = f"output directory {out!r}: {err.strerror or err}"
+    failure = comm.bcast(failure, root=0)
+    if failure:
+        raise UsageError(failure)
     _LOG["path"] = os.path.abspath(args.log) if args.log else os.path.join(out, "psph.log")
-    comm.Barrier()
     log = _say(comm, args.quiet)
     log(f"psph: running scene {scene.name!r} on {comm.size} rank(s)"
         + (f", continuing {args.restart}" if restart else "") + f" ({' '.join(sys.argv[1:]) or 'run'})")

@@ -60,17 +60,19 @@ def test_run_writes_the_output_contract(tmp_path):
     assert json.loads((out / "summary.json").read_text()) == summary
     # --overwrite removes the replaced run's files (here a longer run's later snapshot and its checkpoint,
     # which a restart would pick) and nothing else
-    snapshots = sorted(out.glob("snapshot_*.h5"))
-    stale = [out / "snapshot_000007.h5", out / "checkpoint_000000120.h5", out / "figures" / "history.png"]
+    snapshots = sorted(out.glob("snapshot_0*.h5"))
+    stale = [out / "snapshot_000007.h5", out / "checkpoint_000120.h5", out / "figures" / "history.png"]
     (out / "figures").mkdir()
     for path in stale:
         path.write_bytes(b"old")
-    (out / "notes.txt").write_text("mine")
+    mine = [out / "notes.txt", out / "snapshot_best.h5"]
+    for path in mine:
+        path.write_text("mine")
     again = run_psph("run", SCENE, "--out", out, "--set", "domain.dx=0.05", "--overwrite")
     assert again.returncode == 0, again.stderr
-    assert not any(path.exists() for path in stale) and (out / "notes.txt").read_text() == "mine"
+    assert not any(path.exists() for path in stale) and all(path.read_text() == "mine" for path in mine)
     assert (out / "psph.log").read_text().count("running scene") == 1
-    assert sorted(out.glob("snapshot_*.h5")) == snapshots
+    assert sorted(out.glob("snapshot_0*.h5")) == snapshots
 
 
 def test_info_lists_the_model_terms():
@@ -153,3 +155,12 @@ def test_quiet_run_logs_to_file_and_plots(tmp_path):
     assert (tmp_path / "figs" / "convergence.png").read_bytes()[:4] == b"\x89PNG"
     res = run_psph("plot", tmp_path / "figs")
     assert res.returncode == 2 and "holds neither a run" in res.stderr
+
+
+def test_an_output_directory_that_cannot_be_made_is_one_line(tmp_path):
+    (tmp_path / "file").write_text("mine")
+    res = run_psph("run", SCENE, "--out", tmp_path / "file" / "out", "--set", "domain.dx=0.05")
+    assert res.returncode == 2 and "Traceback" not in res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("psph: error: output directory") and "Not a directory" in lines[0]
+    assert (tmp_path / "file").read_text() == "mine"

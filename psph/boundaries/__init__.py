@@ -62,8 +62,9 @@ def extended_lattice(scene, lower=None, upper=None) -> np.ndarray:
                 offset = side - d.lower[a] - k * d.dx
                 sides.append((k, 0.0 if abs(offset) < 1e-9 * d.dx else offset))
             (k_lo, off_lo), (k_hi, off_hi) = sides
+            tol = 1e-9 * d.dx  # a side on a lattice point: that point is the wall's, not a row
             axis = np.concatenate([d.lower[a] + off_lo + (k_lo - rows[::-1]) * d.dx,
-                                   axis[(axis > lower[a]) & (axis < upper[a])],
+                                   axis[(axis > lower[a] + tol) & (axis < upper[a] - tol)],
                                    d.lower[a] + off_hi + (k_hi + rows) * d.dx])
         axes.append(axis)
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, d.dimension)

@@ -192,6 +192,10 @@ def check_placement(scene) -> None:
         lo, hi = bounds(b)
         key = {"box": "size", "polygon": "vertices"}.get(b.shape, "center")
         for a in range(2):  # before any profile is built (a mistyped huge size would take long)
+            if b.container and d.periodic[a] and hi[a] - lo[a] < d.upper[a] - d.lower[a] - 1e-9 * dx:
+                raise SceneError(f"{path}.{key}", f"{b.name!r} is {hi[a] - lo[a]:g} long along the periodic axis "
+                                 f"{a}, shorter than the domain ({d.upper[a] - d.lower[a]:g}): a container spans a "
+                                 "periodic axis (its plates), or the fluid would cross its sides there")
             bounded = not d.periodic[a] or not b.container
             box_lo, box_hi = (d.lower[a], d.upper[a]) if b.container else (lower[a], upper[a])
             if bounded and (lo[a] < box_lo - 1e-9 * dx or hi[a] > box_hi + 1e-9 * dx):

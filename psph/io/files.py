@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 from pathlib import Path
 
 
@@ -45,10 +46,10 @@ def jsonable(value):
 
 
 OUTPUT_MARKERS = ("summary.json", "history.csv", "psph.xdmf")
-# everything a run (and `psph plot`) writes into its output directory
-OUTPUT_FILES = OUTPUT_MARKERS + ("psph.log", "probes.csv", "wall_pressure.csv", "packing.csv", "snapshot_*.h5",
-                                 "checkpoint_*.h5", "figures/history.png", "figures/probes.png",
-                                 "figures/fields.png", "figures/convergence.png")
+# everything a run (and `psph plot`, in figures/) writes into its output directory, as regular expressions
+OUTPUT_FILES = re.compile(r"(summary\.json|history\.csv|psph\.xdmf|psph\.log|probes\.csv|wall_pressure\.csv"
+                          r"|packing\.csv|(snapshot|checkpoint)_\d{6,}\.h5)(\.tmp)?")
+OUTPUT_FIGURES = re.compile(r"(history|probes|fields|convergence)\.png")
 
 
 def holds_results(directory) -> bool:
@@ -60,12 +61,18 @@ def holds_results(directory) -> bool:
 
 
 def clear_results(directory) -> None:
-    """Remove psph's own output from `directory` (OUTPUT_FILES and their unfinished .tmp files), and
-    nothing else: `psph run --overwrite` then leaves no snapshot, checkpoint or log line of the run it
-    replaces (a shorter run would otherwise sit beside the older run's later snapshots, and a restart
-    could pick the older run's checkpoint)."""
+    """Remove psph's own output from `directory` (OUTPUT_FILES, unfinished .tmp files included, and
+    OUTPUT_FIGURES in its figures/ unless that is a link elsewhere), and nothing else: `psph run
+    --overwrite` then leaves no snapshot, checkpoint or log line of the run it replaces (a shorter run would
+    otherwise sit beside the older run's later snapshots, and a restart could pick the older run's
+    checkpoint)."""
     d = Path(directory)
-    for pattern in OUTPUT_FILES:
-        for path in [*d.glob(pattern), *d.glob(pattern + ".tmp")]:
-            if path.is_file():
+    if not d.is_dir():
+        return
+    figures = d / "figures"
+    places = [(d, OUTPUT_FILES)] + ([(figures, OUTPUT_FIGURES)] if figures.is_dir() and not figures.is_symlink()
+                                    else [])
+    for folder, names in places:
+        for path in folder.iterdir():
+            if names.fullmatch(path.name) and (path.is_file() or path.is_symlink()):
                 path.unlink()

@@ -102,8 +102,12 @@ def test_killed_while_writing_a_checkpoint_restarts_from_the_last_complete_one(t
     assert proc.returncode == -9, proc.stderr
     assert sorted(p.name for p in out.glob("checkpoint_*")) == ["checkpoint_000010.h5", "checkpoint_000020.h5.tmp"]
     assert latest_checkpoint(out).name == "checkpoint_000010.h5"
-    done = run_psph("run", "--restart", latest_checkpoint(out))
+    # continued through a link to its directory: --overwrite removes nothing of the run it continues
+    link = tmp_path / "link"
+    link.symlink_to(out)
+    done = run_psph("run", "--restart", latest_checkpoint(out), "--out", link, "--overwrite")
     assert done.returncode == 0, done.stderr
+    assert (out / "psph.log").read_text().count("running scene") == 2
     reference = run_psph("run", CASES / "taylor_green.toml", "--out", tmp_path / "reference", "--set", "domain.dx=0.05",
                          "--set", "time.t_end=0.06", "--checkpoint-every", "10")
     assert reference.returncode == 0, reference.stderr

@@ -377,3 +377,12 @@ def test_artificial_viscosity_sets_nu_from_h_and_c0():
     assert math.isclose(ph.kinematic_viscosity(d), 0.01 * (2 * d.dx) * 20.0 / 8.0, rel_tol=1e-14)
     plain = load_scene(CASES / "dam_break.toml", ["physics.artificial_viscosity=0", "physics.reynolds=250"])
     assert math.isclose(plain.physics.kinematic_viscosity(plain.domain), 1.0 / 250.0, rel_tol=1e-14)
+
+
+def test_a_container_shorter_than_a_periodic_axis_is_refused():
+    """A box container spans its periodic axes (the Couette plates): shorter, its sides there would be
+    walls the periodic fluid crosses."""
+    load_scene(CASES / "couette.toml", ["bodies.0.size=[0.5, 1.0]", "bodies.0.center=[0.3, 0.5]"])
+    with pytest.raises(SceneError) as info:
+        load_scene(CASES / "couette.toml", ["bodies.0.size=[0.4, 1.0]"])
+    assert info.value.key == "bodies[0].size" and "periodic axis 0" in str(info.value)
