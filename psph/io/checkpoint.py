@@ -16,6 +16,7 @@ numbers (the initial perturbation, the coincident-particle nudge) are drawn from
 """
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +30,7 @@ from psph.parallel.ordering import block_range
 from psph.particles import FieldSpec, ParticleSet
 
 FORMAT = "psph-checkpoint-1"
-PATTERN = "checkpoint_*.h5"
+NAME = re.compile(r"checkpoint_(\d{6,})\.h5")  # checkpoint_name's, and no other file's
 
 
 def checkpoint_name(step: int) -> str:
@@ -66,7 +67,7 @@ def write_checkpoint(comm, out_dir, system, step: int, time: float, state: dict)
     comm.Barrier()
     if comm.rank == 0:
         replace_atomically(tmp, path)
-        for old in Path(out_dir).glob(PATTERN):
+        for old in _checkpoints(out_dir):
             if old != path:
                 old.unlink()
     comm.Barrier()
@@ -106,6 +107,12 @@ def read_checkpoint(comm, path) -> tuple:
 
 def latest_checkpoint(out_dir):
     """The newest complete checkpoint in `out_dir` (temporary files never count), or None."""
-    found = sorted(Path(out_dir).glob(PATTERN))
+    found = _checkpoints(out_dir)
     return found[-1] if found else None
+
+
+def _checkpoints(out_dir) -> list:
+    """psph's checkpoints in `out_dir`, by step (a step past 999999 has more digits: not by name)."""
+    found = [(int(m.group(1)), p) for p in Path(out_dir).iterdir() if (m := NAME.fullmatch(p.name))]
+    return [p for _, p in sorted(found)]
 

@@ -76,9 +76,13 @@ def kill_mid_checkpoint_script(out):
 @pytest.mark.parametrize("method", ["delta_plus", "iips", "riemann_ale:neuhauser"])
 def test_restart_continues_bit_for_bit(tmp_path, method):
     sc = scene(method)
+    mine = tmp_path / "whole" / "checkpoint_best.h5"  # not psph's: neither pruned nor read
+    mine.parent.mkdir()
+    mine.write_text("mine")
     whole, summary = run(sc, MPI.COMM_SELF, tmp_path / "whole")
-    kept = list((tmp_path / "whole").glob("checkpoint_*"))  # older ones removed once a newer one is complete
+    kept = list((tmp_path / "whole").glob("checkpoint_0*"))  # older ones removed once a newer one is complete
     assert len(kept) == 1 and 0 < read_checkpoint(MPI.COMM_SELF, kept[0])[0]["step"] < summary["steps"]
+    assert mine.read_text() == "mine"
     # continue in a copy of the directory from the last checkpoint
     import shutil
 
@@ -174,3 +178,15 @@ def test_restart_on_the_same_and_on_more_ranks(comm, mpi_tmp_path, method, tol):
     for k in FIELDS:
         scale = max(np.abs(whole[k]).max(), 1.0)
         assert np.abs(more[k] - whole[k]).max() < tol * scale, k
+
+
+def test_the_latest_checkpoint_is_the_largest_step_and_only_psph_s(tmp_path):
+    """Past step 999999 the names grow a digit: the latest is found by step, not by name; a user's
+    checkpoint_best.h5 is no candidate (nor pruned: test_restart_continues_bit_for_bit)."""
+    from psph.io.checkpoint import checkpoint_name
+
+    for step in (999990, 1000000):
+        (tmp_path / checkpoint_name(step)).write_bytes(b"")
+    (tmp_path / "checkpoint_best.h5").write_bytes(b"")
+    (tmp_path / "checkpoint_2000000.h5.tmp").write_bytes(b"")
+    assert latest_checkpoint(tmp_path).name == "checkpoint_1000000.h5"
