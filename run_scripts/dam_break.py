@@ -2,7 +2,7 @@
 incompressible solution, the surge front, the impact on the wall, the energy and the conservation.
 
     .venv/bin/python run_scripts/dam_break.py [--resolutions 20 40] [--t-end 8] [--ranks 2]
-        [--early-resolutions 20 40] [--early-sound-speeds 20 40 80]
+        [--early-resolutions 20 40] [--early-sound-speeds 20 40 80] [--impact-resolutions 80]
 
 Runs cases/dam_break.toml (a column H high and B = 2 H long released in a tank 5.367 H long; delta-ALE-SPH,
 delta-plus shifting, artificial viscosity alpha = 0.01, c0 = 20 sqrt(g H)) and writes, in --out
@@ -22,6 +22,9 @@ delta-plus shifting, artificial viscosity alpha = 0.01, c0 = 20 sqrt(g H)) and w
   fraction of the potential energy that can be released (the column's against the final flat layer's), the
   mass drift, eps_V, the largest density variation, how many times a particle crossed the tank's walls and
   was mirrored back (WallTerms.reflect) and the wall time;
+- impact.md/.csv: the surge and the first impact against resolution: the runs above cut at t = 3 and runs
+  to t = 3 only at --impact-resolutions (80: 18 204 particles), the front, P1's first peak, the largest
+  density variation and the wall reflections up to t = 3;
 - front.png, p1.png, energy.png (and histories.csv with the plotted columns), snapshots.png (the pressure at
   t = 1 .. 8 at the finest resolution).
 """
@@ -45,6 +48,7 @@ from psph.studies import (
 
 H, B, L = 1.0, 2.0, 5.367  # cases/dam_break.toml: column height and length, tank length (rho0 = g = 1)
 EARLY_END = 0.2
+IMPACT_END = 3.0  # past the first impact (t = 2.4-2.6) and the run-up's start
 SMOOTHING = 0.1  # sqrt(H/g): P1's average, over the sound the impacts send through the flow (c0 = 20 sqrt(g H)
 # crosses the 2 H deep run-up in 0.1)
 
@@ -65,6 +69,22 @@ def early_pressure(args):
                          run.summary["wall_time_s"]])
             print(rows[-1], flush=True)
     return rows
+
+
+def impact_row(n, run, end=IMPACT_END):
+    """Row of impact.md from a run's history and probes up to t = end: H/dx, particles, the front at t = 1
+    and 2, when it reaches the right wall, P1's first peak (averaged over SMOOTHING, its time, raw), the
+    largest density variation, the wall reflections."""
+    h = [r for r in run.history if r["time"] <= end + 1e-9]
+    t = np.array([r["time"] for r in h])
+    front = np.array([r["front_x"] for r in h])
+    probe = np.genfromtxt(run.out / "probes.csv", delimiter=",", names=True)
+    keep = probe["time"] <= end + 1e-9
+    tp, p1 = probe["time"][keep], np.nan_to_num(probe["p_0"][keep], nan=0.0)
+    ts, p1s = smoothed(tp, p1)
+    return [n, run.summary["n_particles"], float(np.interp(1.0, t, front)), float(np.interp(2.0, t, front)),
+            first_time(t, front, L - H / n), float(p1s.max()), float(ts[np.argmax(p1s)]), float(p1.max()),
+            max(r["max_density_variation"] for r in h), h[-1]["wall_reflections"]]
 
 
 def smoothed(t, values, width=SMOOTHING):
@@ -118,6 +138,8 @@ def main():
     parser.add_argument("--early-resolutions", type=int, nargs="+", default=[20, 40], help="H/dx")
     parser.add_argument("--early-sound-speeds", type=float, nargs="+", default=[20.0, 40.0, 80.0],
                         help="c0 / sqrt(g H) of the initial-pressure runs")
+    parser.add_argument("--impact-resolutions", type=int, nargs="*", default=[80],
+                        help=f"H/dx of runs to t = {IMPACT_END:g} only (the surge and the first impact)")
     args = parser.parse_args()
     note = "Command: " + command_line()
     print(write_table(args.out / "initial_pressure",
@@ -159,6 +181,20 @@ def main():
                       title="Dam break, t in sqrt(H/g), lengths in H, pressures in rho0 g H; the front from the "
                             "back wall; the dissipated energy over the potential energy the collapse can release",
                       note=note))
+    impact = [impact_row(n, run) + ["-"] for (n,), run in runs]
+    for n in args.impact_resolutions:
+        run = run_scene(CASES / "dam_break.toml", args.out / f"impact_h{n}", ranks=args.ranks,
+                        sets=[f"domain.dx={H / n}", f"time.t_end={IMPACT_END}", "output.every=0.25",
+                              "output.history_every=5"])
+        impact.append(impact_row(n, run) + [run.summary["wall_time_s"]])
+        print(impact[-1], flush=True)
+    print(write_table(args.out / "impact",
+                      ["H/dx", "particles", "front at t = 1", "front at t = 2", "front at the wall, t",
+                       f"P1 first peak, {SMOOTHING:g} average", "at t", "P1 first peak, raw",
+                       "max density variation", "wall reflections", f"wall s (runs to t = {IMPACT_END:g})"],
+                      impact,
+                      title=f"Dam break up to t = {IMPACT_END:g} sqrt(H/g): the surge and the first impact against "
+                            "resolution (the runs above, cut there, and runs to that time only)", note=note))
     styles = {n: {"lw": 1.0 + 0.5 * k} for k, n in enumerate(args.resolutions)}
     curves = [(np.array([r["time"] for r in run.history]), np.array([r["front_x"] for r in run.history]),
                f"H/dx = {n}", styles[n]) for (n,), run in runs]
