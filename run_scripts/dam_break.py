@@ -13,26 +13,29 @@ delta-plus shifting, artificial viscosity alpha = 0.01, c0 = 20 sqrt(g H)) and w
   initial pressure (analytic.dam_break_initial), RMS and largest error in rho0 g H. The release sends sound
   through the column, which the average removes; the larger c0 the shorter its periods against the flow's
   own evolution. The hydrostatic pressure the run starts from is the row "start";
-- dam_break.md/.csv: per resolution, the front at t = 1 and 2 against the column's length B plus Ritter's
-  2 sqrt(g H) t (dry-bed shallow water: an upper bound, the experiments' fronts are slower), the time the front
-  reaches the right wall, probe P1's first pressure peak (on the right wall 0.01 H above the bottom) and its
-  time, its largest pressure after t = 5 (the plunging wave's return), both averaged over 0.1 sqrt(H/g) and
-  raw (the raw signal carries the sound of the impacts, whose amplitude scales with c0: rho0 c0 |u| at an
-  air cavity's collapse), the energy dissipated by t_end as a
-  fraction of the potential energy that can be released (the column's against the final flat layer's), the
-  mass drift, eps_V, the largest density variation, how many times a particle crossed the tank's walls and
-  was mirrored back (WallTerms.reflect) and the wall time;
-- impact.md/.csv: the surge and the first impact against resolution: the runs above cut at t = 3 and runs
-  to t = 3 only at --impact-resolutions (80: 18 204 particles), the front, P1's first peak, the largest
-  density variation and the wall reflections up to t = 3;
-- front.png, p1.png, energy.png (and histories.csv with the plotted columns), snapshots.png (the pressure at
-  t = 1 .. 8 at the finest resolution).
+- impact.md/.csv: the surge and the first impact against resolution, up to t = 3: the runs below cut there
+  and runs to t = 3 only at --impact-resolutions (80: 18 204 particles). The front at t = 1 and 2 against
+  the column's length B plus Ritter's 2 sqrt(g H) t (dry-bed shallow water: an upper bound, the
+  experiments' fronts are slower), the time the front reaches the right wall, probe P1's first pressure
+  peak (on the right wall 0.01 H above the bottom) and its time, averaged over 0.1 sqrt(H/g) and raw (the
+  raw signal carries the sound of the impact), P1's mean over t = 2.7-3 (the run-up pressing on the wall
+  after the impact's sound), the largest density variation, how many times a particle
+  crossed the tank's walls and was mirrored back (WallTerms.reflect), the wall time;
+- dam_break.md/.csv: per resolution, the runs to --t-end: P1's largest pressure after t = 5 (the plunging
+  wave's return; raw, it carries the sound of an air cavity's collapse, rho0 c0 |u|), the energy
+  dissipated by t_end as a fraction of the potential energy that can be released (the column's against the
+  final flat layer's), the mass drift, eps_V, the largest density variation, the wall reflections and the
+  wall time;
+- front.png, p1.png, impact.png (P1 from t = 2.2 to 3 at every resolution), energy.png (and histories.csv
+  with the plotted columns of the runs to --t-end), snapshots.png (the pressure at t = 1 .. 8 at the finest
+  resolution).
 """
 
 import argparse
 from pathlib import Path
 
 import numpy as np
+from scipy.integrate import trapezoid
 
 from psph.particles import Kind
 from psph.studies import (
@@ -49,6 +52,7 @@ from psph.studies import (
 H, B, L = 1.0, 2.0, 5.367  # cases/dam_break.toml: column height and length, tank length (rho0 = g = 1)
 EARLY_END = 0.2
 IMPACT_END = 3.0  # past the first impact (t = 2.4-2.6) and the run-up's start
+AFTER_IMPACT = 0.3  # P1's mean over the last 0.3 sqrt(H/g) before IMPACT_END: the run-up's pressure on the wall
 SMOOTHING = 0.1  # sqrt(H/g): P1's average, over the sound the impacts send through the flow (c0 = 20 sqrt(g H)
 # crosses the 2 H deep run-up in 0.1)
 
@@ -74,7 +78,7 @@ def early_pressure(args):
 def impact_row(n, run, end=IMPACT_END):
     """Row of impact.md from a run's history and probes up to t = end: H/dx, particles, the front at t = 1
     and 2, when it reaches the right wall, P1's first peak (averaged over SMOOTHING, its time, raw), the
-    largest density variation, the wall reflections."""
+    mean over t = end - AFTER_IMPACT .. end, the largest density variation, the wall reflections."""
     h = [r for r in run.history if r["time"] <= end + 1e-9]
     t = np.array([r["time"] for r in h])
     front = np.array([r["front_x"] for r in h])
@@ -82,8 +86,10 @@ def impact_row(n, run, end=IMPACT_END):
     keep = probe["time"] <= end + 1e-9
     tp, p1 = probe["time"][keep], np.nan_to_num(probe["p_0"][keep], nan=0.0)
     ts, p1s = smoothed(tp, p1)
-    return [n, run.summary["n_particles"], float(np.interp(1.0, t, front)), float(np.interp(2.0, t, front)),
-            first_time(t, front, L - H / n), float(p1s.max()), float(ts[np.argmax(p1s)]), float(p1.max()),
+    after = tp >= end - AFTER_IMPACT
+    return [n, run.summary["n_particles"], float(np.interp(1.0, t, front)), B + 2.0, float(np.interp(2.0, t, front)),
+            B + 4.0, first_time(t, front, L - H / n), float(p1s.max()), float(ts[np.argmax(p1s)]), float(p1.max()),
+            float(trapezoid(p1[after], tp[after]) / (tp[after][-1] - tp[after][0])),
             max(r["max_density_variation"] for r in h), h[-1]["wall_reflections"]]
 
 
@@ -154,50 +160,46 @@ def main():
                         sets=[f"domain.dx={H / n}", f"time.t_end={args.t_end}", "output.every=0.25",
                               "output.history_every=5"])
         h = run.history
-        t = np.array([r["time"] for r in h])
-        front = np.array([r["front_x"] for r in h])
         energy = np.array([r["kinetic_energy"] + r["potential_energy"] for r in h])
         mass = np.array([r["total_mass"] for r in h])
         probe = np.genfromtxt(run.out / "probes.csv", delimiter=",", names=True)
         tp, p1 = probe["time"], np.nan_to_num(probe["p_0"], nan=0.0)
         ts, p1s = smoothed(tp, p1)
-        first, late = ts < 4.0, ts >= 5.0
-        rows.append([n, run.summary["n_particles"], float(np.interp(1.0, t, front)), B + 2.0,
-                     float(np.interp(2.0, t, front)), B + 4.0, first_time(t, front, L - H / n),
-                     float(p1s[first].max()), float(ts[first][np.argmax(p1s[first])]),
-                     float(p1[tp < 4.0].max()), float(p1s[late].max()) if late.any() else float("nan"),
+        late = ts >= 5.0
+        rows.append([n, run.summary["n_particles"], float(p1s[late].max()) if late.any() else float("nan"),
                      float(p1[tp >= 5.0].max()) if late.any() else float("nan"),
                      float((energy[0] - energy[-1]) / released), float(np.abs(mass / mass[0] - 1.0).max()),
                      h[-1]["volume_error"], max(r["max_density_variation"] for r in h), h[-1]["wall_reflections"],
                      run.summary["wall_time_s"]])
         runs.append(((n,), run))
         print(rows[-1], flush=True)
-    print(write_table(args.out / "dam_break",
-                      ["H/dx", "particles", "front at t = 1", "B + 2 t (Ritter)", "front at t = 2", "B + 2 t",
-                       "front at the wall, t", f"P1 first peak, {SMOOTHING:g} average", "at t",
-                       "P1 first peak, raw", "P1 max t >= 5, average", "raw",
-                       f"energy dissipated by t = {args.t_end:g}", "max mass drift", "eps_V(t_end)",
-                       "max density variation", "wall reflections", "wall s"], rows,
-                      title="Dam break, t in sqrt(H/g), lengths in H, pressures in rho0 g H; the front from the "
-                            "back wall; the dissipated energy over the potential energy the collapse can release",
-                      note=note))
-    impact = [impact_row(n, run) + ["-"] for (n,), run in runs]
+    impact, short = [impact_row(n, run) + ["-"] for (n,), run in runs], []
     for n in args.impact_resolutions:
         run = run_scene(CASES / "dam_break.toml", args.out / f"impact_h{n}", ranks=args.ranks,
                         sets=[f"domain.dx={H / n}", f"time.t_end={IMPACT_END}", "output.every=0.25",
                               "output.history_every=5"])
+        short.append(((n,), run))
         impact.append(impact_row(n, run) + [run.summary["wall_time_s"]])
         print(impact[-1], flush=True)
     print(write_table(args.out / "impact",
-                      ["H/dx", "particles", "front at t = 1", "front at t = 2", "front at the wall, t",
-                       f"P1 first peak, {SMOOTHING:g} average", "at t", "P1 first peak, raw",
-                       "max density variation", "wall reflections", f"wall s (runs to t = {IMPACT_END:g})"],
-                      impact,
+                      ["H/dx", "particles", "front at t = 1", "B + 2 t (Ritter)", "front at t = 2", "B + 2 t",
+                       "front at the wall, t", f"P1 first peak, {SMOOTHING:g} average", "at t",
+                       "P1 first peak, raw", f"P1 mean, t = {IMPACT_END - AFTER_IMPACT:g}-{IMPACT_END:g}",
+                       "max density variation", "wall reflections",
+                       f"wall s (runs to t = {IMPACT_END:g})"], impact,
                       title=f"Dam break up to t = {IMPACT_END:g} sqrt(H/g): the surge and the first impact against "
-                            "resolution (the runs above, cut there, and runs to that time only)", note=note))
-    styles = {n: {"lw": 1.0 + 0.5 * k} for k, n in enumerate(args.resolutions)}
+                            "resolution (the runs below cut there, and runs to that time only); t in sqrt(H/g), "
+                            "lengths in H, the front from the back wall, pressures in rho0 g H", note=note))
+    print(write_table(args.out / "dam_break",
+                      ["H/dx", "particles", "P1 max t >= 5, average", "raw",
+                       f"energy dissipated by t = {args.t_end:g}", "max mass drift", "eps_V(t_end)",
+                       "max density variation", "wall reflections", "wall s"], rows,
+                      title=f"Dam break to t = {args.t_end:g} sqrt(H/g): the plunging wave, the energy, the "
+                            "conservation; pressures in rho0 g H, the dissipated energy over the potential energy "
+                            "the collapse can release", note=note))
+    styles = {n: {"lw": 1.0 + 0.5 * k} for k, n in enumerate(args.resolutions + args.impact_resolutions)}
     curves = [(np.array([r["time"] for r in run.history]), np.array([r["front_x"] for r in run.history]),
-               f"H/dx = {n}", styles[n]) for (n,), run in runs]
+               f"H/dx = {n}", styles[n]) for (n,), run in runs + short]
     ritter = np.linspace(0.0, (L - B) / 2.0, 20)
     curves.append((ritter, B + 2.0 * ritter, "B + 2 sqrt(gH) t (Ritter)", {"ls": "--", "color": "k"}))
     plot_histories(args.out / "front.png", curves, "t sqrt(g/H)", "front x / H", "Dam break: surge front")
@@ -208,6 +210,17 @@ def main():
         curves.append((*smoothed(probe["time"], probe["p_0"]), f"H/dx = {n}, {SMOOTHING:g} average", styles[n]))
     plot_histories(args.out / "p1.png", curves, "t sqrt(g/H)", "p / (rho0 g H)",
                    "Dam break: pressure at P1 (right wall, y = 0.01 H)")
+    curves = []
+    for (n,), run in runs + short:
+        probe = np.genfromtxt(run.out / "probes.csv", delimiter=",", names=True)
+        t, p1 = probe["time"], np.nan_to_num(probe["p_0"], nan=0.0)
+        keep = t <= IMPACT_END + 1e-9
+        ts, p1s = smoothed(t[keep], p1[keep])
+        shown, shown_s = (t >= 2.2) & keep, ts >= 2.2
+        curves.append((t[shown], p1[shown], f"H/dx = {n}", {**styles[n], "alpha": 0.3}))
+        curves.append((ts[shown_s], p1s[shown_s], f"H/dx = {n}, {SMOOTHING:g} average", styles[n]))
+    plot_histories(args.out / "impact.png", curves, "t sqrt(g/H)", "p / (rho0 g H)",
+                   "Dam break: the first impact at P1")
     curves = [(np.array([r["time"] for r in run.history]),
                np.array([r["kinetic_energy"] + r["potential_energy"] for r in run.history]), f"H/dx = {n}",
                styles[n]) for (n,), run in runs]
