@@ -139,8 +139,9 @@ def test_a_container_s_solid_rows_stand_from_each_of_its_sides(case, sets):
     from psph.boundaries import solid_arrays, thickness
     from psph.boundaries.bodies import bounds
     from psph.scene.load import load_scene
+    from tests.helpers import CASES
 
-    scene = load_scene(f"cases/{case}.toml", sets)
+    scene = load_scene(CASES / f"{case}.toml", sets)
     dx = scene.domain.dx
     solids = solid_arrays(scene, 0, 1, 0)
     pos, dist = solids["position"], solids["wall_distance"]
