@@ -88,16 +88,12 @@ class FreeSurface(NoFreeSurface):
         n, d = p.n_owned, p.dim
         pos, vol, ptr, idx = p["position"], p["volume"], system.nbr_ptr, system.nbr_idx
         with phase("free_surface"):
-            mat = np.empty((n, d, d))
-            sums.renormalisation_matrix(pos, vol, ptr, idx, k.params, mat)
+            mat, grad = np.empty((n, d, d)), np.empty((n, d))
+            sums.renormalisation_and_grad_c(pos, vol, ptr, idx, k.params, mat, grad)
             lam = p.owned("surface_lambda")
             sums.smallest_eigenvalue(mat, lam)
-            inverse = np.empty_like(mat)
-            sums.invert_renormalisation(mat, lam, 1e-3, inverse)
-            grad = np.empty((n, d))
-            sums.grad_concentration(pos, vol, ptr, idx, k.params, grad)
             normal = p.owned("surface_normal")
-            outward_normals(inverse, grad, k.h, normal)
+            outward_normals(mat, lam, grad, k.h, 1e-3, normal)
             fluid = p["kind"] == Kind.FLUID
             flag = p["free_surface"]
             # a wall's solid particles across an air gap do not close the surface (a jet's front coming down

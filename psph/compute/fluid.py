@@ -30,32 +30,7 @@ from numba import njit
 
 from psph.compute.shift_velocity import grad_c_weight
 from psph.compute.smoothing import kernel_f
-from psph.compute.sums import dot, load, pair2, solid, store
-
-
-@njit(cache=True)
-def _solve_sym(m00, m01, m02, m11, m12, m22, g0, g1, g2, d, tol):
-    """x = M^-1 g for a symmetric d x d M (g itself where M is near-singular: no renormalisation)."""
-    if d == 1:
-        if m00 > tol:
-            return g0 / m00, 0.0, 0.0
-        return g0, 0.0, 0.0
-    if d == 2:
-        det = m00 * m11 - m01 * m01
-        if det > tol * tol:
-            return (m11 * g0 - m01 * g1) / det, (m00 * g1 - m01 * g0) / det, 0.0
-        return g0, g1, 0.0
-    c00 = m11 * m22 - m12 * m12
-    c01 = m02 * m12 - m01 * m22
-    c02 = m01 * m12 - m02 * m11
-    det = m00 * c00 + m01 * c01 + m02 * c02
-    if det > tol * tol * tol:
-        c11 = m00 * m22 - m02 * m02
-        c12 = m01 * m02 - m00 * m12
-        c22 = m00 * m11 - m01 * m01
-        return ((c00 * g0 + c01 * g1 + c02 * g2) / det, (c01 * g0 + c11 * g1 + c12 * g2) / det,
-                (c02 * g0 + c12 * g1 + c22 * g2) / det)
-    return g0, g1, g2
+from psph.compute.sums import dot, load, pair2, solid, solve_symmetric, store
 
 
 def _compile(d):
@@ -112,7 +87,7 @@ def _compile(d):
             if with_grad_c:
                 store(grad_c, i, d, c0_, c1_, c2_)
             if row:
-                r0, r1, r2 = _solve_sym(m00, m01, m02, m11, m12, m22, g0, g1, g2, d, 1e-6)
+                r0, r1, r2 = solve_symmetric(m00, m01, m02, m11, m12, m22, g0, g1, g2, d, 1e-6)
                 store(out, i, d, r0, r1, r2)
 
     @njit(cache=True)

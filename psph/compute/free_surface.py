@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from psph.compute.smoothing import kernel_w
-from psph.compute.sums import dot, load, pair, pair2, store
+from psph.compute.sums import dot, load, pair, pair2, solve_symmetric, store, symmetric
 
 SURFACE = 2  # flag of a particle on the free surface
 REGION = 1  # flag of a particle within a kernel support of one (seed 004: "the free-surface particles and
@@ -42,21 +42,20 @@ UNDEFINED = 1e-6
 
 
 @njit(cache=True)
-def outward_normals(mat_inv, grad_c, h, out):
-    """n_i = -L_i grad C_i / |L_i grad C_i|, L_i = M_i^{-1}; zero where |L_i grad C_i| h <= UNDEFINED (a full or
-    balanced support: at a flat surface it is about 0.5)."""
+def outward_normals(mat, lam, grad_c, h, tol, out):
+    """n_i = -L_i grad C_i / |L_i grad C_i|, L_i = M_i^{-1} (the identity where lambda_min(M_i) = lam[i] <= tol,
+    as sums.invert_renormalisation); zero where |L_i grad C_i| h <= UNDEFINED (a full or balanced support: at
+    a flat surface it is about 0.5)."""
     n, d = grad_c.shape
     for i in range(n):
-        norm2 = 0.0
-        for a in range(d):
-            s = 0.0
-            for b in range(d):
-                s -= mat_inv[i, a, b] * grad_c[i, b]
-            out[i, a] = s
-            norm2 += s * s
-        norm = np.sqrt(norm2)
-        for a in range(d):
-            out[i, a] = out[i, a] / norm if norm * h > UNDEFINED else 0.0
+        g0, g1, g2 = load(grad_c, i, d)
+        if lam[i] > tol:
+            g0, g1, g2 = solve_symmetric(*symmetric(mat, i, d), g0, g1, g2, d, 0.0)
+        norm = np.sqrt(dot(g0, g1, g2, g0, g1, g2, d))
+        if norm * h > UNDEFINED:
+            store(out, i, d, -g0 / norm, -g1 / norm, -g2 / norm)
+        else:
+            store(out, i, d, 0.0, 0.0, 0.0)
 
 
 @njit(cache=True)

@@ -27,8 +27,7 @@ fluxes are the centred SPH-ALE ones (eq. 5.45 with F_ij = (F_i + F_j) / 2).
 import numpy as np
 from numba import njit
 
-from psph.compute.fluid import _solve_sym
-from psph.compute.sums import pair2
+from psph.compute.sums import pair2, solve_symmetric
 
 TAIT_GAMMA = 7.0
 
@@ -119,7 +118,7 @@ def _compile(d):
                     for b in range(d):
                         g[a, b] += dv * x[b]
             for a in range(d):
-                r = _solve_sym(m00, m01, m02, m11, m12, m22, g[a, 0], g[a, 1], g[a, 2], d, 1e-6)
+                r = solve_symmetric(m00, m01, m02, m11, m12, m22, g[a, 0], g[a, 1], g[a, 2], d, 1e-6)
                 for b in range(d):
                     out[i, a, b] = r[b]
 

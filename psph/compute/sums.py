@@ -215,57 +215,110 @@ def renormalisation_matrix(pos, vol, ptr, idx, kp, out):
     The renormalisation matrix of seed 001 eq. 15 (index misprint corrected, seeds/README.md) is
     L_i = M_i^{-1}: see invert_renormalisation.
     """
+    renormalisation_and_grad_c(pos, vol, ptr, idx, kp, out, np.empty((ptr.size - 1, pos.shape[1])))
+
+
+@njit(cache=True)
+def renormalisation_and_grad_c(pos, vol, ptr, idx, kp, mat, grad):
+    """M_i into mat (renormalisation_matrix) and grad C_i into grad (grad_concentration), in one pass."""
     d = pos.shape[1]
     for i in range(ptr.size - 1):
-        for a in range(d):
-            for b in range(d):
-                out[i, a, b] = 0.0
+        m00 = m01 = m02 = m11 = m12 = m22 = 0.0
+        g0 = g1 = g2 = 0.0
         for k in range(ptr[i], ptr[i + 1]):
             j = idx[k]
             r0, r1, r2, r = pair(pos, i, j, d)
-            s = -kernel_f(r, kp) * vol[j]
-            out[i, 0, 0] += s * r0 * r0
+            s = kernel_f(r, kp) * vol[j]
+            g0 += s * r0
+            m00 -= s * r0 * r0
             if d > 1:
-                out[i, 0, 1] += s * r0 * r1
-                out[i, 1, 1] += s * r1 * r1
+                g1 += s * r1
+                m01 -= s * r0 * r1
+                m11 -= s * r1 * r1
             if d > 2:
-                out[i, 0, 2] += s * r0 * r2
-                out[i, 1, 2] += s * r1 * r2
-                out[i, 2, 2] += s * r2 * r2
-        for a in range(d):
-            for b in range(a):
-                out[i, a, b] = out[i, b, a]
+                g2 += s * r2
+                m02 -= s * r0 * r2
+                m12 -= s * r1 * r2
+                m22 -= s * r2 * r2
+        store(grad, i, d, g0, g1, g2)
+        mat[i, 0, 0] = m00
+        if d > 1:
+            mat[i, 0, 1] = mat[i, 1, 0] = m01
+            mat[i, 1, 1] = m11
+        if d > 2:
+            mat[i, 0, 2] = mat[i, 2, 0] = m02
+            mat[i, 1, 2] = mat[i, 2, 1] = m12
+            mat[i, 2, 2] = m22
+
+
+@njit(cache=True, inline="always")
+def symmetric(mat, i, d):
+    """The upper triangle (m00, m01, m02, m11, m12, m22) of mat[i], padded with zeros beyond d."""
+    m01 = mat[i, 0, 1] if d > 1 else 0.0
+    m11 = mat[i, 1, 1] if d > 1 else 0.0
+    m02 = mat[i, 0, 2] if d > 2 else 0.0
+    m12 = mat[i, 1, 2] if d > 2 else 0.0
+    m22 = mat[i, 2, 2] if d > 2 else 0.0
+    return mat[i, 0, 0], m01, m02, m11, m12, m22
 
 
 @njit(cache=True)
 def smallest_eigenvalue(mat, out):
-    """Smallest eigenvalue of each symmetric d x d matrix (lambda_min of M_i, free-surface indicator)."""
-    n = mat.shape[0]
+    """Smallest eigenvalue of each symmetric d x d matrix (lambda_min of M_i, free-surface indicator): in
+    closed form for d <= 2; in 3-D by LAPACK (the trigonometric closed form loses half the digits where two
+    eigenvalues meet, as at a flat surface's M = diag(1, 1, 1/2))."""
     d = mat.shape[1]
-    for i in range(n):
+    for i in range(mat.shape[0]):
         if d == 1:
             out[i] = mat[i, 0, 0]
         elif d == 2:
-            a = mat[i, 0, 0]
-            b = mat[i, 0, 1]
-            c = mat[i, 1, 1]
+            a, b, c = mat[i, 0, 0], mat[i, 0, 1], mat[i, 1, 1]
             out[i] = 0.5 * (a + c) - np.sqrt(0.25 * (a - c) * (a - c) + b * b)
         else:
             out[i] = np.linalg.eigvalsh(np.ascontiguousarray(mat[i]))[0]
 
 
 @njit(cache=True)
+def solve_symmetric(m00, m01, m02, m11, m12, m22, g0, g1, g2, d, tol):
+    """x = M^-1 g for a symmetric d x d M by cofactors (g itself where det M <= tol^d: near-singular, no
+    renormalisation)."""
+    if d == 1:
+        if m00 > tol:
+            return g0 / m00, 0.0, 0.0
+        return g0, 0.0, 0.0
+    if d == 2:
+        det = m00 * m11 - m01 * m01
+        if det > tol * tol:
+            return (m11 * g0 - m01 * g1) / det, (m00 * g1 - m01 * g0) / det, 0.0
+        return g0, g1, 0.0
+    c00 = m11 * m22 - m12 * m12
+    c01 = m02 * m12 - m01 * m22
+    c02 = m01 * m12 - m02 * m11
+    det = m00 * c00 + m01 * c01 + m02 * c02
+    if det > tol * tol * tol:
+        c11 = m00 * m22 - m02 * m02
+        c12 = m01 * m02 - m00 * m12
+        c22 = m00 * m11 - m01 * m01
+        return ((c00 * g0 + c01 * g1 + c02 * g2) / det, (c01 * g0 + c11 * g1 + c12 * g2) / det,
+                (c02 * g0 + c12 * g1 + c22 * g2) / det)
+    return g0, g1, g2
+
+
+@njit(cache=True)
 def invert_renormalisation(mat, lambda_min, tol, out):
     """L_i = M_i^{-1} where lambda_min(M_i) > tol, else the identity (no renormalisation)."""
-    n = mat.shape[0]
     d = mat.shape[1]
-    for i in range(n):
-        if lambda_min[i] > tol:
-            out[i] = np.linalg.inv(np.ascontiguousarray(mat[i]))
-        else:
-            for a in range(d):
-                for b in range(d):
-                    out[i, a, b] = 1.0 if a == b else 0.0
+    for i in range(mat.shape[0]):
+        m = symmetric(mat, i, d)
+        for b in range(d):
+            e0, e1, e2 = (1.0 if b == 0 else 0.0), (1.0 if b == 1 else 0.0), (1.0 if b == 2 else 0.0)
+            if lambda_min[i] > tol:  # then det M_i > tol^d > 0
+                e0, e1, e2 = solve_symmetric(*m, e0, e1, e2, d, 0.0)
+            out[i, 0, b] = e0
+            if d > 1:
+                out[i, 1, b] = e1
+            if d > 2:
+                out[i, 2, b] = e2
 
 
 @njit(cache=True)

@@ -16,7 +16,10 @@ def clouds(dim, rng):
     uniform = rng.uniform(0.0, 1.0, (n, dim))
     clustered = np.concatenate([rng.normal(c, 0.02, (n // 4, dim)) for c in rng.uniform(0, 1, (4, dim))])
     coincident = np.repeat(rng.uniform(0.0, 1.0, (n // 3, dim)), 3, axis=0)
-    return {"uniform": uniform, "clustered": clustered, "coincident": coincident}
+    # a lattice of spacing 0.025 puts pairs exactly at the radius 0.05 and on the cells' edges
+    side = round(n ** (1 / dim))
+    lattice = np.stack(np.meshgrid(*[0.025 * np.arange(side)] * dim, indexing="ij"), -1).reshape(-1, dim)
+    return {"uniform": uniform, "clustered": clustered, "coincident": coincident, "lattice": lattice}
 
 
 @pytest.mark.parametrize("dim", [1, 2, 3])

@@ -135,9 +135,13 @@ def test_smallest_eigenvalue_and_inverse():
     for dim in (1, 2, 3):
         a = rng.normal(size=(50, dim, dim))
         m = a @ np.transpose(a, (0, 2, 1)) + 0.1 * np.eye(dim)
+        # repeated eigenvalues
+        m[:3] = [np.eye(dim), 2.0 * np.eye(dim), np.diag(np.arange(dim, 0, -1.0) ** 0)]
+        if dim == 3:
+            m[3:5] = [np.diag([1.0, 1.0, 3.0]), np.diag([3.0, 0.5, 3.0])]
         lam = np.zeros(50)
         sums.smallest_eigenvalue(m, lam)
-        assert np.allclose(lam, np.linalg.eigvalsh(m)[:, 0], rtol=1e-12)
+        assert np.allclose(lam, np.linalg.eigvalsh(m)[:, 0], rtol=1e-12, atol=1e-14)
         inv = np.zeros_like(m)
         sums.invert_renormalisation(m, lam, 1e-3, inv)
         ok = lam > 1e-3
