@@ -58,37 +58,48 @@ def iips_structure(row, ptr, idx, d):
         raise ValueError("the IIPS matrix has more nonzeros on a rank, or more rows, than 32-bit indices allow")
     slot = np.empty(n_values, dtype=np.int32)
     indptr = np.zeros(n_free * d + 1, dtype=np.int32)
-    columns = np.empty(n_values // d, dtype=np.int32)  # unique particle columns, row after row
+    n_entries = n_values // d  # >= the particle entries (self and free neighbours) of all rows
+    columns = np.empty(n_entries, dtype=np.int32)  # unique particle columns, row after row
+    unique = np.empty(n_entries, dtype=np.int32)  # of each particle entry, its column's place in its row
     width = np.zeros(n_free, dtype=np.int64)
-    scratch = np.empty(64, dtype=np.int64)
-    # unique sorted particle columns of every particle row (insertion sort: rows arrive nearly sorted)
+    keys = np.empty(64, dtype=np.int64)
+    entry = np.empty(64, dtype=np.int64)
+    # unique sorted particle columns of every particle row, by insertion sort of (column, entry) pairs
+    # (rows arrive nearly sorted); entry 0 is the particle itself, then its free neighbours in list order
     p = 0
     c = 0
+    e = 0
     for i in range(n_rows):
         if row[i] < 0:
             continue
         m = 1 + ptr[i + 1] - ptr[i]
-        if m > scratch.size:
-            scratch = np.empty(2 * m, dtype=np.int64)
-        scratch[0] = row[i]
+        if m > keys.size:
+            keys = np.empty(2 * m, dtype=np.int64)
+            entry = np.empty(2 * m, dtype=np.int64)
+        keys[0] = row[i]
+        entry[0] = 0
         q = 1
         for k in range(ptr[i], ptr[i + 1]):
             v = row[idx[k]]
             if v < 0:
                 continue
             t = q
-            while t > 0 and scratch[t - 1] > v:
-                scratch[t] = scratch[t - 1]
+            while t > 0 and keys[t - 1] > v:
+                keys[t] = keys[t - 1]
+                entry[t] = entry[t - 1]
                 t -= 1
-            scratch[t] = v
+            keys[t] = v
+            entry[t] = q
             q += 1
-        u = 0
+        u = -1
         for t in range(q):
-            if t == 0 or scratch[t] != scratch[t - 1]:
-                columns[c + u] = scratch[t]
+            if t == 0 or keys[t] != keys[t - 1]:
                 u += 1
-        width[p] = u
-        c += u
+                columns[c + u] = keys[t]
+            unique[e + entry[t]] = u
+        width[p] = u + 1
+        c += u + 1
+        e += q
         p += 1
     # scalar CSR: particle row p, component a holds columns (col * d + b) for its particle columns
     base = np.zeros(n_free + 1, dtype=np.int64)
@@ -98,35 +109,38 @@ def iips_structure(row, ptr, idx, d):
     start = 0
     for p in range(n_free):
         m = width[p]
-        for a in range(d):
-            indptr[p * d + a + 1] = base[p] + (a + 1) * m * d
-            for s in range(m):
-                for b in range(d):
-                    indices[base[p] + a * m * d + s * d + b] = columns[start + s] * d + b
+        o = base[p]
+        for s in range(m):
+            col = columns[start + s] * d
+            for b in range(d):
+                indices[o + s * d + b] = col + b
+        for a in range(d):  # the d rows of a particle hold the same columns
+            indptr[p * d + a + 1] = o + (a + 1) * m * d
+            if a > 0:
+                indices[o + a * m * d:o + (a + 1) * m * d] = indices[o:o + m * d]
         start += m
-    # natural order -> CSR position
+    # natural order -> CSR position: the particle's d diagonal values, then d x d per free neighbour
+    v = 0
     e = 0
     p = 0
-    start = 0
     for i in range(n_rows):
         if row[i] < 0:
             continue
         m = width[p]
-        uniq = columns[start:start + m]
-        s = np.searchsorted(uniq, row[i])
+        s = unique[e]
         for a in range(d):
-            slot[e] = base[p] + a * m * d + s * d + a
-            e += 1
+            slot[v] = base[p] + a * m * d + s * d + a
+            v += 1
+        e += 1
         for k in range(ptr[i], ptr[i + 1]):
-            rj = row[idx[k]]
-            if rj < 0:
+            if row[idx[k]] < 0:
                 continue
-            s = np.searchsorted(uniq, rj)
+            s = unique[e]
             for a in range(d):
                 for b in range(d):
-                    slot[e] = base[p] + a * m * d + s * d + b
-                    e += 1
-        start += m
+                    slot[v] = base[p] + a * m * d + s * d + b
+                    v += 1
+            e += 1
         p += 1
     return indptr, indices, slot
 
