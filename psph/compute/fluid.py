@@ -43,7 +43,8 @@ def _compile(d):
                               coeff, power, w_ref, grad_c):
         """The renormalised gradient of phi with the pair cache (see the wrapper below) and, with_grad_c, in
         the same pass over the lists, compute.shift_velocity's corrected grad C of every row over every
-        neighbour (solids included), in the same sums and order as corrected_grad_c (the same bits)."""
+        neighbour (solids included), in the same sums and order as corrected_grad_c (the same bits), but for
+        a solid's rows with fluid_only: they are skipped, their grad C zero (no law moves a solid)."""
         s2 = 4.0 * kp[1] * kp[1]
         c = 0
         for i in range(ptr.size - 1):
@@ -51,6 +52,11 @@ def _compile(d):
             g0 = g1 = g2 = 0.0
             c0_ = c1_ = c2_ = 0.0
             row = not (fluid_only and solid(kind[i]))  # inflow rows too: their neighbours read it
+            if not row:  # a solid's row: no field, and the shifting laws zero its grad C (its shift velocity)
+                cptr[i + 1] = c
+                if with_grad_c:
+                    store(grad_c, i, d, 0.0, 0.0, 0.0)
+                continue
             for k in range(ptr[i], ptr[i + 1]):
                 j = idx[k]
                 x0, x1, x2, rr = pair2(pos, i, j, d)
@@ -65,7 +71,7 @@ def _compile(d):
                         c1_ += sc * x1
                     if d > 2:
                         c2_ += sc * x2
-                if not row or (fluid_only and solid(kind[j])):
+                if fluid_only and solid(kind[j]):
                     continue
                 s = f * vol[j]
                 cidx[c] = j
@@ -86,9 +92,8 @@ def _compile(d):
             cptr[i + 1] = c
             if with_grad_c:
                 store(grad_c, i, d, c0_, c1_, c2_)
-            if row:
-                r0, r1, r2 = solve_symmetric(m00, m01, m02, m11, m12, m22, g0, g1, g2, d, 1e-6)
-                store(out, i, d, r0, r1, r2)
+            r0, r1, r2 = solve_symmetric(m00, m01, m02, m11, m12, m22, g0, g1, g2, d, 1e-6)
+            store(out, i, d, r0, r1, r2)
 
     @njit(cache=True)
     def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, ptr, idx, cf, h, c0, delta, delta_m, mu,
@@ -223,7 +228,8 @@ def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pa
     D^rho). pairs: a PairCache to fill with the
     summed pairs inside the support (for delta_ale_rhs).
     grad_c = (coeff, power, w_ref, g): also fill g (rows of ptr) with the corrected grad C of
-    compute.shift_velocity.corrected_grad_c in the same pass (the same values, one walk of the lists).
+    compute.shift_velocity.corrected_grad_c in the same pass (the same values, one walk of the lists; zero
+    in a solid's rows with fluid_only, which are skipped: the shifting laws move fluid only).
     Pairs beyond the support are skipped (f = 0 there, but for pairs within rounding of its edge, whose
     f of order 1e-42 the gradient left out as well)."""
     pairs = (pairs or PairCache()).fit(ptr, idx)
