@@ -20,7 +20,7 @@ from numba import njit
 _MAX_CELLS_PER_PARTICLE = 4
 # Cells per list radius along an axis.
 _CELLS_PER_RADIUS = 2
-# Relative margin for rounding: cells are made this much wider than radius / _CELLS_PER_RADIUS, and the
+# Relative margin for rounding: cells are made 4 _MARGIN wider than radius / _CELLS_PER_RADIUS, and the
 # stencil's reach is ceil(radius / size + _MARGIN), so a pair closer than the radius whose cell indices were
 # each rounded by a few ulps still falls inside the stencil, without a stencil one cell wider than needed.
 _MARGIN = 1e-6
@@ -50,13 +50,14 @@ def _cell_grid(pos, size):
                 hi[a] = v
     limit = _MAX_CELLS_PER_PARTICLE * n + 64
     while True:
-        total = 1
+        total = 1.0  # in floating point: a runaway particle's extent would overflow an integer product
         for a in range(d):
-            ncell[3 - d + a] = int((hi[a] - lo[a]) / size) + 1
-            total *= ncell[3 - d + a]
+            total *= np.floor((hi[a] - lo[a]) / size) + 1.0
         if total <= limit:
             break
         size *= 1.5
+    for a in range(d):
+        ncell[3 - d + a] = int((hi[a] - lo[a]) / size) + 1
     return lo, ncell, size
 
 
@@ -129,6 +130,8 @@ def _scan(query, n_rows, sorted_pos, members, start, qcell, ncell, reach, r2max,
 def _lists(query, n_rows, data, radius, exclude_self):
     """CSR lists of the `data` points within `radius` (> 0) of query points 0..n_rows-1, ascending in cell
     order; with exclude_self, query i is data i and is left out of its own row."""
+    if not radius > 0.0:
+        raise ValueError("the neighbour-list radius must be positive")
     d = data.shape[1]
     lo, ncell, size = _cell_grid(np.concatenate((data, query[:n_rows])),
                                  radius / _CELLS_PER_RADIUS * (1.0 + 4.0 * _MARGIN))

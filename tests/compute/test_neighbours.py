@@ -55,6 +55,13 @@ def test_sparse_cloud_caps_cell_count():
     assert [set(idx[ptr[i]:ptr[i + 1]]) for i in range(3)] == [{2}, set(), {0}]
 
 
+def test_a_runaway_particle_coarsens_the_grid_instead_of_overflowing():
+    """A 3-D extent of 1e6 list radii would need ~1e19 cells of half the radius (beyond int64)."""
+    pos = np.array([[0.0, 0.0, 0.0], [1.7e6, 1.7e6, 1.7e6], [0.5, 0.0, 0.0]])
+    ptr, idx = build_neighbour_lists(pos, 3, 1.0)
+    assert [set(idx[ptr[i]:ptr[i + 1]]) for i in range(3)] == [{2}, set(), {0}]
+
+
 def test_spatial_order_is_a_permutation_grouping_cells():
     rng = np.random.default_rng(0)
     pos = rng.uniform(0, 1, (500, 2))
