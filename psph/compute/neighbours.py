@@ -94,8 +94,9 @@ def _bin(cell, ntotal):
 
 @njit(cache=True)
 def _scan(query, n_rows, sorted_pos, members, start, qcell, ncell, reach, r2max, exclude_self, ptr, idx, fill):
-    """Count (fill=False: ptr[i + 1] = the number of data points closer than sqrt(r2max) to query i, itself
-    included) or write them (fill=True: their numbers from ptr[i] on, without i itself if exclude_self)."""
+    """Count (fill=False: ptr[i + 1] = the number of data points closer than sqrt(r2max) to query i, the
+    query itself included when it is data point i) or write them (fill=True: their numbers from ptr[i] on,
+    without data point i if exclude_self)."""
     n0, n1, n2 = ncell[0], ncell[1], ncell[2]
     x = np.zeros(3)
     for i in range(n_rows):
