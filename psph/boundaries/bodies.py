@@ -103,6 +103,7 @@ class Body:
             tol = 1e-9 * max(spec.size)
             self.lid = (local[:, 1] > spec.size[1] / 2.0 - tol) & (np.abs(local[:, 0]) < spec.size[0] / 2.0 - tol)
         self.lid_velocity = np.asarray(spec.lid_velocity or (0.0, 0.0), dtype=np.float64)
+        self._fixed_nodes = None
         if spec.reference_length > 0:
             self.reference_length = spec.reference_length
         elif spec.shape == "polygon":  # its width
@@ -130,7 +131,17 @@ class Body:
         return c + r, v + om * perp, a + al * perp - om * om * r
 
     def nodes(self, t):
-        """Body nodes at time t: positions, normals and velocities (the lid's included)."""
+        """Body nodes at time t: positions, normals and velocities (the lid's included); a fixed body's are
+        computed once (read-only arrays)."""
+        if not self.moves:
+            if self._fixed_nodes is None:
+                self._fixed_nodes = self._nodes(t)
+                for a in self._fixed_nodes:
+                    a.flags.writeable = False
+            return self._fixed_nodes
+        return self._nodes(t)
+
+    def _nodes(self, t):
         pos, vel, _ = self.material(self.profile.nodes, t)
         _, rot, _, _, _, _ = self.rigid(t)
         normals = self.profile.normals @ rot.T

@@ -39,6 +39,7 @@ class WallTerms:
         self.u_ref = scene.physics.reference_velocity
         self.rho0 = scene.physics.density
         self.clones = [b for b in self.bodies if b.spec.model == "clone"]
+        self._fixed_tree = None
         self.periodic = scene.domain.periodic
         self.ghost = _ghost_walls(scene, [b for b in self.bodies if b.spec.model == "ghost"])
 
@@ -117,18 +118,23 @@ class WallTerms:
     def nearest_node_data(self, system, rows, t):
         """Normal, distance and velocity of the closest body node for each fluid row near a wall (the
         kernel uses the normal and distance; wall velocities come from the solid particles' own nodes)."""
+        tree, normals, velocities = self._node_tree(t)
+        points = system.particles.owned("position")[rows]
+        dist, k = tree.query(points) if len(points) else (np.zeros(0), np.zeros(0, np.int64))
+        return normals[k], dist, velocities[k]
+
+    def _node_tree(self, t):
+        """A k-d tree of the clone bodies' nodes at time t, with their normals and velocities; built once
+        when no clone body moves."""
         from scipy.spatial import cKDTree
 
-        pos_all, nrm_all, vel_all = [], [], []
-        for b in self.clones:
-            pos, nrm, vel = b.nodes(t)
-            pos_all.append(pos)
-            nrm_all.append(nrm)
-            vel_all.append(vel)
-        nodes = np.concatenate(pos_all)
-        points = system.particles.owned("position")[rows]
-        dist, k = cKDTree(nodes).query(points) if len(points) else (np.zeros(0), np.zeros(0, np.int64))
-        return np.concatenate(nrm_all)[k], dist, np.concatenate(vel_all)[k]
+        if self._fixed_tree is not None:
+            return self._fixed_tree
+        pos, nrm, vel = (np.concatenate(parts) for parts in zip(*(b.nodes(t) for b in self.clones)))
+        tree = (cKDTree(pos), nrm, vel)
+        if not any(b.moves for b in self.clones):
+            self._fixed_tree = tree
+        return tree
 
     # ----------------------------------------------------------------- rhs
     def add(self, system, scheme, t, d_rho, d_mom):
