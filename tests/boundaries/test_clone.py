@@ -278,3 +278,16 @@ def test_at_a_convex_corner_the_clones_take_the_particles_own_normal(tmp_path):
     d_rho_slide, _ = wall_rates(driver, system, i, velocity=(1.0, 0.0))
     assert d_rho_approach > 0.0
     assert abs(d_rho_slide) < 1e-12 * d_rho_approach
+
+
+def test_the_node_tree_is_kept_only_while_no_clone_body_moves():
+    """The closest-node search reuses its k-d tree for fixed walls and rebuilds it while a body moves."""
+    from psph.boundaries.clone import WallTerms
+
+    moving = WallTerms(load_scene(CASES / "moving_square.toml"))
+    early, late = moving._node_tree(0.0), moving._node_tree(2.0)
+    assert early is not late and not np.allclose(early[0].data, late[0].data)
+    square = moving.clones[1].nodes(2.0)[0]  # the tree holds the square's nodes where they are at t = 2
+    assert np.allclose(late[0].data[-len(square):], square)
+    fixed = WallTerms(load_scene(CASES / "hydrostatic_tank.toml"))
+    assert fixed._node_tree(0.0) is fixed._node_tree(5.0)
