@@ -10,7 +10,10 @@ Bandwidth: a single-core STREAM triad (a = b + s c, numba, 3 x 8 bytes per eleme
 in the same process. Bound of one BCGS + Jacobi iteration: two matrix-vector products at 12 bytes per
 nonzero for AIJ (8 value + 4 column index; 8 + 4 / d^2 for BAIJ, one index per d x d block) plus 16
 bytes per row (row pointer, result), and about 20 vector sweeps of 8 bytes per row (the BCGS axpys and
-dot products, the Jacobi scaling).
+dot products, the Jacobi scaling). With `--operator matrix_free` (iips.operator) the product reads
+per stored pair its d (d + 1) / 2 Hessian entries and one 4-byte column (8 x 3 + 4 bytes in 2-D), per
+particle its self term and row pointer (16 bytes), and per scalar row copies x into the product's input
+and writes the result (32 bytes); the vector sweeps are the same.
 """
 
 import argparse
@@ -41,6 +44,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[200, 400], help="particles per side")
     parser.add_argument("--iterations", type=int, default=3, help="timed Newton iterations (after one warm-up)")
+    parser.add_argument("--operator", choices=["assembled", "matrix_free"], default="assembled",
+                        help="iips.operator")
     args, petsc_args = parser.parse_known_args()
 
     from psph.solvers.petsc import initialize
@@ -69,7 +74,7 @@ def main():
         scene = scene_from_table({"name": "bench", "domain": {
             "dimension": 2, "lower": [0.0, 0.0], "upper": [1.0, 1.0], "periodic": [True, True], "dx": 1.0 / n},
             "initial": {"sigma_over_dx": 0.1, "seed": 1}, "shifting": {"method": "iips"},
-            "iips": {"max_newton": 1}})
+            "iips": {"max_newton": 1, "operator": args.operator}})
         system = build_system(scene, comm)
         shifting = ImplicitShifting(scene.iips, comm)
         shifting.correct(system)  # warm-up: compiles, builds the matrix structure
@@ -82,20 +87,27 @@ def main():
         total = (time.perf_counter() - t0) / args.iterations
         t = profiling.exclusive()
         split = {k: t.get(k, 0.0) / args.iterations for k in parts}
-        nnz = shifting.mat.getInfo(petsc().Mat.InfoType.LOCAL)["nz_used"]  # this rank's (the default sums)
         rows = shifting.mat.getLocalSize()[0]
         ksp_its = its / args.iterations
         per_its = split["ksp_solve"] / max(ksp_its, 1)
         kind = shifting.mat.getType()
-        per_nonzero = 8 + 4 / (system.particles.dim ** 2 if "baij" in kind else 1)
-        bound = (2 * (per_nonzero * nnz + 16 * rows) + 20 * 8 * rows) / bandwidth
+        d = system.particles.dim
+        if kind == "python":  # matrix-free: this rank's stored pairs
+            nnz = int(shifting.operator.bptr[-1])
+            stored = "pairs"
+            product = (8 * d * (d + 1) // 2 + 4) * nnz + 16 * rows // d + 32 * rows
+        else:
+            nnz = shifting.mat.getInfo(petsc().Mat.InfoType.LOCAL)["nz_used"]  # this rank's (the default sums)
+            stored = "nonzeros"
+            product = (8 + 4 / (d ** 2 if "baij" in kind else 1)) * nnz + 16 * rows
+        bound = (2 * product + 20 * 8 * rows) / bandwidth
         worst = {k: allreduce_max(comm, v) for k, v in split.items()}
         per_its_max = allreduce_max(comm, per_its)
         bound_max = allreduce_max(comm, bound)
         rest = total - sum(split.values())  # this rank's time outside the listed parts
         total = allreduce_max(comm, total)
         if comm.rank == 0:
-            print(f"\n{n * n} particles ({rows} local rows, {nnz:.0f} local nonzeros on rank 0, {kind})")
+            print(f"\n{n * n} particles ({rows} local rows, {nnz:.0f} local {stored} on rank 0, {kind})")
             print(f"  time per Newton iteration {1e3 * total:.1f} ms (max over ranks); parts:")
             for k in parts:
                 name = "rebuild, rest" if k == "rebuild" else k

@@ -25,7 +25,7 @@ from numba import njit
 
 from psph.compute.csr import add_at
 from psph.compute.smoothing import hessian_coefficients, kernel_f
-from psph.compute.sums import pair
+from psph.compute.sums import pair, pair2
 
 
 @njit(cache=True)
@@ -184,3 +184,85 @@ def iips_values(pos, vol, row, ptr, idx, kp, where, diag, off):
             else:
                 add_at(where, e, ha + hb * x0 * x0, diag, off)
             e += d * d
+
+
+@njit(cache=True)
+def iips_pairs(pos, vol, col, ptr, idx, kp, bptr, bcol, hess, self_term):
+    """The printed operator's off-diagonal blocks pair by pair, for a matrix-free product (iips_product).
+
+    col: every local particle's unknown block in the rank's local numbering (owned free particles
+    0..n - 1 in local order, other free particles from n on, -1 if fixed). For owned free particle p:
+    its free neighbours within the support go to bptr[p]..bptr[p + 1] of bcol (their block) and hess
+    (V_j HessW(x_i - x_j), the d (d + 1) / 2 entries of the symmetric block row by row: xx, xy, yy in
+    2-D). bcol and hess must hold every list entry (the upper bound). self_term[p] = V_i W''(0): the
+    printed self block V_i HessW(0) = V_i W''(0) I, which is also the diagonal block (a particle's own
+    periodic images are never its neighbours: periodic lengths exceed the support plus skin, schema). The
+    same operator and sums as iips_values; pairs beyond the support (a list's skin) are left out."""
+    d = pos.shape[1]
+    h0 = kernel_f(0.0, kp)
+    inv2 = kp[3] * kp[3]  # 1 / support radius^2
+    p = 0
+    m = 0
+    bptr[0] = 0
+    for i in range(ptr.size - 1):
+        if col[i] < 0:
+            continue
+        self_term[p] = vol[i] * h0
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            c = col[j]
+            if c < 0:
+                continue
+            x0, x1, x2, rr = pair2(pos, i, j, d)
+            if rr * inv2 >= 1.0:
+                continue
+            ha, hb = hessian_coefficients(np.sqrt(rr), kp)
+            ha *= vol[j]
+            hb *= vol[j]
+            bcol[m] = c
+            if d == 1:
+                hess[m, 0] = ha + hb * x0 * x0
+            elif d == 2:
+                hess[m, 0] = ha + hb * x0 * x0
+                hess[m, 1] = hb * x0 * x1
+                hess[m, 2] = ha + hb * x1 * x1
+            else:
+                hess[m, 0] = ha + hb * x0 * x0
+                hess[m, 1] = hb * x0 * x1
+                hess[m, 2] = hb * x0 * x2
+                hess[m, 3] = ha + hb * x1 * x1
+                hess[m, 4] = hb * x1 * x2
+                hess[m, 5] = ha + hb * x2 * x2
+            m += 1
+        p += 1
+        bptr[p] = m
+
+
+@njit(cache=True)
+def iips_product(self_term, bptr, bcol, hess, x, y):
+    """y = A x for the operator of iips_pairs: y_p = self_term_p x_p + sum_k H_k x_bcol[k]. x: shape
+    (n + n_ghost, d), the rank's own unknowns then the other ranks' ones that columns n.. refer to; y:
+    (n, d)."""
+    n = bptr.size - 1
+    d = x.shape[1]
+    for p in range(n):
+        s = self_term[p]
+        y0 = s * x[p, 0]
+        y1 = s * x[p, 1] if d > 1 else 0.0
+        y2 = s * x[p, 2] if d > 2 else 0.0
+        for k in range(bptr[p], bptr[p + 1]):
+            c = bcol[k]
+            if d == 1:
+                y0 += hess[k, 0] * x[c, 0]
+            elif d == 2:
+                y0 += hess[k, 0] * x[c, 0] + hess[k, 1] * x[c, 1]
+                y1 += hess[k, 1] * x[c, 0] + hess[k, 2] * x[c, 1]
+            else:
+                y0 += hess[k, 0] * x[c, 0] + hess[k, 1] * x[c, 1] + hess[k, 2] * x[c, 2]
+                y1 += hess[k, 1] * x[c, 0] + hess[k, 3] * x[c, 1] + hess[k, 4] * x[c, 2]
+                y2 += hess[k, 2] * x[c, 0] + hess[k, 4] * x[c, 1] + hess[k, 5] * x[c, 2]
+        y[p, 0] = y0
+        if d > 1:
+            y[p, 1] = y1
+        if d > 2:
+            y[p, 2] = y2

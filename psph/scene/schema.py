@@ -419,6 +419,11 @@ class IIPSSpec:
                              "(initial.sigma_over_dx) it gives a relaxed start", ge=0)
     divergence_factor: float = option(100.0, doc="a call whose Linf(grad C) grows by this factor has diverged",
                                       gt=1.0)
+    operator: str = option("auto", doc="assembled: a PETSc AIJ matrix (BAIJ with -iips_mat_type baij), "
+                           "any preconditioner; matrix_free: the product computed pair by pair, no pattern "
+                           "to build (faster per Newton iteration), preconditioner jacobi or none; auto: "
+                           "matrix_free with those preconditioners and no -iips_mat_type, else assembled",
+                           choices=("auto", "assembled", "matrix_free"))
     update: str = option("none", doc="fluid runs: field update after IIPS moved the particles: none, nfts "
                          "(fictitious time step, thesis eq. 9.7), mls1, mls2 (MLS re-interpolation, eq. 9.8-9.9), "
                          "mls1_increment, mls2_increment (only the MLS fit's change between the old and the new "

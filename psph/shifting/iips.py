@@ -3,7 +3,7 @@ section 11.2 proposes).
 
 Each Newton iteration assembles the printed operator of thesis eq. 8.11 / 8.32 (compute.iips) in a
 distributed PETSc AIJ matrix with block size d (BAIJ with `-iips_mat_type baij`), built once per
-neighbour-list rebuild, solves
+neighbour-list rebuild, or applies it matrix-free (`iips.operator`, shifting.iips_operator), solves
 A dx = grad C with the KSP of prefix `iips_` (default BCGS + Jacobi, rtol 1e-2, thesis section 8.3.1;
 any `-iips_ksp_*` / `-iips_pc_*` option overrides them) and moves the free particles by dx.
 
@@ -33,14 +33,13 @@ import time
 import numpy as np
 
 from psph.boundaries.free_surface import NoFreeSurface
-from psph.compute.iips import iips_structure, iips_values
-from psph.errors import NumericalError, PsphError, SolverError
+from psph.errors import NumericalError, SolverError
 from psph.parallel.comm import allreduce_max, allreduce_sum
 from psph.particles import FieldSpec
 from psph.profiling import phase
 from psph.shifting.base import ShiftReport, measure
-from psph.solvers.aij import FixedPatternMatrix
-from psph.solvers.linear import LinearSolver, petsc_errors
+from psph.shifting.iips_operator import iips_operator
+from psph.solvers.linear import LinearSolver
 from psph.solvers.petsc import petsc
 
 SHIFT_FIELD = FieldSpec("iips_shift", ("d",))
@@ -68,6 +67,7 @@ class ImplicitShifting:
         self.surface = NoFreeSurface() if surface is None else surface
         self.solver = LinearSolver(comm, "iips_", ksp_type="bcgs", pc_type="jacobi", rtol=1e-2,
                                    initial_guess_nonzero=True)
+        self.operator = iips_operator(spec.operator, self.solver)
         self.threshold = spec.threshold if spec.threshold > 0.0 else None
         self.initial_linf = None  # Linf(grad C) after the pre-procedure (thesis: Linf(grad C)_Init)
         self._structure_of = None
@@ -89,22 +89,12 @@ class ImplicitShifting:
 
     # ------------------------------------------------------------- assembly
     def _structure(self, system):
-        """(Re)build the matrix after a neighbour-list rebuild: numbering, pattern, preallocation. Collective."""
-        p = system.particles
-        d = p.dim
+        """(Re)build the operator after a neighbour-list rebuild: numbering, pattern or halo scatter. Collective."""
         free = self.surface.unknowns(system)
-        rows, _, n_free = system.global_rows(free)
         with phase("iips_structure"):
-            self._free_structure()  # the previous matrix and vectors first: their memory can serve the new ones
-            try:
-                indptr, indices, slot = iips_structure(rows, system.nbr_ptr, system.nbr_idx, d)
-            except ValueError as err:  # more than 32-bit indices can address: run on more ranks
-                raise PsphError(f"{err}; run on more ranks") from None
-            n_total = int(allreduce_sum(system.comm, n_free))
-            with petsc_errors("creating the IIPS matrix"):
-                self.matrix = FixedPatternMatrix(system.comm, indptr, indices, slot, n_total * d, d,
-                                                 self.solver.prefix)
-        self.mat = self.matrix.mat
+            self.operator.build(system, free)
+            self._free_vectors()
+        self.mat = self.operator.mat
         self.rhs, self.dx = self.mat.createVecs()
         self.residual = self.rhs.duplicate()  # work vector of _start_from
         self.free = free
@@ -123,14 +113,11 @@ class ImplicitShifting:
         return int(allreduce_sum(system.comm, int(np.count_nonzero(unknowns))))
 
     def assemble(self, system):
-        """Fill the IIPS matrix at the current positions. Collective."""
+        """Fill the IIPS operator at the current positions. Collective."""
         if self._structure_of != system.rebuilds or self._unknowns_moved:
             self._structure(system)
-        p = system.particles
-        pos, vol, row, ptr, idx = p["position"], p[self.volume], p["row"], system.nbr_ptr, system.nbr_idx
         with phase("iips_assemble"):
-            self.matrix.set_values(lambda where, diag, off: iips_values(pos, vol, row, ptr, idx, system.kernel.params,
-                                                                        where, diag, off))
+            self.operator.fill(system, self.volume)
         return self.mat
 
     # -------------------------------------------------------------- iterate
@@ -184,16 +171,17 @@ class ImplicitShifting:
         if self.spec.beta > 0:
             self.threshold = self.spec.beta * linf
 
-    def _free_structure(self) -> None:
-        """Free the matrix and vectors of the last structure, if any (petsc4py keeps them alive). Collective."""
+    def _free_vectors(self) -> None:
+        """Free the vectors of the last structure, if any (petsc4py keeps them alive). Collective."""
         if self._structure_of is not None:
-            for obj in (self.matrix, self.rhs, self.dx, self.residual):
+            for obj in (self.rhs, self.dx, self.residual):
                 obj.destroy()
             self._structure_of = None
 
     def destroy(self) -> None:
-        """Free the PETSc matrix, vectors and solver now. Collective."""
-        self._free_structure()
+        """Free the PETSc operator, vectors and solver now. Collective."""
+        self._free_vectors()
+        self.operator.destroy()
         self.solver.ksp.destroy()
 
     def correct(self, system, on_iteration=None, iterations=None, **where) -> ShiftReport:

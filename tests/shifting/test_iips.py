@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
+from psph.compute.smoothing import kernel_f
 from psph.diagnostics import distribution_report
-from psph.errors import NumericalError
+from psph.errors import NumericalError, UsageError
 from psph.particles import Kind
 from psph.shifting.base import measure
 from psph.shifting.explicit import ExplicitIterativeShifting
@@ -192,10 +193,99 @@ def test_a_baij_matrix_gives_the_iterates_of_aij(pc):
     for mat_type in ("aij", "baij"):
         with petsc_options(iips_pc_type=pc, iips_mat_type=mat_type):
             _, shifting, reports = run_iips(scene)
-        assert shifting.mat.getType() == "seq" + mat_type and shifting.matrix.blocks
+        assert shifting.mat.getType() == "seq" + mat_type and shifting.operator.matrix.blocks
         runs[mat_type] = [r["L2_grad_c"] for r in reports]
     assert runs["aij"][-1] < 0.01 * runs["aij"][0]
     assert np.allclose(runs["baij"], runs["aij"], rtol=1e-8, atol=0)
+
+
+def operator_product_and_diagonal(shifting, system, vector):
+    """(A v, diag A) of `shifting`'s operator at the system's positions, v given per unknown."""
+    mat = shifting.assemble(system)
+    x, y = mat.createVecs()
+    x.setArray(vector)
+    mat.mult(x, y)
+    return y.getArray().copy(), mat.getDiagonal().getArray().copy()
+
+
+@pytest.mark.parametrize("dim,n,h_over_dx", [(1, 12, 2.0), (2, 10, 1.6), (2, 4, 1.2), (3, 5, 1.3)])
+def test_the_matrix_free_product_and_diagonal_are_the_assembled_ones(dim, n, h_over_dx):
+    """iips.operator = "matrix_free" applies the same operator as the assembled matrix: the same product and
+    diagonal to round-off, also in a box of 4 particles per axis, where a neighbour's two periodic images can
+    both be in the support (their blocks add up), and with the lists' skin (pairs beyond the support)."""
+    results = {}
+    for operator in ("assembled", "matrix_free"):
+        scene = periodic_scene(dim=dim, n=n, sigma=0.2, h_over_dx=h_over_dx, iips={"operator": operator})
+        system = build_system(scene, MPI.COMM_SELF)
+        shifting = ImplicitShifting(scene.iips, MPI.COMM_SELF)
+        vector = np.random.default_rng(1).standard_normal(dim * n**dim)
+        results[operator] = operator_product_and_diagonal(shifting, system, vector)
+        shifting.destroy()
+    (y_a, d_a), (y_f, d_f) = results["assembled"], results["matrix_free"]
+    scale = np.abs(y_a).max()
+    assert scale > 0 and np.abs(y_f - y_a).max() < 1e-12 * scale
+    assert np.abs(d_f - d_a).max() < 1e-12 * np.abs(d_a).max()
+    assert np.allclose(d_a, kernel_f(0.0, system.kernel.params) / n**dim)  # V_i W''(0), the printed self term
+
+
+@pytest.mark.parametrize("options", [{}, {"iips_pc_type": "none", "iips_ksp_type": "gmres"}])
+def test_the_matrix_free_operator_gives_the_iterates_of_the_assembled_one(options):
+    """Newton iterations with the matrix-free operator (whose diagonal changes at every iteration: the
+    Jacobi preconditioner must follow it) give the assembled operator's iterates to solver round-off."""
+    runs = {}
+    for operator in ("assembled", "matrix_free"):
+        scene = periodic_scene(n=20, sigma=0.25, iips={"max_newton": 4, "operator": operator})
+        with petsc_options(iips_ksp_rtol=1e-12, **options):
+            system, shifting, reports = run_iips(scene)
+        runs[operator] = ([r["L2_grad_c"] for r in reports], system.particles.owned("position").copy())
+        assert shifting.mat.getType() == ("python" if operator == "matrix_free" else "seqaij")
+    (l2_a, pos_a), (l2_f, pos_f) = runs["assembled"], runs["matrix_free"]
+    assert l2_a[-1] < 0.01 * l2_a[0]
+    assert np.allclose(l2_f, l2_a, rtol=1e-8, atol=0)
+    assert np.abs(pos_f - pos_a).max() < 1e-10
+
+
+@pytest.mark.parametrize("operator", ["assembled", "matrix_free"])
+def test_the_jacobi_preconditioner_follows_the_operators_new_values(operator):
+    """The volumes change between Newton iterations in a flow (V = m / rho): after the operator is filled
+    again, the Jacobi preconditioner divides by the new diagonal, not the one it was set up with."""
+    scene = periodic_scene(n=10, sigma=0.1, iips={"operator": operator})
+    system = build_system(scene, MPI.COMM_SELF)
+    shifting = ImplicitShifting(scene.iips, MPI.COMM_SELF)
+    applied = []
+    for _ in range(2):
+        mat = shifting.assemble(system)
+        b, y = mat.createVecs()
+        b.set(1.0)
+        shifting.solver.ksp.setUp()
+        shifting.solver.ksp.getPC().apply(b, y)
+        applied.append(y.getArray().copy())
+        system.particles["volume"][:] *= 2.0
+    assert np.allclose(applied[1], 0.5 * applied[0], rtol=1e-14, atol=0)
+
+
+@pytest.mark.parametrize("options,expect", [
+    ({"iips_pc_type": "sor"}, r"-iips_pc_type sor: .*matrix_free"),
+    ({"iips_pc_jacobi_type": "rowmax"}, r"-iips_pc_type jacobi -iips_pc_jacobi_type rowmax: .*matrix_free")])
+def test_the_matrix_free_operator_refuses_a_preconditioner_that_needs_entries(options, expect):
+    scene = periodic_scene(n=10, iips={"operator": "matrix_free"})
+    with petsc_options(**options), pytest.raises(UsageError, match=expect):
+        ImplicitShifting(scene.iips, MPI.COMM_SELF)
+
+
+@pytest.mark.parametrize("options,kind", [({}, "python"), ({"iips_pc_type": "none"}, "python"),
+                                          ({"iips_pc_type": "sor"}, "seqaij"), ({"iips_mat_type": "baij"}, "seqbaij"),
+                                          ({"iips_pc_jacobi_type": "rowmax"}, "seqaij")])
+def test_the_default_operator_is_matrix_free_where_the_preconditioner_allows(options, kind):
+    """iips.operator = "auto" (the default): matrix-free with Jacobi on the diagonal or no preconditioner,
+    assembled with any other preconditioner or Jacobi variant or an -iips_mat_type; either way the run
+    converges."""
+    scene = periodic_scene(n=20, sigma=0.1, iips={"max_newton": 3})
+    assert scene.iips.operator == "auto"
+    with petsc_options(**options):
+        _, shifting, reports = run_iips(scene)
+    assert shifting.mat.getType() == kind
+    assert reports[-1]["L2_grad_c"] < 0.01 * reports[0]["L2_grad_c"]
 
 
 def test_solver_settings_survive_a_change_of_matrix_size():

@@ -13,12 +13,16 @@ from tests.shifting.test_iips import petsc_options
 pytestmark = pytest.mark.mpi
 
 
+@pytest.mark.parametrize("operator", ["assembled", "matrix_free"])
 @pytest.mark.parametrize("dim,n", [(2, 24), (3, 8)])
-def test_static_iips_positions_independent_of_rank_count(comm, dim, n):
-    scene = periodic_scene(dim=dim, n=n, sigma=0.15, iips={"max_newton": 6})
+def test_static_iips_positions_independent_of_rank_count(comm, dim, n, operator):
+    """On several ranks, with either operator (the matrix-free one's halo unknowns come through its
+    scatter), the serial assembled run's positions."""
+    scene = periodic_scene(dim=dim, n=n, sigma=0.15, iips={"max_newton": 6, "operator": operator})
     with petsc_options(iips_ksp_rtol=1e-13, iips_ksp_atol=1e-30):
         par_shift = ImplicitShifting(scene.iips, comm)
-        ser_shift = ImplicitShifting(scene.iips, MPI.COMM_SELF)
+        ser_shift = ImplicitShifting(periodic_scene(dim=dim, n=n, sigma=0.15, iips={"max_newton": 6}).iips,
+                                     MPI.COMM_SELF)
     parallel = build_system(scene, comm)
     serial = build_system(scene, MPI.COMM_SELF)
     a = par_shift.correct(parallel)
@@ -42,10 +46,11 @@ def test_explicit_shifting_independent_of_rank_count(comm):
     assert np.abs(parallel.domain.minimum_image(pos - expect)).max() < 1e-12
 
 
-def test_iips_with_an_empty_rank(comm):
+@pytest.mark.parametrize("operator", ["assembled", "matrix_free"])
+def test_iips_with_an_empty_rank(comm, operator):
     """A tiny fluid patch in walls, all of it on rank 0 of a non-periodic box whose other ranks own empty
-    slabs (a fixed decomposition, never rebalanced): ranks without any particle take part in assembly and
-    solve, and the result is the serial one."""
+    slabs (a fixed decomposition, never rebalanced): ranks without any particle take part in assembly (or
+    the matrix-free product) and solve, and the result is the serial assembled one."""
     from psph.compute.smoothing import make_kernel
     from psph.domain import Domain
     from psph.parallel.decomposition import Decomposition, Split
@@ -63,7 +68,7 @@ def test_iips_with_an_empty_rank(comm):
     edges = [-inf, *cuts, inf]
     boxes = tuple((np.array([edges[r], -inf]), np.array([edges[r + 1], inf])) for r in range(comm.size))
 
-    def shifted(on):
+    def shifted(on, operator):
         mine = on.rank == 0
         p = ParticleSet(2)
         p.set_owned({"gid": np.arange(len(lattice)) if mine else np.zeros(0, np.int64),
@@ -74,12 +79,13 @@ def test_iips_with_an_empty_rank(comm):
                                 make_kernel("wendland_c6", 2, 2 * 0.3 / n), p, rebalance_threshold=1e30,
                                 decomposition=Decomposition(splits, boxes) if on.size > 1 else None)
         with petsc_options(iips_ksp_rtol=1e-13, iips_ksp_atol=1e-30):
-            report = ImplicitShifting(periodic_scene(n=20, iips={"max_newton": 3}).iips, on).correct(system)
+            spec = periodic_scene(n=20, iips={"max_newton": 3, "operator": operator}).iips
+            report = ImplicitShifting(spec, on).correct(system)
         owned = on.allgather(system.particles.n_owned)
         return report, gather_by_gid(on, system.particles.owned("gid"), system.particles.owned("position"))[1], owned
 
-    report, pos, owned = shifted(comm)
-    serial_report, serial_pos, _ = shifted(MPI.COMM_SELF)
+    report, pos, owned = shifted(comm, operator)
+    serial_report, serial_pos, _ = shifted(MPI.COMM_SELF, "assembled")
     assert comm.size == 1 or owned[1:] == [0] * (comm.size - 1)
     assert report.iterations == 3 and np.isfinite(report.L2_grad_c)
     assert report.L2_grad_c == pytest.approx(serial_report.L2_grad_c, rel=1e-8)
@@ -102,7 +108,7 @@ def test_assembled_petsc_matrix_is_the_printed_operator(comm, mat_type, in_place
         shifting.assemble(system)
     assert shifting.mat.getType().endswith(mat_type)
     # values written into PETSc's arrays, or through setValuesCSR (the seq path never splits)
-    assert bool(shifting.matrix.blocks) == (in_place or comm.size == 1)
+    assert bool(shifting.operator.matrix.blocks) == (in_place or comm.size == 1)
     p = system.particles
     free = p.owned("kind") == 0
     rows = np.concatenate(comm.allgather(p.owned("row")[free]))
