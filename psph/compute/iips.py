@@ -187,20 +187,20 @@ def iips_values(pos, vol, row, ptr, idx, kp, where, diag, off):
 
 
 @njit(cache=True)
-def iips_pairs(pos, vol, col, ptr, idx, kp, bptr, bcol, hess, self_term):
+def iips_pairs(pos, vol, col, ptr, idx, kp, support, bptr, bcol, hess, self_term):
     """The printed operator's off-diagonal blocks pair by pair, for a matrix-free product (iips_product).
 
-    col: every local particle's unknown block in the rank's local numbering (owned free particles
-    0..n - 1 in local order, other free particles from n on, -1 if fixed). For owned free particle p:
-    its free neighbours within the support go to bptr[p]..bptr[p + 1] of bcol (their block) and hess
-    (V_j HessW(x_i - x_j), the d (d + 1) / 2 entries of the symmetric block row by row: xx, xy, yy in
-    2-D). bcol and hess must hold every list entry (the upper bound). self_term[p] = V_i W''(0): the
-    printed self block V_i HessW(0) = V_i W''(0) I, which is also the diagonal block (a particle's own
-    periodic images are never its neighbours: periodic lengths exceed the support plus skin, schema). The
-    same operator and sums as iips_values; pairs beyond the support (a list's skin) are left out."""
+    col: every local particle's unknown block in the rank's local numbering (owned free particles 0..n - 1 in
+    local order, other free particles from n on, -1 if fixed). For owned free particle p: its free neighbours
+    closer than `support` (the kernel's radius) go to bptr[p]..bptr[p + 1] of bcol (their block) and hess (V_j
+    HessW(x_i - x_j), the d (d + 1) / 2 entries of the symmetric block row by row: xx, xy, yy in 2-D). bcol
+    and hess must hold every list entry (the upper bound). self_term[p] = V_i W''(0): the printed self block
+    V_i HessW(0) = V_i W''(0) I, which is also the diagonal block (a particle's own periodic images are never
+    its neighbours: periodic lengths exceed the support plus skin, schema). The same operator and sums as
+    iips_values; pairs beyond the support (a list's skin) are left out."""
     d = pos.shape[1]
     h0 = kernel_f(0.0, kp)
-    inv2 = kp[3] * kp[3]  # 1 / support radius^2
+    reach2 = support * support  # Kernel.support, 2h for every kernel (kp[3] is 1/(2h), or 1/h for the cubic spline)
     p = 0
     m = 0
     bptr[0] = 0
@@ -214,7 +214,7 @@ def iips_pairs(pos, vol, col, ptr, idx, kp, bptr, bcol, hess, self_term):
             if c < 0:
                 continue
             x0, x1, x2, rr = pair2(pos, i, j, d)
-            if rr * inv2 >= 1.0:
+            if rr >= reach2:
                 continue
             ha, hb = hessian_coefficients(np.sqrt(rr), kp)
             ha *= vol[j]

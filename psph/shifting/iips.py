@@ -92,8 +92,8 @@ class ImplicitShifting:
         """(Re)build the operator after a neighbour-list rebuild: numbering, pattern or halo scatter. Collective."""
         free = self.surface.unknowns(system)
         with phase("iips_structure"):
+            self._free_vectors()  # the previous vectors (and, in build, operator) first: their memory can serve
             self.operator.build(system, free)
-            self._free_vectors()
         self.mat = self.operator.mat
         self.rhs, self.dx = self.mat.createVecs()
         self.residual = self.rhs.duplicate()  # work vector of _start_from

@@ -1,15 +1,16 @@
 """The IIPS operator (compute.iips) as a PETSc matrix: assembled, or applied matrix-free.
 
-`iips.operator = "assembled"` (default): a distributed AIJ matrix with block size d (BAIJ with
+`iips.operator = "assembled"`: a distributed AIJ matrix with block size d (BAIJ with
 `-iips_mat_type baij`) on the pattern built once per neighbour-list rebuild, its values rewritten at every
 Newton iteration; any preconditioner (`-iips_pc_type hypre`, `gamg`, `sor`, ...).
 
-`iips.operator = "matrix_free"` (and "auto", the default, when the preconditioner is Jacobi or none and
-no `-iips_mat_type` is given): a PETSc Python matrix whose product is computed from the pairs' Hessian
-blocks (compute.iips.iips_pairs, iips_product): no pattern to build, d (d + 1) / 2 values per pair
-instead of d^2 values and d^2 column indices, nothing stored for the lists' skin. Its halo unknowns come
-through a PETSc scatter built at each rebuild. It provides its diagonal, so the preconditioner is Jacobi
-(the default) or none; any Krylov method works (`-iips_ksp_type gmres`, ...).
+`iips.operator = "matrix_free"` (and "auto", the default, when the preconditioner is Jacobi or none, the
+Krylov method does not use the transpose and no `-iips_mat_type` is given): a PETSc Python matrix whose
+product is computed from the pairs' Hessian blocks (compute.iips.iips_pairs, iips_product): no pattern to
+build, d (d + 1) / 2 values per pair instead of d^2 values and d^2 column indices, nothing stored for the
+lists' skin. Its halo unknowns come through a PETSc scatter built at each rebuild. It provides its diagonal,
+so the preconditioner is Jacobi (the default) or none; any Krylov method that does not use the transpose works
+(`-iips_ksp_type gmres`, `tfqmr`, ...; not bicg, cgne, cgls, lsqr).
 """
 
 import numpy as np
@@ -21,8 +22,10 @@ from psph.solvers.aij import FixedPatternMatrix
 from psph.solvers.linear import petsc_errors
 from psph.solvers.petsc import petsc
 
-# preconditioners that need only the operator's product and diagonal
+# preconditioners that need only the operator's product and diagonal, and Krylov methods that need its
+# transpose's product (which the matrix-free operator does not offer)
 MATRIX_FREE_PCS = ("jacobi", "none")
+TRANSPOSE_KSPS = ("bicg", "cgne", "cgls", "lsqr")
 
 
 class AssembledOperator:
@@ -116,7 +119,7 @@ class MatrixFreeOperator:
         so that the preconditioner takes the new diagonal)."""
         p = system.particles
         iips_pairs(p["position"], p[volume], self.col, system.nbr_ptr, system.nbr_idx, system.kernel.params,
-                   self.bptr, self.bcol, self.hess, self.self_term)
+                   system.kernel.support, self.bptr, self.bcol, self.hess, self.self_term)
         self.mat.assemble()
 
     def product(self, x, y) -> None:
@@ -153,19 +156,24 @@ OPERATORS = {"assembled": AssembledOperator, "matrix_free": MatrixFreeOperator}
 
 def iips_operator(kind, solver):
     """The operator `kind` (iips.operator) for `solver` (a LinearSolver). "auto" is matrix-free where the
-    preconditioner needs only the diagonal (`-iips_pc_type jacobi` with its default diagonal, or none) and
-    no `-iips_mat_type` is given, assembled otherwise; an explicit "matrix_free" refuses a preconditioner
-    that needs the matrix's entries, naming the option."""
-    pc = solver.ksp.getPC().getType()
+    solver needs only its product and diagonal (`-iips_pc_type jacobi` on the diagonal, or none; no
+    Krylov method of TRANSPOSE_KSPS) and no `-iips_mat_type` is given, assembled otherwise; an explicit
+    "matrix_free" refuses a solver that needs more, naming the option."""
+    prefix = solver.prefix
     options = petsc().Options()
-    jacobi = options.getString(f"{solver.prefix}pc_jacobi_type", "diagonal")
-    free_pc = pc in MATRIX_FREE_PCS and (pc != "jacobi" or jacobi == "diagonal")
+    pc, ksp = solver.ksp.getPC().getType(), solver.ksp.getType()
+    jacobi = options.getString(f"{prefix}pc_jacobi_type", "diagonal").lower()
+    needs = None
+    if pc not in MATRIX_FREE_PCS:
+        needs = f"-{prefix}pc_type {pc}"
+    elif pc == "jacobi" and jacobi != "diagonal":
+        needs = f"-{prefix}pc_type jacobi -{prefix}pc_jacobi_type {jacobi}"
+    elif ksp in TRANSPOSE_KSPS:
+        needs = f"-{prefix}ksp_type {ksp}"
     if kind == "auto":
-        kind = "matrix_free" if free_pc and not options.hasName(f"{solver.prefix}mat_type") else "assembled"
-    elif kind == "matrix_free" and not free_pc:
-        option = f"-{solver.prefix}pc_type {pc}"
-        if pc == "jacobi":
-            option += f" -{solver.prefix}pc_jacobi_type {jacobi}"
-        raise UsageError(f"{option}: iips.operator = \"matrix_free\" provides only the product and the diagonal; "
-                         f"use -{solver.prefix}pc_type jacobi or none, or iips.operator = \"assembled\"")
-    return OPERATORS[kind](solver.prefix)
+        kind = "matrix_free" if needs is None and not options.hasName(f"{prefix}mat_type") else "assembled"
+    elif kind == "matrix_free" and needs is not None:
+        raise UsageError(f"{needs}: iips.operator = \"matrix_free\" provides only the product and the diagonal; "
+                         f"use -{prefix}pc_type jacobi or none and a Krylov method without the transpose, or "
+                         f"iips.operator = \"assembled\"")
+    return OPERATORS[kind](prefix)

@@ -208,14 +208,17 @@ def operator_product_and_diagonal(shifting, system, vector):
     return y.getArray().copy(), mat.getDiagonal().getArray().copy()
 
 
-@pytest.mark.parametrize("dim,n,h_over_dx", [(1, 12, 2.0), (2, 10, 1.6), (2, 4, 1.2), (3, 5, 1.3)])
-def test_the_matrix_free_product_and_diagonal_are_the_assembled_ones(dim, n, h_over_dx):
+@pytest.mark.parametrize("dim,n,h_over_dx,kernel", [(1, 12, 2.0, "wendland_c6"), (2, 10, 1.6, "wendland_c6"),
+                                                     (2, 4, 1.2, "wendland_c6"), (3, 5, 1.3, "wendland_c6"),
+                                                     (2, 10, 1.3, "cubic_spline"), (2, 10, 2.0, "wendland_c2")])
+def test_the_matrix_free_product_and_diagonal_are_the_assembled_ones(dim, n, h_over_dx, kernel):
     """iips.operator = "matrix_free" applies the same operator as the assembled matrix: the same product and
     diagonal to round-off, also in a box of 4 particles per axis, where a neighbour's two periodic images can
     both be in the support (their blocks add up), and with the lists' skin (pairs beyond the support)."""
     results = {}
     for operator in ("assembled", "matrix_free"):
-        scene = periodic_scene(dim=dim, n=n, sigma=0.2, h_over_dx=h_over_dx, iips={"operator": operator})
+        scene = periodic_scene(dim=dim, n=n, sigma=0.2, h_over_dx=h_over_dx, kernel=kernel,
+                               iips={"operator": operator})
         system = build_system(scene, MPI.COMM_SELF)
         shifting = ImplicitShifting(scene.iips, MPI.COMM_SELF)
         vector = np.random.default_rng(1).standard_normal(dim * n**dim)
@@ -266,7 +269,8 @@ def test_the_jacobi_preconditioner_follows_the_operators_new_values(operator):
 
 @pytest.mark.parametrize("options,expect", [
     ({"iips_pc_type": "sor"}, r"-iips_pc_type sor: .*matrix_free"),
-    ({"iips_pc_jacobi_type": "rowmax"}, r"-iips_pc_type jacobi -iips_pc_jacobi_type rowmax: .*matrix_free")])
+    ({"iips_pc_jacobi_type": "rowmax"}, r"-iips_pc_type jacobi -iips_pc_jacobi_type rowmax: .*matrix_free"),
+    ({"iips_ksp_type": "bicg"}, r"-iips_ksp_type bicg: .*transpose")])
 def test_the_matrix_free_operator_refuses_a_preconditioner_that_needs_entries(options, expect):
     scene = periodic_scene(n=10, iips={"operator": "matrix_free"})
     with petsc_options(**options), pytest.raises(UsageError, match=expect):
@@ -275,11 +279,14 @@ def test_the_matrix_free_operator_refuses_a_preconditioner_that_needs_entries(op
 
 @pytest.mark.parametrize("options,kind", [({}, "python"), ({"iips_pc_type": "none"}, "python"),
                                           ({"iips_pc_type": "sor"}, "seqaij"), ({"iips_mat_type": "baij"}, "seqbaij"),
-                                          ({"iips_pc_jacobi_type": "rowmax"}, "seqaij")])
+                                          ({"iips_pc_jacobi_type": "rowmax"}, "seqaij"),
+                                          ({"iips_pc_jacobi_type": "DIAGONAL"}, "python"),
+                                          ({"iips_ksp_type": "bicg"}, "seqaij"),
+                                          ({"iips_ksp_type": "tfqmr"}, "python")])
 def test_the_default_operator_is_matrix_free_where_the_preconditioner_allows(options, kind):
-    """iips.operator = "auto" (the default): matrix-free with Jacobi on the diagonal or no preconditioner,
-    assembled with any other preconditioner or Jacobi variant or an -iips_mat_type; either way the run
-    converges."""
+    """iips.operator = "auto" (the default): matrix-free with Jacobi on the diagonal (PETSc reads option
+    values in any case) or no preconditioner, assembled with any other preconditioner or Jacobi variant,
+    a Krylov method that needs the transpose (BiCG) or an -iips_mat_type; either way the run converges."""
     scene = periodic_scene(n=20, sigma=0.1, iips={"max_newton": 3})
     assert scene.iips.operator == "auto"
     with petsc_options(**options):
