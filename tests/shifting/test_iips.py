@@ -214,7 +214,8 @@ def operator_product_and_diagonal(shifting, system, vector):
 def test_the_matrix_free_product_and_diagonal_are_the_assembled_ones(dim, n, h_over_dx, kernel):
     """iips.operator = "matrix_free" applies the same operator as the assembled matrix: the same product and
     diagonal to round-off, also in a box of 4 particles per axis, where a neighbour's two periodic images can
-    both be in the support (their blocks add up), and with the lists' skin (pairs beyond the support)."""
+    both be in the support (their blocks add up), with the lists' skin (pairs beyond the support), and for
+    the cubic spline, whose q is r / h where the Wendland kernels' is r / (2h)."""
     results = {}
     for operator in ("assembled", "matrix_free"):
         scene = periodic_scene(dim=dim, n=n, sigma=0.2, h_over_dx=h_over_dx, kernel=kernel,
@@ -365,9 +366,10 @@ def test_values_land_in_place_for_every_matrix_type(mat_type):
     matrix.destroy()
 
 
-def test_a_rebuild_frees_the_previous_iips_matrix():
+@pytest.mark.parametrize("operator", ["assembled", "matrix_free"])
+def test_a_rebuild_frees_the_previous_iips_matrix(operator):
     """Each neighbour-list rebuild makes a new matrix; the old one must be destroyed, not left to petsc4py."""
-    scene = periodic_scene(n=20, sigma=0.25, iips={"max_newton": 6})
+    scene = periodic_scene(n=20, sigma=0.25, iips={"max_newton": 6, "operator": operator})
     system = build_system(scene, MPI.COMM_SELF)
     shifting = ImplicitShifting(scene.iips, MPI.COMM_SELF)
     matrices = []

@@ -18,11 +18,13 @@ pytestmark = pytest.mark.mpi
 def test_static_iips_positions_independent_of_rank_count(comm, dim, n, operator):
     """On several ranks, with either operator (the matrix-free one's halo unknowns come through its
     scatter), the serial assembled run's positions."""
-    scene = periodic_scene(dim=dim, n=n, sigma=0.15, iips={"max_newton": 6, "operator": operator})
+    def scene_with(kind):
+        return periodic_scene(dim=dim, n=n, sigma=0.15, iips={"max_newton": 6, "operator": kind})
+
+    scene = scene_with(operator)
     with petsc_options(iips_ksp_rtol=1e-13, iips_ksp_atol=1e-30):
         par_shift = ImplicitShifting(scene.iips, comm)
-        ser_shift = ImplicitShifting(periodic_scene(dim=dim, n=n, sigma=0.15, iips={"max_newton": 6}).iips,
-                                     MPI.COMM_SELF)
+        ser_shift = ImplicitShifting(scene_with("assembled").iips, MPI.COMM_SELF)
     parallel = build_system(scene, comm)
     serial = build_system(scene, MPI.COMM_SELF)
     a = par_shift.correct(parallel)
