@@ -1,13 +1,14 @@
 """Load every hot compute kernel before a run's timed work.
 
-numba compiles (first run on a machine) or loads from its on-disk cache (later runs) each kernel on its
-first call, which costs tens of milliseconds per kernel. Calling them once on a tiny particle cloud at
-start-up keeps that cost out of the time loops (it stays in the run's total wall time).
+numba compiles (first run on a machine: seconds) or loads from its on-disk cache (later runs: 2-3 ms) each
+kernel on its first call. Calling them once on a tiny particle cloud at start-up keeps that cost out of the
+time loops (it stays in the run's total wall time); a one-iteration IIPS call takes 30-40 ms
+(tests/compute/test_warmup.py checks that a run of each kind loads nothing more).
 """
 
 import numpy as np
 
-from psph.compute import csr, fluid, free_surface, iips, neighbours, random, sums
+from psph.compute import csr, fluid, free_surface, iips, neighbours, random, shift_velocity, sums, walls
 from psph.compute.smoothing import make_kernel
 
 
@@ -18,7 +19,9 @@ def warm_up(dim: int, kernel_name: str) -> None:
     pos = np.ascontiguousarray(grid * 0.5)
     vol = np.full(n, 0.25 ** dim)
     gid = np.arange(n, dtype=np.int64)
-    kp = make_kernel(kernel_name, dim, 0.5).params
+    kernel = make_kernel(kernel_name, dim, 0.5)
+    kp = kernel.params
+    kernel.value(np.zeros(1))
     ptr, idx = neighbours.build_neighbour_lists(pos, n, 2.0)
     neighbours.spatial_order(pos, 2.0)
     neighbours.max_displacement(pos, pos, n)
@@ -54,10 +57,26 @@ def warm_up(dim: int, kernel_name: str) -> None:
     if dim > 1:  # the BAIJ codes (solvers.aij)
         bptr, bcols = csr.block_pattern(indptr, indices, dim)
         csr.block_codes(indptr, dim, bptr, np.arange(len(bcols), dtype=np.int32), slot, where)
+    col = row.astype(np.int32)  # the matrix-free operator (shifting.iips_operator)
+    bptr, bcol = np.empty(n + 1, dtype=np.int64), np.empty(len(idx), dtype=np.int32)
+    hess = np.empty((len(idx), dim * (dim + 1) // 2))
+    iips.iips_pairs(pos, vol, col, ptr, idx, kp, kernel.support, bptr, bcol, hess, scalar)
+    iips.iips_product(scalar, bptr, bcol, hess, vector, vector.copy())
+    shift_velocity.limit_magnitude(vector, field, vector.copy())
     kind = np.zeros(n, dtype=np.int8)
+    fluid.fluid_momentum_totals(kind, field, vector, vector, True, np.empty(2 * dim + 1))
+    fluid.add_uniform_acceleration(kind, field, np.zeros(dim), True, vector.copy())
     pairs = fluid.PairCache()
     fluid.renormalised_gradient(pos, vol, field, ptr, idx, kp, kind, False, vector, pairs)
     fluid.renormalised_gradient(pos, vol, field, ptr, idx, kp, kind, False, vector, pairs,
                                 grad_c=(0.2, 4.0, 1.0, vector.copy()))
     fluid.delta_ale_rhs(pos, vol, field, field, vector, vector, field, vector, pairs, kp, 1.0, 0.1, 0.1, 0.01,
                         np.zeros(dim), 0, True, True, kind, False, scalar, scalar.copy(), vector.copy())
+    if dim == 2:  # the clone walls (boundaries.clone), on no row
+        rows = walls.near_wall_rows(kind, ptr, idx)
+        bodies = 1
+        walls.clone_rhs(pos, vol, field, vector, vector, scalar, kind, np.zeros(n, dtype=np.int64), vector, scalar,
+                        vector, vector, rows, np.zeros((0, 2)), np.zeros(0), np.zeros(bodies, dtype=np.bool_), ptr,
+                        idx, kp, 1.0, 1.0, 0.0, 7.0, 0.1, True, np.zeros(2), 0.1, 0, True, np.zeros(n, dtype=np.int8),
+                        np.zeros((bodies, 2)), scalar.copy(), vector.copy(), np.zeros((bodies, 2, 2)),
+                        np.zeros((bodies, 2)), np.zeros((n, 2)))
