@@ -421,9 +421,9 @@ class IIPSSpec:
                                       gt=1.0)
     operator: str = option("auto", doc="assembled: a PETSc AIJ matrix (BAIJ with -iips_mat_type baij), "
                            "any preconditioner; matrix_free: the product computed pair by pair, no pattern "
-                           "to build (faster per Newton iteration), preconditioner jacobi or none, no Krylov "
-                           "method that needs the transpose (bicg, cgne, cgls, lsqr); auto: matrix_free where "
-                           "the solver allows and no -iips_mat_type is given, else assembled",
+                           "to build (faster per Newton iteration), preconditioner jacobi or none; auto: "
+                           "matrix_free where the preconditioner allows and no -iips_mat_type is given, else "
+                           "assembled",
                            choices=("auto", "assembled", "matrix_free"))
     update: str = option("none", doc="fluid runs: field update after IIPS moved the particles: none, nfts "
                          "(fictitious time step, thesis eq. 9.7), mls1, mls2 (MLS re-interpolation, eq. 9.8-9.9), "

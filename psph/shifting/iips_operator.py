@@ -9,8 +9,11 @@ Krylov method does not use the transpose and no `-iips_mat_type` is given): a PE
 product is computed from the pairs' Hessian blocks (compute.iips.iips_pairs, iips_product): no pattern to
 build, d (d + 1) / 2 values per pair instead of d^2 values and d^2 column indices, nothing stored for the
 lists' skin. Its halo unknowns come through a PETSc scatter built at each rebuild. It provides its diagonal,
-so the preconditioner is Jacobi (the default) or none; any Krylov method that does not use the transpose works
-(`-iips_ksp_type gmres`, `tfqmr`, ...; not bicg, cgne, cgls, lsqr).
+so the preconditioner is Jacobi (the default) or none, and the transpose's product, so any Krylov method works
+(`-iips_ksp_type gmres`, `tfqmr`, `bicg`, `cgne`, ...).
+
+The transpose: A = H diag(V), H the symmetric matrix of blocks HessW(x_i - x_j) (HessW is even and symmetric)
+and V the volumes, so A^T = diag(V) H = diag(V) A diag(V)^-1: the product of x / V, times V.
 """
 
 import numpy as np
@@ -22,10 +25,8 @@ from psph.solvers.aij import FixedPatternMatrix
 from psph.solvers.linear import petsc_errors
 from psph.solvers.petsc import petsc
 
-# preconditioners that need only the operator's product and diagonal, and Krylov methods that need its
-# transpose's product (which the matrix-free operator does not offer)
+# preconditioners that need only the operator's product and diagonal
 MATRIX_FREE_PCS = ("jacobi", "none")
-TRANSPOSE_KSPS = ("bicg", "cgne", "cgls", "lsqr")
 
 
 class AssembledOperator:
@@ -101,6 +102,7 @@ class MatrixFreeOperator:
         self.bptr = np.empty(n_free + 1, dtype=np.int64)
         self.self_term = np.empty(n_free)
         self.x = np.empty((n_free + len(ghost_rows), d))  # the product's input: own unknowns, then the ghosts
+        self.volume = np.empty(len(self.x))  # V_j of the same unknowns (the transpose's product)
         with petsc_errors("creating the matrix-free IIPS operator"):
             self.ghost = PETSc.Vec().createWithArray(self.x[n_free:].ravel(), comm=PETSc.COMM_SELF)
             if system.comm.size > 1:
@@ -120,15 +122,22 @@ class MatrixFreeOperator:
         p = system.particles
         iips_pairs(p["position"], p[volume], self.col, system.nbr_ptr, system.nbr_idx, system.kernel.params,
                    system.kernel.support, self.bptr, self.bcol, self.hess, self.self_term)
+        free = self.col >= 0
+        self.volume[self.col[free]] = p[volume][free]
         self.mat.assemble()
 
-    def product(self, x, y) -> None:
-        """y = A x (PETSc vectors). Collective (the halo scatter)."""
+    def product(self, x, y, transpose=False) -> None:
+        """y = A x, or A^T x = V (A (x / V)) (PETSc vectors). Collective (the halo scatter)."""
         n, d = len(self.self_term), self.x.shape[1]
         self.x[:n] = x.array_r.reshape(n, d)
         if self.scatter is not None:
             self.scatter.scatter(x, self.ghost)
-        iips_product(self.self_term, self.bptr, self.bcol, self.hess, self.x, y.array.reshape(n, d))
+        if transpose:
+            self.x /= self.volume[:, None]
+        out = y.array.reshape(n, d)
+        iips_product(self.self_term, self.bptr, self.bcol, self.hess, self.x, out)
+        if transpose:
+            out *= self.volume[:n, None]
 
     def destroy(self) -> None:
         """Free the PETSc objects of the last build. Collective."""
@@ -147,6 +156,9 @@ class _PythonMatrix:
     def mult(self, mat, x, y) -> None:
         self.operator.product(x, y)
 
+    def multTranspose(self, mat, x, y) -> None:  # noqa: N802 (PETSc's name)
+        self.operator.product(x, y, transpose=True)
+
     def getDiagonal(self, mat, diagonal) -> None:  # noqa: N802 (PETSc's name)
         diagonal.array[:] = np.repeat(self.operator.self_term, self.operator.x.shape[1])
 
@@ -156,24 +168,21 @@ OPERATORS = {"assembled": AssembledOperator, "matrix_free": MatrixFreeOperator}
 
 def iips_operator(kind, solver):
     """The operator `kind` (iips.operator) for `solver` (a LinearSolver). "auto" is matrix-free where the
-    solver needs only its product and diagonal (`-iips_pc_type jacobi` on the diagonal, or none; no
-    Krylov method of TRANSPOSE_KSPS) and no `-iips_mat_type` is given, assembled otherwise; an explicit
-    "matrix_free" refuses a solver that needs more, naming the option."""
+    preconditioner needs only the operator's diagonal (`-iips_pc_type jacobi` on the diagonal, or none) and no
+    `-iips_mat_type` is given, assembled otherwise; an explicit "matrix_free" refuses a preconditioner that
+    needs more, naming the option."""
     prefix = solver.prefix
     options = petsc().Options()
-    pc, ksp = solver.ksp.getPC().getType(), solver.ksp.getType()
+    pc = solver.ksp.getPC().getType()
     jacobi = options.getString(f"{prefix}pc_jacobi_type", "diagonal").lower()
     needs = None
     if pc not in MATRIX_FREE_PCS:
         needs = f"-{prefix}pc_type {pc}"
     elif pc == "jacobi" and jacobi != "diagonal":
         needs = f"-{prefix}pc_type jacobi -{prefix}pc_jacobi_type {jacobi}"
-    elif ksp in TRANSPOSE_KSPS:
-        needs = f"-{prefix}ksp_type {ksp}"
     if kind == "auto":
         kind = "matrix_free" if needs is None and not options.hasName(f"{prefix}mat_type") else "assembled"
     elif kind == "matrix_free" and needs is not None:
-        raise UsageError(f"{needs}: iips.operator = \"matrix_free\" provides only the product and the diagonal; "
-                         f"use -{prefix}pc_type jacobi or none and a Krylov method without the transpose, or "
-                         f"iips.operator = \"assembled\"")
+        raise UsageError(f"{needs}: iips.operator = \"matrix_free\" provides no entries but the diagonal; "
+                         f"use -{prefix}pc_type jacobi or none, or iips.operator = \"assembled\"")
     return OPERATORS[kind](prefix)

@@ -38,6 +38,28 @@ def test_static_iips_positions_independent_of_rank_count(comm, dim, n, operator)
     assert a.L2_grad_c == pytest.approx(b.L2_grad_c, rel=1e-6)
 
 
+@pytest.mark.parametrize("dim,n", [(2, 12), (3, 6)])
+def test_matrix_free_products_on_ranks_are_the_assembled_ones(comm, dim, n):
+    """On several ranks, the matrix-free operator's product and transpose's product (through its halo
+    scatter; the volumes made unequal, so that A^T differs from A) are the assembled matrix's."""
+    from tests.shifting.test_iips import operator_products_and_diagonal
+
+    scene = periodic_scene(dim=dim, n=n, sigma=0.2)
+    system = build_system(scene, comm)
+    volume = system.particles.owned("volume")
+    volume *= 1.0 + 0.5 * np.random.default_rng(comm.rank + 5).random(len(volume))
+    system.refresh(["volume"])
+    vector = np.random.default_rng(comm.rank).standard_normal(dim * system.particles.n_owned)
+    results = {}
+    for operator in ("assembled", "matrix_free"):
+        shifting = ImplicitShifting(periodic_scene(dim=dim, n=n, iips={"operator": operator}).iips, comm)
+        results[operator] = operator_products_and_diagonal(shifting, system, vector)
+        shifting.destroy()
+    for a, f in zip(results["assembled"], results["matrix_free"]):
+        scale = comm.allreduce(np.abs(a).max(), op=MPI.MAX)
+        assert scale > 0 and comm.allreduce(np.abs(f - a).max(), op=MPI.MAX) < 1e-12 * scale
+
+
 def test_explicit_shifting_independent_of_rank_count(comm):
     scene = periodic_scene(n=20, sigma=0.1, shifting={"method": "explicit_iterative"})
     parallel, serial = build_system(scene, comm), build_system(scene, MPI.COMM_SELF)
