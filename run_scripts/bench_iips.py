@@ -11,9 +11,10 @@ in the same process. Bound of one BCGS + Jacobi iteration: two matrix-vector pro
 nonzero for AIJ (8 value + 4 column index; 8 + 4 / d^2 for BAIJ, one index per d x d block) plus 16
 bytes per row (row pointer, result), and about 20 vector sweeps of 8 bytes per row (the BCGS axpys and
 dot products, the Jacobi scaling). With `--operator matrix_free` (iips.operator) the product reads
-per stored pair its d (d + 1) / 2 Hessian entries and one 4-byte column (8 x 3 + 4 bytes in 2-D), per
-particle its self term and row pointer (16 bytes), and per scalar row copies x into the product's input
-and writes the result (32 bytes); the vector sweeps are the same.
+per stored pair (a pair of the rank's own unknowns is stored once) its d (d + 1) / 2 Hessian entries and
+one 4-byte column (8 x 3 + 4 bytes in 2-D), per particle its row pointer (8 bytes), and per scalar row
+copies x into the product's input, scales it by the volumes and writes the result (52 bytes); the vector
+sweeps are the same.
 """
 
 import argparse
@@ -95,7 +96,7 @@ def main():
         if kind == "python":  # matrix-free: this rank's stored pairs
             nnz = int(shifting.operator.bptr[-1])
             stored = "pairs"
-            product = (8 * d * (d + 1) // 2 + 4) * nnz + 16 * rows // d + 32 * rows
+            product = (8 * d * (d + 1) // 2 + 4) * nnz + 8 * rows // d + 52 * rows
         else:
             nnz = shifting.mat.getInfo(petsc().Mat.InfoType.LOCAL)["nz_used"]  # this rank's (the default sums)
             stored = "nonzeros"

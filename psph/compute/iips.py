@@ -187,38 +187,38 @@ def iips_values(pos, vol, row, ptr, idx, kp, where, diag, off):
 
 
 @njit(cache=True)
-def iips_pairs(pos, vol, col, ptr, idx, kp, support, bptr, bcol, hess, self_term):
-    """The printed operator's off-diagonal blocks pair by pair, for a matrix-free product (iips_product).
+def iips_pairs(pos, col, ptr, idx, kp, support, bptr, bcol, hess):
+    """The pairs' Hessian blocks HessW(x_i - x_j), each pair once, for the matrix-free product
+    (iips_product). The printed operator is A = H diag(V): H has the blocks HessW(x_i - x_j) off the
+    diagonal and HessW(0) = W''(0) I on it, and is symmetric (HessW is even and its blocks symmetric), so
+    a pair of the rank's own unknowns is stored once and applied to both rows.
 
     col: every local particle's unknown block in the rank's local numbering (owned free particles 0..n - 1 in
-    local order, other free particles from n on, -1 if fixed). For owned free particle p: its free neighbours
-    closer than `support` (the kernel's radius) go to bptr[p]..bptr[p + 1] of bcol (their block) and hess (V_j
-    HessW(x_i - x_j), the d (d + 1) / 2 entries of the symmetric block row by row: xx, xy, yy in 2-D). bcol
-    and hess must hold every list entry (the upper bound). self_term[p] = V_i W''(0): the printed self block
-    V_i HessW(0) = V_i W''(0) I, which is also the diagonal block (a particle's own periodic images are never
-    its neighbours: periodic lengths exceed the support plus skin, schema). The same operator and sums as
-    iips_values; pairs beyond the support (a list's skin) are left out."""
+    local order, other free particles from n on, -1 if fixed). For owned free particle i, of block p =
+    col[i]: the free neighbours j closer than `support` (the kernel's radius) with col[j] > p (its own blocks
+    after p, and every other rank's: those pairs are applied to row p only, the other rank stores its own
+    copy) go to bptr[p]..bptr[p + 1] of bcol (their block) and hess (the d (d + 1) / 2 entries of the
+    symmetric block row by row: xx, xy, yy in 2-D). bcol and hess must hold every list entry (the upper
+    bound). H's diagonal blocks are W''(0) I (a particle's own periodic images are never its neighbours:
+    periodic lengths exceed the support plus skin, schema). The same operator and sums as iips_values;
+    pairs beyond the support (a list's skin) are left out."""
     d = pos.shape[1]
-    h0 = kernel_f(0.0, kp)
     reach2 = support * support  # Kernel.support, 2h for every kernel (kp[3] is 1/(2h), or 1/h for the cubic spline)
-    p = 0
     m = 0
     bptr[0] = 0
     for i in range(ptr.size - 1):
-        if col[i] < 0:
+        p = col[i]
+        if p < 0:
             continue
-        self_term[p] = vol[i] * h0
         for k in range(ptr[i], ptr[i + 1]):
             j = idx[k]
             c = col[j]
-            if c < 0:
+            if c <= p:  # fixed, or an own block before p (stored in its row)
                 continue
             x0, x1, x2, rr = pair2(pos, i, j, d)
             if rr >= reach2:
                 continue
             ha, hb = hessian_coefficients(np.sqrt(rr), kp)
-            ha *= vol[j]
-            hb *= vol[j]
             bcol[m] = c
             if d == 1:
                 hess[m, 0] = ha + hb * x0 * x0
@@ -234,35 +234,49 @@ def iips_pairs(pos, vol, col, ptr, idx, kp, support, bptr, bcol, hess, self_term
                 hess[m, 4] = hb * x1 * x2
                 hess[m, 5] = ha + hb * x2 * x2
             m += 1
-        p += 1
-        bptr[p] = m
+        bptr[p + 1] = m
 
 
 @njit(cache=True)
-def iips_product(self_term, bptr, bcol, hess, x, y):
-    """y = A x for the operator of iips_pairs: y_p = self_term_p x_p + sum_k H_k x_bcol[k]. x: shape
-    (n + n_ghost, d), the rank's own unknowns then the other ranks' ones that columns n.. refer to; y:
-    (n, d)."""
+def iips_product(h0, bptr, bcol, hess, z, y):
+    """y = H z for the symmetric H of iips_pairs (H_pp = h0 I, h0 = W''(0)): with z = V x this is A x, and
+    V (H x) is A^T x. z: shape (n + n_ghost, d), the rank's own unknowns then the other ranks' ones that
+    columns n.. refer to; y: (n, d). A pair of own blocks (c < n) adds to both rows, one with a ghost block
+    to row p only."""
     n = bptr.size - 1
-    d = x.shape[1]
+    d = z.shape[1]
     for p in range(n):
-        s = self_term[p]
-        y0 = s * x[p, 0]
-        y1 = s * x[p, 1] if d > 1 else 0.0
-        y2 = s * x[p, 2] if d > 2 else 0.0
+        for a in range(d):
+            y[p, a] = h0 * z[p, a]
+    for p in range(n):
+        z0 = z[p, 0]
+        z1 = z[p, 1] if d > 1 else 0.0
+        z2 = z[p, 2] if d > 2 else 0.0
+        y0 = y1 = y2 = 0.0
         for k in range(bptr[p], bptr[p + 1]):
             c = bcol[k]
             if d == 1:
-                y0 += hess[k, 0] * x[c, 0]
+                y0 += hess[k, 0] * z[c, 0]
+                if c < n:
+                    y[c, 0] += hess[k, 0] * z0
             elif d == 2:
-                y0 += hess[k, 0] * x[c, 0] + hess[k, 1] * x[c, 1]
-                y1 += hess[k, 1] * x[c, 0] + hess[k, 2] * x[c, 1]
+                h00, h01, h11 = hess[k, 0], hess[k, 1], hess[k, 2]
+                y0 += h00 * z[c, 0] + h01 * z[c, 1]
+                y1 += h01 * z[c, 0] + h11 * z[c, 1]
+                if c < n:
+                    y[c, 0] += h00 * z0 + h01 * z1
+                    y[c, 1] += h01 * z0 + h11 * z1
             else:
-                y0 += hess[k, 0] * x[c, 0] + hess[k, 1] * x[c, 1] + hess[k, 2] * x[c, 2]
-                y1 += hess[k, 1] * x[c, 0] + hess[k, 3] * x[c, 1] + hess[k, 4] * x[c, 2]
-                y2 += hess[k, 2] * x[c, 0] + hess[k, 4] * x[c, 1] + hess[k, 5] * x[c, 2]
-        y[p, 0] = y0
+                h00, h01, h02, h11, h12, h22 = hess[k, 0], hess[k, 1], hess[k, 2], hess[k, 3], hess[k, 4], hess[k, 5]
+                y0 += h00 * z[c, 0] + h01 * z[c, 1] + h02 * z[c, 2]
+                y1 += h01 * z[c, 0] + h11 * z[c, 1] + h12 * z[c, 2]
+                y2 += h02 * z[c, 0] + h12 * z[c, 1] + h22 * z[c, 2]
+                if c < n:
+                    y[c, 0] += h00 * z0 + h01 * z1 + h02 * z2
+                    y[c, 1] += h01 * z0 + h11 * z1 + h12 * z2
+                    y[c, 2] += h02 * z0 + h12 * z1 + h22 * z2
+        y[p, 0] += y0
         if d > 1:
-            y[p, 1] = y1
+            y[p, 1] += y1
         if d > 2:
-            y[p, 2] = y2
+            y[p, 2] += y2

@@ -4,16 +4,16 @@
 `-iips_mat_type baij`) on the pattern built once per neighbour-list rebuild, its values rewritten at every
 Newton iteration; any preconditioner (`-iips_pc_type hypre`, `gamg`, `sor`, ...).
 
-`iips.operator = "matrix_free"` (and "auto", the default, when the preconditioner is Jacobi or none, the
-Krylov method does not use the transpose and no `-iips_mat_type` is given): a PETSc Python matrix whose
-product is computed from the pairs' Hessian blocks (compute.iips.iips_pairs, iips_product): no pattern to
-build, d (d + 1) / 2 values per pair instead of d^2 values and d^2 column indices, nothing stored for the
-lists' skin. Its halo unknowns come through a PETSc scatter built at each rebuild. It provides its diagonal,
-so the preconditioner is Jacobi (the default) or none, and the transpose's product, so any Krylov method works
-(`-iips_ksp_type gmres`, `tfqmr`, `bicg`, `cgne`, ...).
+`iips.operator = "matrix_free"` (and "auto", the default, when the preconditioner is Jacobi or none and no
+`-iips_mat_type` is given): a PETSc Python matrix whose product is computed from the pairs' Hessian blocks
+(compute.iips.iips_pairs, iips_product): no pattern to build, d (d + 1) / 2 values per pair instead of
+d^2 values and d^2 column indices in each direction, a pair of the rank's own unknowns stored once,
+nothing stored for the lists' skin. Its halo unknowns come through a PETSc scatter built at each rebuild.
+It provides its diagonal, so the preconditioner is Jacobi (the default) or none, and the transpose's
+product, so any Krylov method works (`-iips_ksp_type gmres`, `tfqmr`, `bicg`, `cgne`, ...).
 
-The transpose: A = H diag(V), H the symmetric matrix of blocks HessW(x_i - x_j) (HessW is even and symmetric)
-and V the volumes, so A^T = diag(V) H = diag(V) A diag(V)^-1: the product of x / V, times V.
+The operator is A = H diag(V), H the symmetric matrix of blocks HessW(x_i - x_j) (HessW is even and
+symmetric) and V the volumes: A x = H (V x), and A^T x = V (H x).
 """
 
 import numpy as np
@@ -100,9 +100,9 @@ class MatrixFreeOperator:
             self.bcol = np.empty(capacity, dtype=np.int32)
             self.hess = np.empty((capacity, width))
         self.bptr = np.empty(n_free + 1, dtype=np.int64)
-        self.self_term = np.empty(n_free)
         self.x = np.empty((n_free + len(ghost_rows), d))  # the product's input: own unknowns, then the ghosts
-        self.volume = np.empty(len(self.x))  # V_j of the same unknowns (the transpose's product)
+        self.volume = np.empty(len(self.x))  # V_j of the same unknowns
+        self.h0 = float(system.kernel.radial(np.zeros(1))[0])  # H's diagonal, W''(0) = f(0)
         with petsc_errors("creating the matrix-free IIPS operator"):
             self.ghost = PETSc.Vec().createWithArray(self.x[n_free:].ravel(), comm=PETSc.COMM_SELF)
             if system.comm.size > 1:
@@ -117,25 +117,25 @@ class MatrixFreeOperator:
             self.mat.setUp()
 
     def fill(self, system, volume) -> None:
-        """The pairs' Hessian blocks at the current positions. Collective (assembly marks the operator changed,
-        so that the preconditioner takes the new diagonal)."""
+        """The pairs' Hessian blocks at the current positions, and the volumes. Collective (assembly marks the
+        operator changed, so that the preconditioner takes the new diagonal)."""
         p = system.particles
-        iips_pairs(p["position"], p[volume], self.col, system.nbr_ptr, system.nbr_idx, system.kernel.params,
-                   system.kernel.support, self.bptr, self.bcol, self.hess, self.self_term)
+        iips_pairs(p["position"], self.col, system.nbr_ptr, system.nbr_idx, system.kernel.params,
+                   system.kernel.support, self.bptr, self.bcol, self.hess)
         free = self.col >= 0
         self.volume[self.col[free]] = p[volume][free]
         self.mat.assemble()
 
     def product(self, x, y, transpose=False) -> None:
-        """y = A x, or A^T x = V (A (x / V)) (PETSc vectors). Collective (the halo scatter)."""
-        n, d = len(self.self_term), self.x.shape[1]
+        """y = A x = H (V x), or A^T x = V (H x) (PETSc vectors). Collective (the halo scatter)."""
+        n, d = len(self.bptr) - 1, self.x.shape[1]
         self.x[:n] = x.array_r.reshape(n, d)
         if self.scatter is not None:
             self.scatter.scatter(x, self.ghost)
-        if transpose:
-            self.x /= self.volume[:, None]
+        if not transpose:
+            self.x *= self.volume[:, None]
         out = y.array.reshape(n, d)
-        iips_product(self.self_term, self.bptr, self.bcol, self.hess, self.x, out)
+        iips_product(self.h0, self.bptr, self.bcol, self.hess, self.x, out)
         if transpose:
             out *= self.volume[:n, None]
 
@@ -160,7 +160,8 @@ class _PythonMatrix:
         self.operator.product(x, y, transpose=True)
 
     def getDiagonal(self, mat, diagonal) -> None:  # noqa: N802 (PETSc's name)
-        diagonal.array[:] = np.repeat(self.operator.self_term, self.operator.x.shape[1])
+        op = self.operator  # V_i HessW(0) = V_i W''(0) I, the printed self term
+        diagonal.array[:] = np.repeat(op.h0 * op.volume[:len(op.bptr) - 1], op.x.shape[1])
 
 
 OPERATORS = {"assembled": AssembledOperator, "matrix_free": MatrixFreeOperator}
