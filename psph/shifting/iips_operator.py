@@ -16,6 +16,8 @@ The operator is A = H diag(V), H the symmetric matrix of blocks HessW(x_i - x_j)
 symmetric) and V the volumes: A x = H (V x), and A^T x = V (H x).
 """
 
+import weakref
+
 import numpy as np
 
 from psph.compute.iips import iips_pairs, iips_product, iips_structure, iips_values
@@ -151,7 +153,9 @@ class _PythonMatrix:
     """PETSc's Python-matrix protocol for a MatrixFreeOperator (petsc4py calls these by name)."""
 
     def __init__(self, operator):
-        self.operator = operator
+        # a weak reference: PETSc's matrix holds this context, so a strong one would make a cycle through C that
+        # Python's collector cannot see, and a dropped operator (and its pair arrays) would never be freed
+        self.operator = weakref.proxy(operator)
 
     def mult(self, mat, x, y) -> None:
         self.operator.product(x, y)

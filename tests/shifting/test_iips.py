@@ -1,6 +1,8 @@
 """IIPS end to end: static convergence (thesis 8.3.1), restored SPH convergence order, fixed particles,
 Procedures A/B, failures, and the extreme inputs of the IIPS issue."""
 
+import gc
+import weakref
 from contextlib import contextmanager
 
 import numpy as np
@@ -274,6 +276,19 @@ def test_the_jacobi_preconditioner_follows_the_operators_new_values(operator):
         applied.append(y.getArray().copy())
         system.particles["volume"][:] *= 2.0
     assert np.allclose(applied[1], 0.5 * applied[0], rtol=1e-14, atol=0)
+
+
+@pytest.mark.parametrize("operator", ["assembled", "matrix_free"])
+def test_a_dropped_operator_is_freed(operator):
+    """An ImplicitShifting dropped without destroy() frees its operator (the matrix-free one's PETSc context
+    must not hold it in a cycle the collector cannot see)."""
+    scene = periodic_scene(n=10, sigma=0.1, iips={"operator": operator, "max_newton": 1})
+    shifting = ImplicitShifting(scene.iips, MPI.COMM_SELF)
+    shifting.correct(build_system(scene, MPI.COMM_SELF))
+    alive = weakref.ref(shifting.operator)
+    del shifting
+    gc.collect()
+    assert alive() is None
 
 
 @pytest.mark.parametrize("options,expect", [
