@@ -2,7 +2,7 @@
 
 numba compiles (first run on a machine: seconds) or loads from its on-disk cache (later runs: 2-3 ms) each
 kernel on its first call. Calling them once on a tiny particle cloud at start-up keeps that cost out of the
-time loops (it stays in the run's total wall time); a one-iteration IIPS call takes 30-40 ms
+time loops (it stays in the run's total wall time); a one-iteration IIPS call takes 20-40 ms
 (tests/compute/test_warmup.py checks that a run of each kind loads nothing more).
 """
 
