@@ -10,7 +10,8 @@ Newton iteration; any preconditioner (`-iips_pc_type hypre`, `gamg`, `sor`, ...)
 d^2 values and d^2 column indices in each direction, a pair of the rank's own unknowns stored once,
 nothing stored for the lists' skin. Its halo unknowns come through a PETSc scatter built at each rebuild.
 It provides its diagonal, so the preconditioner is Jacobi (the default) or none, and the transpose's
-product, so any Krylov method works (`-iips_ksp_type gmres`, `tfqmr`, `bicg`, `cgne`, ...).
+product, so any Krylov method works (`-iips_ksp_type gmres`, `tfqmr`, `bicg`, `cgne`, ...; LSQR breaks down
+at once with Jacobi, on either operator, and needs `-iips_pc_type none`).
 
 The operator is A = H diag(V), H the symmetric matrix of blocks HessW(x_i - x_j) (HessW is even and
 symmetric) and V the volumes: A x = H (V x), and A^T x = V (H x).

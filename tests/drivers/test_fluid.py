@@ -63,8 +63,9 @@ def test_iips_runs_are_more_accurate_and_converge(tmp_path):
     assert np.log2(errors[("mls2", 0.05)] / errors[("mls2", 0.025)]) > 2.0
     # Morris' viscous operator: rate 3.2 here and 3.9 to dx = 0.0125 (README, results/tgv_morris)
     assert np.log2(errors[("mls2_morris", 0.05)] / errors[("mls2_morris", 0.025)]) > 2.5
-    # 0.0075 against 0.0095 (ratio 0.79) with the matrix-free operator's pairs stored in both directions, 0.0078
-    # against 0.0097 (0.81) with each pair once: round-off alone moves Procedure B's trajectories by a few %
+    # ratio 0.79 (0.0075 / 0.0095) with the matrix-free operator's pairs stored in both directions, 0.81
+    # (0.0078 / 0.0097) with each pair once, 0.74 (0.0078 / 0.0105) with the assembled matrix: operators equal
+    # to round-off, which the rtol 1e-2 solves and Procedure B's threshold decisions amplify to ~8% errors
     assert errors[("mls2_morris", 0.025)] < 0.9 * errors[("mls2", 0.025)]
     assert np.log2(errors[("mls2_relaxed", 0.05)] / errors[("mls2_relaxed", 0.025)]) > 2.5  # 3.15
     assert errors[("delta_plus_relaxed", 0.025)] < errors[("delta_plus", 0.025)] / 2.0  # 0.0026 against 0.0079
