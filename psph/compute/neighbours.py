@@ -8,8 +8,10 @@ moved more than half the skin (Verlet list); pairs beyond the support contribute
 Cells are half the list radius wide (a stencil of 5 cells per axis: in 2-D 25 cells of radius^2 / 4
 hold 6.25 radius^2 of candidates, against 9 radius^2 for cells of the radius; 15.6 against 27 radius^3
 in 3-D). The points are copied into cell order, so a stencil's run of cells along the last axis is one
-contiguous slice; the lists are counted in one pass and written in a second, both without branches in the
-inner loop (3 times faster than the search over cells of the radius with a distance branch:
+contiguous slice; the lists are written in one pass without a branch in the inner loop (every candidate
+is written, the position advances past those kept) into a buffer sized from the mean density and grown
+when a row's candidates might not fit (3 times faster than the search over cells of the radius with a
+distance branch; one pass instead of a counting and a writing pass, 1.5 times faster again:
 run_scripts/bench_sums.py).
 """
 
@@ -93,38 +95,52 @@ def _bin(cell, ntotal):
 
 
 @njit(cache=True)
-def _scan(query, n_rows, sorted_pos, members, start, qcell, ncell, reach, r2max, exclude_self, ptr, idx, fill):
-    """Count (fill=False: ptr[i + 1] = the number of data points closer than sqrt(r2max) to query i, the
-    query itself included when it is data point i) or write them (fill=True: their numbers from ptr[i] on,
-    without data point i if exclude_self)."""
+def _scan(query, n_rows, sorted_pos, members, start, qcell, ncell, reach, r2max, exclude_self, capacity):
+    """The lists of query points 0..n_rows-1 in one pass: (ptr, idx), idx possibly a view of a longer buffer.
+    Each row's candidates (the points of its stencil) are written branch-free, advancing past those closer than
+    sqrt(r2max) (without data point i if exclude_self); the buffer starts at `capacity` entries and grows by
+    half whenever a row's candidates might not fit."""
     n0, n1, n2 = ncell[0], ncell[1], ncell[2]
+    ptr = np.zeros(n_rows + 1, dtype=np.int64)
+    idx = np.empty(capacity, dtype=np.int64)
+    out = 0
     x = np.zeros(3)
     for i in range(n_rows):
         c = qcell[i]
         c2 = c % n2
         c1 = (c // n2) % n1
         c0 = c // (n1 * n2)
+        lo0, hi0 = max(c0 - reach, 0), min(c0 + reach + 1, n0)
+        lo1, hi1 = max(c1 - reach, 0), min(c1 + reach + 1, n1)
+        lo2, hi2 = max(c2 - reach, 0), min(c2 + reach + 1, n2)
+        candidates = 0
+        for a0 in range(lo0, hi0):
+            for a1 in range(lo1, hi1):
+                row = (a0 * n1 + a1) * n2
+                candidates += start[row + hi2] - start[row + lo2]
+        if out + candidates >= idx.size:
+            grown = np.empty(max(out + candidates + 1, idx.size + idx.size // 2), dtype=np.int64)
+            grown[:out] = idx[:out]
+            idx = grown
         for a in range(query.shape[1]):
             x[a] = query[i, a]
         x0, x1, x2 = x[0], x[1], x[2]
-        out = ptr[i]
-        count = 0
-        for a0 in range(max(c0 - reach, 0), min(c0 + reach + 1, n0)):
-            for a1 in range(max(c1 - reach, 0), min(c1 + reach + 1, n1)):
+        for a0 in range(lo0, hi0):
+            for a1 in range(lo1, hi1):
                 row = (a0 * n1 + a1) * n2
-                for m in range(start[row + max(c2 - reach, 0)], start[row + min(c2 + reach + 1, n2)]):
+                for m in range(start[row + lo2], start[row + hi2]):
                     t0 = x0 - sorted_pos[m, 0]
                     t1 = x1 - sorted_pos[m, 1]
                     t2 = x2 - sorted_pos[m, 2]
-                    inside = t0 * t0 + t1 * t1 + t2 * t2 < r2max
-                    if not fill:
-                        count += inside  # branch-free, so that the compiler vectorises the counting pass
-                    else:  # branch-free too: write always, advance when kept (idx has one spare slot)
-                        j = members[m]
-                        idx[out] = j
-                        out += inside and not (exclude_self and j == i)
-        if not fill:
-            ptr[i + 1] = count
+                    j = members[m]
+                    idx[out] = j  # write always, advance when kept: no branch in the inner loop
+                    out += t0 * t0 + t1 * t1 + t2 * t2 < r2max and not (exclude_self and j == i)
+        ptr[i + 1] = out
+    return ptr, idx[:out]
+
+
+# Volume of the unit ball in 1-3 D (the first guess of a list's length)
+_BALL = (2.0, np.pi, 4.0 / 3.0 * np.pi)
 
 
 @njit(cache=True)
@@ -144,14 +160,13 @@ def _lists(query, n_rows, data, radius, exclude_self):
     for m in range(members.size):
         for a in range(d):
             sorted_pos[m, a] = data[members[m], a]
-    ptr = np.zeros(n_rows + 1, dtype=np.int64)
-    args = (query, n_rows, sorted_pos, members, start, qcell, ncell, reach, radius * radius, exclude_self, ptr)
-    _scan(*args, np.empty(0, dtype=np.int64), False)
-    for i in range(n_rows):
-        ptr[i + 1] += ptr[i] - (1 if exclude_self else 0)  # each point is at distance 0 < radius of itself
-    idx = np.empty(ptr[n_rows] + 1, dtype=np.int64)
-    _scan(*args, idx, True)
-    return ptr, idx[:-1]
+    # first guess of the lists' length: the mean density over the grid times the ball's volume, 10% more
+    volume = 1.0
+    for a in range(d):
+        volume *= ncell[3 - d + a] * size
+    capacity = int(1.1 * n_rows * members.size * _BALL[d - 1] * radius ** d / volume) + 1
+    return _scan(query, n_rows, sorted_pos, members, start, qcell, ncell, reach, radius * radius, exclude_self,
+                 capacity)
 
 
 @njit(cache=True)
@@ -159,8 +174,8 @@ def build_neighbour_lists(pos, n_rows, radius):
     """CSR neighbour lists (ptr, idx) of rows 0..n_rows-1 over all particles in `pos`.
 
     pos: (n, d) positions of owned then halo particles; radius: list radius (support + skin).
-    Returns ptr (n_rows + 1,) and idx (ptr[-1],) int64; row i is idx[ptr[i]:ptr[i+1]], ascending in
-    cell order, j != i.
+    Returns ptr (n_rows + 1,) and idx (ptr[-1],) int64 (a view of a buffer that may be longer, by 10% or,
+    once grown, by up to half); row i is idx[ptr[i]:ptr[i+1]], ascending in cell order, j != i.
     """
     return _lists(pos, n_rows, pos, radius, True)
 
@@ -169,6 +184,56 @@ def build_neighbour_lists(pos, n_rows, radius):
 def build_cross_lists(query, data, radius):
     """CSR lists of the `data` points within `radius` of each `query` point (two different point sets)."""
     return _lists(query, query.shape[0], data, radius, False)
+
+
+@njit(cache=True, inline="always")
+def _image_near(pos, i, shift, lo, hi, radius):
+    """Whether the image pos[i] + shift lies strictly within `radius` of the box (lo, hi)."""
+    for a in range(pos.shape[1]):
+        x = pos[i, a] + shift[a]
+        if not (x > lo[a] - radius and x < hi[a] + radius):
+            return False
+    return True
+
+
+@njit(cache=True)
+def image_rows(pos, box_lo, box_hi, shifts, skip, radius):
+    """The rows of `pos` whose image pos + shifts[s] lies within `radius` of box r (strictly inside box r
+    widened by radius on every side), for every box r and shift s with skip[r, s] False.
+
+    box_lo, box_hi: (n_boxes, d) (+-inf allowed); shifts: (n_shifts, d). Returns (rows, shift numbers,
+    counts per box), grouped by box, then by shift, then by ascending row. An image outside the boxes' union
+    widened by radius is tested against no box (most particles have only the zero shift to test)."""
+    n = pos.shape[0]
+    nb, ns = skip.shape
+    union_lo = box_lo[0].copy()
+    union_hi = box_hi[0].copy()
+    for r in range(1, nb):
+        union_lo = np.minimum(union_lo, box_lo[r])
+        union_hi = np.maximum(union_hi, box_hi[r])
+    counts = np.zeros((nb, ns), dtype=np.int64)
+    for fill in (False, True):
+        if fill:
+            offset = np.zeros(nb * ns + 1, dtype=np.int64)
+            offset[1:] = np.cumsum(counts.ravel())
+            rows = np.empty(offset[-1], dtype=np.int64)
+            which = np.empty(offset[-1], dtype=np.int64)
+            at = offset[:-1].copy()
+        for i in range(n):
+            for s in range(ns):
+                if not _image_near(pos, i, shifts[s], union_lo, union_hi, radius):
+                    continue
+                for r in range(nb):
+                    if skip[r, s] or not _image_near(pos, i, shifts[s], box_lo[r], box_hi[r], radius):
+                        continue
+                    if fill:
+                        k = at[r * ns + s]
+                        rows[k] = i
+                        which[k] = s
+                        at[r * ns + s] = k + 1
+                    else:
+                        counts[r, s] += 1
+    return rows, which, counts.sum(axis=1)
 
 
 @njit(cache=True)

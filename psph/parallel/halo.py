@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from psph.compute.neighbours import image_rows
 from psph.parallel.comm import alltoallv, exchange_counts
 
 
@@ -35,24 +36,13 @@ def _image_shifts(domain):
 
 def build_halo_pattern(comm, pos_owned: np.ndarray, decomposition, domain, radius: float) -> HaloPattern:
     """Pattern sending every owned particle (or periodic image) within `radius` of another box. Collective."""
-    me = comm.rank
-    shifts = _image_shifts(domain)
-    index_parts, shift_parts = [], []
-    counts = np.zeros(comm.size, dtype=np.int64)
-    for r, (b_lo, b_hi) in enumerate(decomposition.boxes):
-        for s in shifts:
-            if r == me and not s.any():
-                continue
-            x = pos_owned + s
-            inside = np.all((x > b_lo - radius) & (x < b_hi + radius), axis=1)
-            rows = np.flatnonzero(inside)
-            index_parts.append(rows)
-            shift_parts.append(np.broadcast_to(s, (len(rows), domain.dim)))
-            counts[r] += len(rows)
-    send_index = np.concatenate(index_parts) if index_parts else np.zeros(0, dtype=np.int64)
-    send_shift = (np.concatenate(shift_parts) if shift_parts else np.zeros((0, domain.dim)))
-    return HaloPattern(send_index=send_index.astype(np.int64), send_shift=np.ascontiguousarray(send_shift),
-                       send_counts=counts, recv_counts=exchange_counts(comm, counts))
+    shifts = np.array(_image_shifts(domain)).reshape(-1, domain.dim)
+    box_lo, box_hi = (np.array([box[k] for box in decomposition.boxes], dtype=np.float64) for k in (0, 1))
+    skip = np.zeros((len(box_lo), len(shifts)), dtype=np.bool_)
+    skip[comm.rank] = ~shifts.any(axis=1)  # a rank's own particles, unshifted, are no halo of its own
+    rows, which, counts = image_rows(np.ascontiguousarray(pos_owned), box_lo, box_hi, shifts, skip, radius)
+    return HaloPattern(send_index=rows, send_shift=shifts[which], send_counts=counts,
+                       recv_counts=exchange_counts(comm, counts))
 
 
 def halo_exchange(comm, particles, pattern: HaloPattern, names) -> None:

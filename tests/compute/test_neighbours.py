@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from psph.compute.neighbours import build_neighbour_lists, max_displacement, spatial_order
+from psph.compute.neighbours import build_neighbour_lists, image_rows, max_displacement, spatial_order
 
 
 def brute_force(pos, n_rows, radius):
@@ -14,6 +14,7 @@ def brute_force(pos, n_rows, radius):
 def clouds(dim, rng):
     n = {1: 300, 2: 600, 3: 800}[dim]
     uniform = rng.uniform(0.0, 1.0, (n, dim))
+    # clustered and coincident: the lists outgrow the search's first guess of their length (its buffer grows)
     clustered = np.concatenate([rng.normal(c, 0.02, (n // 4, dim)) for c in rng.uniform(0, 1, (4, dim))])
     coincident = np.repeat(rng.uniform(0.0, 1.0, (n // 3, dim)), 3, axis=0)
     # a lattice of spacing 0.025 puts pairs exactly at the radius 0.05 and on the cells' edges
@@ -77,3 +78,34 @@ def test_max_displacement():
     b = np.array([[0.0, 0.0], [3.0, 4.0], [1.0, 0.0]])
     assert max_displacement(b, a, 3) == 5.0
     assert max_displacement(b, a, 1) == 0.0
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+def test_image_rows_equal_brute_force(dim):
+    """Halo rows (psph.parallel.halo) for boxes that tile a periodic box, one reaching +-inf, with particles on
+    box faces and within the radius of the domain's edges: the same rows in the same order as testing every
+    image against every box."""
+    rng = np.random.default_rng(10 + dim)
+    pos = np.concatenate([rng.uniform(0.0, 1.0, (400, dim)), np.full((5, dim), 0.5), np.zeros((3, dim))])
+    pos[:20, 0] = rng.uniform(0.0, 0.03, 20)  # near the lower edge: their +1 images are halos
+    box_lo = np.array([[0.0] * dim, [0.5] + [0.0] * (dim - 1), [0.0] * (dim - 1) + [0.7]])
+    box_hi = np.array([[0.5] + [np.inf] * (dim - 1), [1.0] * dim, [0.5] + [1.0] * (dim - 1)])
+    axes = [(-1.0, 0.0, 1.0)] * dim
+    shifts = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, dim)
+    skip = np.zeros((3, len(shifts)), dtype=np.bool_)
+    skip[1] = ~shifts.any(axis=1)
+    radius = 0.05
+    rows, which, counts = image_rows(pos, box_lo, box_hi, shifts, skip, radius)
+    expect_rows, expect_which, expect_counts = [], [], []
+    for r in range(3):
+        for s, shift in enumerate(shifts):
+            if skip[r, s]:
+                continue
+            x = pos + shift
+            near = np.flatnonzero(np.all((x > box_lo[r] - radius) & (x < box_hi[r] + radius), axis=1))
+            expect_rows += list(near)
+            expect_which += [s] * len(near)
+        expect_counts.append(len(expect_rows) - sum(expect_counts))
+    assert rows.tolist() == expect_rows and which.tolist() == expect_which
+    assert counts.tolist() == expect_counts
+    assert np.any(which != np.flatnonzero(~shifts.any(axis=1))[0]), "some periodic image is a halo"
