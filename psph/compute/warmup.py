@@ -8,7 +8,7 @@ time loops (it stays in the run's total wall time); a one-iteration IIPS call ta
 
 import numpy as np
 
-from psph.compute import csr, fluid, free_surface, iips, neighbours, random, shift_velocity, sums, walls
+from psph.compute import csr, fluid, free_surface, iips, neighbours, random, riemann, shift_velocity, sums, walls
 from psph.compute.smoothing import make_kernel
 
 
@@ -24,6 +24,8 @@ def warm_up(dim: int, kernel_name: str) -> None:
     kernel.value(np.zeros(1))
     ptr, idx = neighbours.build_neighbour_lists(pos, n, 2.0)
     neighbours.spatial_order(pos, 2.0)
+    box = np.array([[0.0] * dim])
+    neighbours.image_rows(pos, box, box + 1.0, np.zeros((1, dim)), np.zeros((1, 1), dtype=np.bool_), 0.1)
     neighbours.max_displacement(pos, pos, n)
     neighbours.coincident_rows(pos, gid, ptr, idx, 1e-9)
     random.gaussian_by_gid(0, gid, dim)
@@ -72,6 +74,9 @@ def warm_up(dim: int, kernel_name: str) -> None:
                                 grad_c=(0.2, 4.0, 1.0, vector.copy()))
     fluid.delta_ale_rhs(pos, vol, field, field, vector, vector, field, vector, pairs, kp, 1.0, 0.1, 0.1, 0.01,
                         np.zeros(dim), 0, True, True, kind, False, scalar, scalar.copy(), vector.copy())
+    riemann.velocity_gradient(pos, vol, vector, pairs, tensor)  # the Riemann SPH-ALE scheme (schemes.riemann_ale)
+    riemann.riemann_ale_rhs(pos, vol, field, field, vector, vector, vector, tensor, pairs, 1.0, 1.0, True, 0.1, False,
+                            np.zeros(dim), scalar, scalar.copy(), vector.copy(), limited=True, low_dissipation=False)
     if dim == 2:  # the clone walls (boundaries.clone), on no row
         rows = walls.near_wall_rows(kind, ptr, idx)
         bodies = 1
