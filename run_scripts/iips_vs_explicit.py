@@ -94,7 +94,8 @@ def main():
         title="Iterations and shifting time to reach Cartesian accuracy within 5% (thesis Table 8.2)",
         note="dx/L = 0.0125 (6400 particles), sigma/dx = 0.1, h/dx = 2, Wendland C6; "
              "IIPS: KSP BCGS + Jacobi; scene: matrix-free operator, rtol 1e-2, the default skin; tuned: the "
-             "same with rtol 1e-1 and neighbours.skin = 0.2; assembled_tuned: iips.operator = assembled, rtol 1e-1, neighbours.skin = 0. "
+             "same with rtol 1e-1 and neighbours.skin = 0.2; assembled_tuned: iips.operator = assembled, "
+             "rtol 1e-1, neighbours.skin = 0. "
              "IIPS time: median of the repeated runs. Speed-up = explicit time / IIPS time. "
              "Thesis (10/20/40 particles per wavelength): IIPS 1/2/3 "
              "iterations in 66/126/207 ms; explicit 68/380/2408 iterations; speed-ups 40/110/475."))

@@ -98,6 +98,8 @@ class ImplicitShifting:
         self.rhs, self.dx = self.mat.createVecs()
         self.residual = self.rhs.duplicate()  # work vector of _start_from
         self.free = free
+        # the owned rows of the unknowns: a slice, a view rather than a copy, when every owned particle is one
+        self.rows = slice(None) if free.all() else free
         self.solver.set_operator(self.mat)
         self._structure_of = system.rebuilds
         self._unknowns_moved = False
@@ -127,18 +129,19 @@ class ImplicitShifting:
         self.assemble(system)
         d = system.particles.dim
         p = system.particles
-        self.rhs.setArray(grad[self.free].ravel())
+        rows = self.rows
+        self.rhs.setArray(grad[rows].ravel())
         guess = first and self.solver.ksp.getInitialGuessNonzero()
         self.dx.set(0.0)
         if guess:
-            self._start_from(p.owned(GUESS_FIELD.name)[self.free].ravel())
+            self._start_from(p.owned(GUESS_FIELD.name)[rows].ravel())
         its = self.solver.solve(self.rhs, self.dx)
         step = self.dx.getArray(readonly=True).reshape(-1, d)
         if guess:
-            p.owned(GUESS_FIELD.name)[self.free] = step
+            p.owned(GUESS_FIELD.name)[rows] = step
             p.owned(GUESS_FIELD.name)[~self.free] = 0.0  # no stale guess for a particle that becomes free later
-        p.owned("position")[self.free] += step
-        p.owned(SHIFT_FIELD.name)[self.free] += step
+        p.owned("position")[rows] += step
+        p.owned(SHIFT_FIELD.name)[rows] += step
         self.newton_iterations += 1
         system.update()
         return its
