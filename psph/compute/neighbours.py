@@ -9,10 +9,10 @@ Cells are half the list radius wide (a stencil of 5 cells per axis: in 2-D 25 ce
 hold 6.25 radius^2 of candidates, against 9 radius^2 for cells of the radius; 15.6 against 27 radius^3
 in 3-D). The points are copied into cell order, so a stencil's run of cells along the last axis is one
 contiguous slice; the lists are written in one pass without a branch in the inner loop (every candidate
-is written, the position advances past those kept) into a buffer sized from the mean density and grown
-when a row's candidates might not fit (3 times faster than the search over cells of the radius with a
-distance branch; one pass instead of a counting and a writing pass, 1.5 times faster again:
-run_scripts/bench_sums.py).
+is written, the position advances past those kept) into a buffer sized from the mean density (at most
+the candidates' count) and grown when a row's candidates might not fit (3 times faster than the search
+over cells of the radius with a distance branch; one pass instead of a counting and a writing pass, 1.4-1.6
+times faster again: run_scripts/bench_sums.py).
 """
 
 import numpy as np
@@ -94,30 +94,55 @@ def _bin(cell, ntotal):
     return start, members
 
 
-@njit(cache=True)
-def _scan(query, n_rows, sorted_pos, members, start, qcell, ncell, reach, r2max, exclude_self, capacity):
-    """The lists of query points 0..n_rows-1 in one pass: (ptr, idx), idx possibly a view of a longer buffer.
-    Each row's candidates (the points of its stencil) are written branch-free, advancing past those closer than
-    sqrt(r2max) (without data point i if exclude_self); the buffer starts at `capacity` entries and grows by
-    half whenever a row's candidates might not fit."""
+@njit(cache=True, inline="always")
+def _stencil(c, ncell, reach):
+    """The cell ranges [lo0, hi0), [lo1, hi1), [lo2, hi2) of the stencil around cell c."""
     n0, n1, n2 = ncell[0], ncell[1], ncell[2]
+    c2 = c % n2
+    c1 = (c // n2) % n1
+    c0 = c // (n1 * n2)
+    return (max(c0 - reach, 0), min(c0 + reach + 1, n0), max(c1 - reach, 0), min(c1 + reach + 1, n1),
+            max(c2 - reach, 0), min(c2 + reach + 1, n2))
+
+
+@njit(cache=True, inline="always")
+def _candidates(start, ncell, lo0, hi0, lo1, hi1, lo2, hi2):
+    """The number of points in a stencil."""
+    count = 0
+    for a0 in range(lo0, hi0):
+        for a1 in range(lo1, hi1):
+            row = (a0 * ncell[1] + a1) * ncell[2]
+            count += start[row + hi2] - start[row + lo2]
+    return count
+
+
+@njit(cache=True)
+def _scan(query, n_rows, sorted_pos, members, start, qcell, ncell, reach, r2max, exclude_self, expected):
+    """The lists of query points 0..n_rows-1 in one pass: (ptr, idx), idx a view of a buffer at most a quarter
+    longer. Each row's candidates (the points of its stencil) are written branch-free, advancing past those
+    closer than sqrt(r2max) (without data point i if exclude_self). The buffer starts at `expected` entries
+    (capped by the candidates' count), grows by half whenever a row's candidates might not fit, and is copied
+    to its length if that is under four fifths of it."""
+    n0, n1, n2 = ncell[0], ncell[1], ncell[2]
+    rows_in = np.zeros(n0 * n1 * n2, dtype=np.int64)  # query points per cell
+    for i in range(n_rows):
+        rows_in[qcell[i]] += 1
+    bound = 0  # the candidates' count, cell by cell (no division per row)
+    for a0 in range(n0):
+        for a1 in range(n1):
+            for a2 in range(n2):
+                rows = rows_in[(a0 * n1 + a1) * n2 + a2]
+                if rows:
+                    bound += rows * _candidates(start, ncell, max(a0 - reach, 0), min(a0 + reach + 1, n0),
+                                                max(a1 - reach, 0), min(a1 + reach + 1, n1),
+                                                max(a2 - reach, 0), min(a2 + reach + 1, n2))
+    idx = np.empty(int(min(expected, bound)) + 1, dtype=np.int64)
     ptr = np.zeros(n_rows + 1, dtype=np.int64)
-    idx = np.empty(capacity, dtype=np.int64)
     out = 0
     x = np.zeros(3)
     for i in range(n_rows):
-        c = qcell[i]
-        c2 = c % n2
-        c1 = (c // n2) % n1
-        c0 = c // (n1 * n2)
-        lo0, hi0 = max(c0 - reach, 0), min(c0 + reach + 1, n0)
-        lo1, hi1 = max(c1 - reach, 0), min(c1 + reach + 1, n1)
-        lo2, hi2 = max(c2 - reach, 0), min(c2 + reach + 1, n2)
-        candidates = 0
-        for a0 in range(lo0, hi0):
-            for a1 in range(lo1, hi1):
-                row = (a0 * n1 + a1) * n2
-                candidates += start[row + hi2] - start[row + lo2]
+        lo0, hi0, lo1, hi1, lo2, hi2 = _stencil(qcell[i], ncell, reach)
+        candidates = _candidates(start, ncell, lo0, hi0, lo1, hi1, lo2, hi2)
         if out + candidates >= idx.size:
             grown = np.empty(max(out + candidates + 1, idx.size + idx.size // 2), dtype=np.int64)
             grown[:out] = idx[:out]
@@ -127,7 +152,7 @@ def _scan(query, n_rows, sorted_pos, members, start, qcell, ncell, reach, r2max,
         x0, x1, x2 = x[0], x[1], x[2]
         for a0 in range(lo0, hi0):
             for a1 in range(lo1, hi1):
-                row = (a0 * n1 + a1) * n2
+                row = (a0 * ncell[1] + a1) * ncell[2]
                 for m in range(start[row + lo2], start[row + hi2]):
                     t0 = x0 - sorted_pos[m, 0]
                     t1 = x1 - sorted_pos[m, 1]
@@ -136,6 +161,8 @@ def _scan(query, n_rows, sorted_pos, members, start, qcell, ncell, reach, r2max,
                     idx[out] = j  # write always, advance when kept: no branch in the inner loop
                     out += t0 * t0 + t1 * t1 + t2 * t2 < r2max and not (exclude_self and j == i)
         ptr[i + 1] = out
+    if 4 * idx.size > 5 * out + 64:
+        return ptr, idx[:out].copy()
     return ptr, idx[:out]
 
 
@@ -160,13 +187,11 @@ def _lists(query, n_rows, data, radius, exclude_self):
     for m in range(members.size):
         for a in range(d):
             sorted_pos[m, a] = data[members[m], a]
-    # first guess of the lists' length: the mean density over the grid times the ball's volume, 10% more
-    volume = 1.0
-    for a in range(d):
-        volume *= ncell[3 - d + a] * size
-    capacity = int(1.1 * n_rows * members.size * _BALL[d - 1] * radius ** d / volume) + 1
+    # first guess of the lists' length: the mean density over the grid times the ball's volume, 10% more (in
+    # cells, so that no scale of the coordinates overflows)
+    expected = 1.1 * n_rows * members.size * _BALL[d - 1] * (radius / size) ** d / (ncell[0] * ncell[1] * ncell[2])
     return _scan(query, n_rows, sorted_pos, members, start, qcell, ncell, reach, radius * radius, exclude_self,
-                 capacity)
+                 expected)
 
 
 @njit(cache=True)
@@ -174,8 +199,8 @@ def build_neighbour_lists(pos, n_rows, radius):
     """CSR neighbour lists (ptr, idx) of rows 0..n_rows-1 over all particles in `pos`.
 
     pos: (n, d) positions of owned then halo particles; radius: list radius (support + skin).
-    Returns ptr (n_rows + 1,) and idx (ptr[-1],) int64 (a view of a buffer that may be longer, by 10% or,
-    once grown, by up to half); row i is idx[ptr[i]:ptr[i+1]], ascending in cell order, j != i.
+    Returns ptr (n_rows + 1,) and idx (ptr[-1],) int64 (a view of a buffer at most a quarter longer); row i is
+    idx[ptr[i]:ptr[i+1]], ascending in cell order, j != i.
     """
     return _lists(pos, n_rows, pos, radius, True)
 

@@ -109,3 +109,12 @@ def test_image_rows_equal_brute_force(dim):
     assert rows.tolist() == expect_rows and which.tolist() == expect_which
     assert counts.tolist() == expect_counts
     assert np.any(which != np.flatnonzero(~shifts.any(axis=1))[0]), "some periodic image is a halo"
+
+
+@pytest.mark.parametrize("scale", [1e-120, 1.0, 1e120])
+def test_lists_at_any_scale_of_the_coordinates(scale):
+    """The first guess of the lists' length is made in cells, so no coordinate scale overflows it."""
+    pos = np.random.default_rng(3).uniform(0.0, 1.0, (300, 3)) * scale
+    ptr, idx = build_neighbour_lists(pos, 200, 0.2 * scale)
+    expect = brute_force(pos, 200, 0.2 * scale)
+    assert [set(idx[ptr[i]:ptr[i + 1]]) for i in range(200)] == expect
