@@ -28,6 +28,7 @@ those pairs only, without a distance test or a kernel evaluation (2.5x faster th
 import numpy as np
 from numba import njit
 
+from psph.compute.jit import per_dimension
 from psph.compute.shift_velocity import grad_c_weight
 from psph.compute.smoothing import kernel_f
 from psph.compute.sums import dot, load, pair2, solid, solve_symmetric, store
@@ -38,7 +39,7 @@ def _compile(d):
     term below sits behind a condition that numba removes for lower dimensions: a 2-D run computes no
     padded zero components."""
 
-    @njit(cache=True)
+    @per_dimension(d)
     def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, cptr, cidx, cf, with_grad_c,
                               coeff, power, w_ref, grad_c):
         """The renormalised gradient of phi with the pair cache (see the wrapper below) and, with_grad_c, in
@@ -95,7 +96,7 @@ def _compile(d):
             r0, r1, r2 = solve_symmetric(m00, m01, m02, m11, m12, m22, g0, g1, g2, d, 1e-6)
             store(out, i, d, r0, r1, r2)
 
-    @njit(cache=True)
+    @per_dimension(d)
     def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, ptr, idx, cf, h, c0, delta, delta_m, mu,
                       morris, gravity, variant, with_shift, tensile_switch, diffusive, kind, fluid_only, d_rho,
                       d_mass, d_mom):

@@ -27,6 +27,7 @@ fluxes are the centred SPH-ALE ones (eq. 5.45 with F_ij = (F_i + F_j) / 2).
 import numpy as np
 from numba import njit
 
+from psph.compute.jit import per_dimension
 from psph.compute.sums import pair2, solve_symmetric
 
 TAIT_GAMMA = 7.0
@@ -93,7 +94,7 @@ def low_dissipation_pressure(rho_l, u_l, rho_r, u_r, c0, rho0, tait):
 
 
 def _compile(d):
-    @njit(cache=True)
+    @per_dimension(d)
     def velocity_gradient(pos, vol, vel, ptr, idx, cf, out):
         """out[i, a, b] = (L_i sum_j (v_j - v_i)_a grad_i W_ij V_j)_b over the cached pairs (seed 001 eq. 15)."""
         g = np.zeros((3, 3))
@@ -122,7 +123,7 @@ def _compile(d):
                 for b in range(d):
                     out[i, a, b] = r[b]
 
-    @njit(cache=True)
+    @per_dimension(d)
     def riemann_ale_rhs(pos, vol, rho, mass, vel, v0, grad_rho, grad_vel, ptr, idx, cf, c0, rho0, tait, mu,
                         morris, limited, low, gravity, d_vol, d_mass, d_mom):
         kk = 2.0 * (d + 2)

@@ -9,6 +9,7 @@ laws with grad W_ij = d W / d x_j (eq. 8.6), i.e. the opposite sign; psph uses t
 import numpy as np
 from numba import njit
 
+from psph.compute.jit import per_dimension
 from psph.compute.smoothing import kernel_f, kernel_w
 from psph.compute.sums import dot, load, pair2, store
 
@@ -37,7 +38,7 @@ def grad_c_weight(r, f, vol_j, kp, coeff, power, w_ref):
 def _compile_grad_c(d):
     """corrected_grad_c for dimension d, a compile-time constant (as in compute.fluid)."""
 
-    @njit(cache=True)
+    @per_dimension(d)
     def grad_c(pos, vol, ptr, idx, kp, coeff, power, w_ref, out):
         support2 = 4.0 * kp[1] * kp[1]
         for i in range(ptr.size - 1):
@@ -83,7 +84,7 @@ def limit_magnitude(vec, limit, out):
 def _compile_neuhauser(d):
     """neuhauser_acceleration for dimension d, a compile-time constant (as in compute.fluid)."""
 
-    @njit(cache=True)
+    @per_dimension(d)
     def acceleration(pos, vol, v0, pref, ptr, idx, kp, c0, alpha, out):
         smooth_scale = alpha * c0 / kp[1]
         for i in range(ptr.size - 1):

@@ -10,6 +10,7 @@ particles); neighbours j index all local particles (owned + halo), whose fields 
 import numpy as np
 from numba import njit
 
+from psph.compute.jit import per_dimension
 from psph.compute.smoothing import kernel_f, kernel_w
 
 
@@ -76,10 +77,9 @@ def concentration(pos, vol, ptr, idx, kp, out):
 
 
 def _grad_concentration_for(d):
-    """grad_concentration's kernel for dimension d, a compile-time constant of the closure (as in
-    compute.fluid): no test of d and no padded component per pair (25% faster in 2-D)."""
+    """grad_concentration's kernel for dimension d (compute.jit.per_dimension: 25% faster in 2-D)."""
 
-    @njit(cache=True)
+    @per_dimension(d)
     def kernel(pos, vol, ptr, idx, kp, out):
         for i in range(ptr.size - 1):
             g0 = 0.0
