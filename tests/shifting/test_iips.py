@@ -447,6 +447,24 @@ def test_a_guess_worse_than_zero_is_not_used():
     assert guessed.Linf_grad_c == pytest.approx(zero.Linf_grad_c, rel=1e-6)
 
 
+def test_a_solve_from_zero_computes_no_initial_residual_product():
+    """A call with nothing to start from (a static run, a rejected guess) tells PETSc the solve starts from
+    zero, so BCGS takes b as its initial residual: at most two operator products per KSP iteration, none for
+    b - A 0 (PETSc otherwise computes it once the guess's array was set)."""
+    from psph.shifting.iips_operator import MatrixFreeOperator
+
+    scene = periodic_scene(n=24, sigma=0.1, iips={"max_newton": 3, "procedure": "A", "operator": "matrix_free"})
+    products = []
+    product = MatrixFreeOperator.product
+    MatrixFreeOperator.product = lambda self, *args, **kwargs: products.append(1) or product(self, *args, **kwargs)
+    try:
+        _, shifting, _ = run_iips(scene)
+    finally:
+        MatrixFreeOperator.product = product
+    its = shifting.solver.iterations
+    assert its > 0 and len(products) <= 2 * its, (len(products), its)
+
+
 def test_explicit_iterative_baseline_is_much_slower():
     """Thesis Table 8.2: the explicit Fickian iteration needs far more iterations than IIPS."""
     scene = periodic_scene(n=20, sigma=0.1, shifting={"method": "explicit_iterative"})
