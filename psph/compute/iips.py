@@ -146,6 +146,26 @@ def iips_structure(row, ptr, idx, d):
     return indptr, indices, slot
 
 
+@njit(cache=True, inline="always")
+def upper(a, b, d):
+    """Place of entry (a, b) of a symmetric d x d block among its entries stored row by row on and above the
+    diagonal (xx, xy, yy in 2-D; xx, xy, xz, yy, yz, zz in 3-D)."""
+    if a > b:
+        a, b = b, a
+    return a * d - a * (a - 1) // 2 + b - a
+
+
+@njit(cache=True, inline="always")
+def hessian_block(ha, hb, x0, x1, x2, d):
+    """The entries of HessW(x) = ha I + hb x x^T on and above its diagonal, in the order of `upper`: d (d + 1) / 2
+    of them, the tuple padded with zeros to 6 (the blocks of thesis eq. 8.11, 8.32)."""
+    if d == 1:
+        return (ha + hb * x0 * x0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    if d == 2:
+        return (ha + hb * x0 * x0, hb * x0 * x1, ha + hb * x1 * x1, 0.0, 0.0, 0.0)
+    return (ha + hb * x0 * x0, hb * x0 * x1, hb * x0 * x2, ha + hb * x1 * x1, hb * x1 * x2, ha + hb * x2 * x2)
+
+
 @njit(cache=True)
 def iips_values(pos, vol, row, ptr, idx, kp, where, diag, off):
     """Values of the printed IIPS operator, each added straight into its storage: value number e of the
@@ -169,21 +189,10 @@ def iips_values(pos, vol, row, ptr, idx, kp, where, diag, off):
                 continue
             x0, x1, x2, r = pair(pos, i, j, d)
             ha, hb = hessian_coefficients(r, kp)
-            ha *= vol[j]
-            hb *= vol[j]
-            if d == 2:
-                off_diagonal = hb * x0 * x1
-                add_at(where, e, ha + hb * x0 * x0, diag, off)
-                add_at(where, e + 1, off_diagonal, diag, off)
-                add_at(where, e + 2, off_diagonal, diag, off)
-                add_at(where, e + 3, ha + hb * x1 * x1, diag, off)
-            elif d == 3:
-                xs = (x0, x1, x2)
-                for a in range(3):
-                    for b in range(3):
-                        add_at(where, e + 3 * a + b, hb * xs[a] * xs[b] + (ha if a == b else 0.0), diag, off)
-            else:
-                add_at(where, e, ha + hb * x0 * x0, diag, off)
+            block = hessian_block(vol[j] * ha, vol[j] * hb, x0, x1, x2, d)
+            for a in range(d):
+                for b in range(d):
+                    add_at(where, e + d * a + b, block[upper(a, b, d)], diag, off)
             e += d * d
 
 
@@ -193,6 +202,7 @@ def _compile(d):
     @per_dimension(d)
     def iips_pairs(pos, col, ptr, idx, kp, support, bptr, bcol, hess):
         """See iips_pairs."""
+        width = d * (d + 1) // 2
         reach2 = support * support  # Kernel.support: 2h for every kernel (kp[3] is 1/(2h), or 1/h for the cubic)
         m = 0
         bptr[0] = 0
@@ -209,20 +219,10 @@ def _compile(d):
                 if rr >= reach2:
                     continue
                 ha, hb = hessian_coefficients(np.sqrt(rr), kp)
+                block = hessian_block(ha, hb, x0, x1, x2, d)
                 bcol[m] = c
-                if d == 1:
-                    hess[m, 0] = ha + hb * x0 * x0
-                elif d == 2:
-                    hess[m, 0] = ha + hb * x0 * x0
-                    hess[m, 1] = hb * x0 * x1
-                    hess[m, 2] = ha + hb * x1 * x1
-                else:
-                    hess[m, 0] = ha + hb * x0 * x0
-                    hess[m, 1] = hb * x0 * x1
-                    hess[m, 2] = hb * x0 * x2
-                    hess[m, 3] = ha + hb * x1 * x1
-                    hess[m, 4] = hb * x1 * x2
-                    hess[m, 5] = ha + hb * x2 * x2
+                for u in range(width):
+                    hess[m, u] = block[u]
                 m += 1
             bptr[p + 1] = m
 

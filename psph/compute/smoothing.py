@@ -18,11 +18,12 @@ Compute kernels call three scalar functions of the distance r with the parameter
 
     kernel_w(r, kp)    W(r)
     kernel_f(r, kp)    W'(r) / r      so that  grad_i W_ij = f(r_ij) (x_i - x_j)  (finite at r = 0)
-    kernel_d2(r, kp)   W''(r)
+    kernel_b(r, kp)    (W''(r) - W'(r) / r) / r^2, in closed form (no cancellation, no division for C4, C6)
 
 (an integer id rather than a function argument, because numba's on-disk cache does not recognise
 function-typed arguments across processes)
-and the Hessian of W at x is  H(x) = f I + (d2 - f) x x^T / r^2  (= f I at r = 0, see hessian()).
+and the Hessian of W at x is  H(x) = f I + b x x^T  with b = kernel_b (= f I at r = 0, see
+hessian_coefficients()).
 """
 
 from dataclasses import dataclass
@@ -41,7 +42,8 @@ _NORMALISATION = {
 KERNEL_NAMES = tuple(_NORMALISATION)
 
 
-# Leaf functions of q: f(q), f'(q)/q and f''(q) of each kernel's polynomial (zero beyond the support).
+# Leaf functions of q: f(q), f'(q)/q and (f''(q) - f'(q)/q)/q^2 of each kernel's polynomial (zero beyond
+# the support).
 # The Wendland leaves clip 1 - q at zero instead of branching on q >= 1: the loops over neighbour lists then
 # carry no unpredictable branch (a skin pair costs a few flops and adds exactly zero).
 @njit(cache=True, inline="always")
@@ -64,10 +66,11 @@ def _c2_fq(q):  # f'(q)/q = -20 (1-q)^3
     return -20.0 * t * t * t
 
 
+
 @njit(cache=True, inline="always")
-def _c2_d2(q):  # f''(q) = 20 (1-q)^2 (4q - 1)
+def _c2_bq(q):  # (f''(q) - f'(q)/q) / q^2 = 60 (1-q)^2 / q  (q > 0)
     t = _clip(1.0 - q)
-    return 20.0 * t * t * (4.0 * q - 1.0)
+    return 60.0 * t * t / q
 
 
 # ---------------------------------------------------------------- Wendland C4
@@ -85,11 +88,12 @@ def _c4_fq(q):  # f'(q)/q = -56 (1-q)^5 (5q + 1)
     return -56.0 * t2 * t2 * t * (5.0 * q + 1.0)
 
 
+
 @njit(cache=True, inline="always")
-def _c4_d2(q):  # f''(q) = 56 (1-q)^4 (35q^2 - 4q - 1)
+def _c4_bq(q):  # (f''(q) - f'(q)/q) / q^2 = 1680 (1-q)^4
     t = _clip(1.0 - q)
     t2 = t * t
-    return 56.0 * t2 * t2 * (35.0 * q * q - 4.0 * q - 1.0)
+    return 1680.0 * t2 * t2
 
 
 # ---------------------------------------------------------------- Wendland C6
@@ -109,12 +113,12 @@ def _c6_fq(q):  # f'(q)/q = -22 (1-q)^7 (16q^2 + 7q + 1)
     return -22.0 * t4 * t2 * t * ((16.0 * q + 7.0) * q + 1.0)
 
 
+
 @njit(cache=True, inline="always")
-def _c6_d2(q):  # f''(q) = 22 (1-q)^6 (160q^3 + 15q^2 - 6q - 1)
+def _c6_bq(q):  # (f''(q) - f'(q)/q) / q^2 = 528 (1-q)^6 (6q + 1)
     t = _clip(1.0 - q)
     t2 = t * t
-    t4 = t2 * t2
-    return 22.0 * t4 * t2 * (((160.0 * q + 15.0) * q - 6.0) * q - 1.0)
+    return 528.0 * t2 * t2 * t2 * (6.0 * q + 1.0)
 
 
 # ---------------------------------------------------------------- cubic spline (q = r / h)
@@ -138,13 +142,14 @@ def _cubic_fq(q):  # 3/4 (3q - 4) for q < 1; -3/4 (2 - q)^2 / q for 1 <= q < 2
     return -0.75 * t * t / q
 
 
+
 @njit(cache=True, inline="always")
-def _cubic_d2(q):
+def _cubic_bq(q):  # (f''(q) - f'(q)/q) / q^2 = 9 / (4q) for q < 1; 3/4 (4 - q^2) / q^3 for 1 <= q < 2  (q > 0)
     if q >= 2.0:
         return 0.0
     if q < 1.0:
-        return 4.5 * q - 3.0
-    return 1.5 * (2.0 - q)
+        return 2.25 / q
+    return 0.75 * (4.0 - q * q) / (q * q * q)
 
 
 KERNEL_IDS = {"wendland_c2": 0, "wendland_c4": 1, "wendland_c6": 2, "cubic_spline": 3}
@@ -179,26 +184,30 @@ def kernel_f(r, kp):
 
 
 @njit(cache=True, inline="always")
-def kernel_d2(r, kp):
-    """W''(r)."""
+def kernel_b(r, kp):
+    """(W''(r) - W'(r) / r) / r^2, the coefficient of x x^T in HessW(x), from the factored polynomials
+    (tests/compute/test_smoothing.py checks them with sympy): the difference is not formed, so nothing cancels
+    near r = 0, and C4 and C6 need no division. It is finite at r = 0 for C4 and C6 and grows like 1 / r for
+    C2 and the cubic spline, for which r = 0 gives 0 (the term b x x^T vanishes there)."""
     q = r * kp[3]
     kid = kp[0]
+    scale = kp[4] * kp[3] * kp[3]
     if kid == 2:
-        return kp[4] * _c6_d2(q)
-    if kid == 0:
-        return kp[4] * _c2_d2(q)
+        return scale * _c6_bq(q)
     if kid == 1:
-        return kp[4] * _c4_d2(q)
-    return kp[4] * _cubic_d2(q)
+        return scale * _c4_bq(q)
+    if not q > 0.0:
+        return 0.0
+    if kid == 0:
+        return scale * _c2_bq(q)
+    return scale * _cubic_bq(q)
 
 
 @njit(cache=True, inline="always")
 def hessian_coefficients(r, kp):
-    """(a, b) with HessW(x) = a I + b x x^T at |x| = r (b = 0 at r = 0, where HessW = a I)."""
-    a = kernel_f(r, kp)
-    if r > 0.0:
-        return a, (kernel_d2(r, kp) - a) / (r * r)
-    return a, 0.0
+    """(a, b) with HessW(x) = a I + b x x^T at |x| = r: a = W'(r) / r, b = kernel_b (b x x^T = 0 at r = 0,
+    where HessW = a I)."""
+    return kernel_f(r, kp), kernel_b(r, kp)
 
 
 @njit(cache=True)
@@ -211,7 +220,7 @@ def _evaluate(which, r, kp):
         elif which == 1:
             out[k] = kernel_f(flat[k], kp)
         else:
-            out[k] = kernel_d2(flat[k], kp)
+            out[k] = kernel_b(flat[k], kp)
     return out.reshape(r.shape)
 
 
@@ -220,7 +229,7 @@ class Kernel:
     """A smoothing kernel bound to a dimension and a smoothing length.
 
     `params` = (kernel id, h, alpha_d / h^d, 1 / (2h) (1 / h for the cubic spline), alpha_d / h^d / (2h)^2)
-    is what compute kernels take (kernel_w/f/d2(r, params)); the precomputed scales spare the hot loops
+    is what compute kernels take (kernel_w/f/b(r, params)); the precomputed scales spare the hot loops
     every division.
     The methods below evaluate on numpy arrays, for tests and set-up, not hot loops.
     """
@@ -253,9 +262,7 @@ class Kernel:
         x = np.asarray(x, dtype=np.float64).reshape(-1, self.dim)
         r = np.sqrt((x * x).sum(axis=1))
         a = self.radial(r)
-        d2 = _evaluate(2, r, self.params)
-        safe = np.where(r > 0.0, r * r, 1.0)
-        b = np.where(r > 0.0, (d2 - a) / safe, 0.0)
+        b = _evaluate(2, r, self.params)
         return a[:, None, None] * np.eye(self.dim) + b[:, None, None] * x[:, :, None] * x[:, None, :]
 
 

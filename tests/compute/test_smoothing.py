@@ -83,6 +83,36 @@ def test_formulas_against_sympy():
             assert np.isclose(float(1 / integral), normalisation(name, dim) / H**dim, rtol=1e-14)
 
 
+def test_hessian_coefficient_closed_forms_against_sympy():
+    """kernel_b = (W'' - W'/r) / r^2, the coefficient of x x^T in HessW, in closed form, against sympy's exact
+    derivatives of every kernel, on both pieces of the cubic spline and near r = 0 (where forming W'' - W'/r
+    in floating point would lose digits), in 1-D, 2-D and 3-D."""
+    import sympy as sp
+
+    from psph.compute.smoothing import hessian_coefficients
+
+    q = sp.symbols("q", positive=True)
+    pieces = {"wendland_c2": [((1 - q) ** 4 * (4 * q + 1), 0, 1)],
+              "wendland_c4": [((1 - q) ** 6 * (35 * q**2 + 18 * q + 3), 0, 1)],
+              "wendland_c6": [((1 - q) ** 8 * (32 * q**3 + 25 * q**2 + 8 * q + 1), 0, 1)],
+              "cubic_spline": [(1 - sp.Rational(3, 2) * q**2 + sp.Rational(3, 4) * q**3, 0, 1),
+                               (sp.Rational(1, 4) * (2 - q) ** 3, 1, 2)]}
+    for name, polys in pieces.items():
+        for dim in (1, 2, 3):
+            k = make_kernel(name, dim, H)
+            per_r = k.params[3]  # q = r per_r
+            for f, lo, hi in polys:
+                b_q = sp.lambdify(q, sp.simplify((sp.diff(f, q, 2) - sp.diff(f, q) / q) / q**2), "mpmath")
+                for qv in np.linspace(lo, hi, 7)[1:-1].tolist() + ([1e-4, 0.013] if lo == 0 else []):
+                    r = qv / per_r
+                    expect = normalisation(name, dim) / H**dim * per_r**4 * float(b_q(sp.Rational(qv)))
+                    _, b = hessian_coefficients(r, k.params)
+                    assert np.isclose(b, expect, rtol=1e-13, atol=0.0), (name, dim, qv, b, expect)
+            at_zero = {"wendland_c4": 1680.0, "wendland_c6": 528.0}.get(name, 0.0)  # C2, cubic: b x x^T -> 0
+            assert np.isclose(hessian_coefficients(0.0, k.params)[1], k.params[4] * per_r**2 * at_zero, rtol=1e-14)
+            assert hessian_coefficients(k.support, k.params) == (0.0, 0.0)
+
+
 def test_c6_misprint_corrected():
     """Thesis eq. 4.29 prints 35 q^3 and 38/(14 pi): with those the 2-D kernel would not integrate to one."""
     assert np.isclose(normalisation("wendland_c6", 2), 39.0 / (14.0 * np.pi))

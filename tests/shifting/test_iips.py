@@ -256,7 +256,9 @@ def test_the_matrix_free_operator_gives_the_iterates_of_the_assembled_one(option
     (l2_a, pos_a), (l2_f, pos_f) = runs["assembled"], runs["matrix_free"]
     assert l2_a[-1] < 0.01 * l2_a[0]
     assert np.allclose(l2_f, l2_a, rtol=1e-8, atol=0)
-    assert np.abs(pos_f - pos_a).max() < 1e-10
+    # measured: 1.5e-10 with BCGS + Jacobi, 2e-12 and 2e-13 with GMRES and BiCG, 8 orders of magnitude below the
+    # perturbation (sigma = 0.25 dx), from which a wrong block would show
+    assert np.abs(pos_f - pos_a).max() < 1e-7 * 0.25 * scene.domain.dx
 
 
 @pytest.mark.parametrize("operator", ["assembled", "matrix_free"])
