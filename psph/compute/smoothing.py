@@ -66,7 +66,6 @@ def _c2_fq(q):  # f'(q)/q = -20 (1-q)^3
     return -20.0 * t * t * t
 
 
-
 @njit(cache=True, inline="always")
 def _c2_bq(q):  # (f''(q) - f'(q)/q) / q^2 = 60 (1-q)^2 / q  (q > 0)
     t = _clip(1.0 - q)
@@ -86,7 +85,6 @@ def _c4_fq(q):  # f'(q)/q = -56 (1-q)^5 (5q + 1)
     t = _clip(1.0 - q)
     t2 = t * t
     return -56.0 * t2 * t2 * t * (5.0 * q + 1.0)
-
 
 
 @njit(cache=True, inline="always")
@@ -111,7 +109,6 @@ def _c6_fq(q):  # f'(q)/q = -22 (1-q)^7 (16q^2 + 7q + 1)
     t2 = t * t
     t4 = t2 * t2
     return -22.0 * t4 * t2 * t * ((16.0 * q + 7.0) * q + 1.0)
-
 
 
 @njit(cache=True, inline="always")
@@ -140,7 +137,6 @@ def _cubic_fq(q):  # 3/4 (3q - 4) for q < 1; -3/4 (2 - q)^2 / q for 1 <= q < 2
         return 0.75 * (3.0 * q - 4.0)
     t = 2.0 - q
     return -0.75 * t * t / q
-
 
 
 @njit(cache=True, inline="always")
@@ -188,7 +184,8 @@ def kernel_b(r, kp):
     """(W''(r) - W'(r) / r) / r^2, the coefficient of x x^T in HessW(x), from the factored polynomials
     (tests/compute/test_smoothing.py checks them with sympy): the difference is not formed, so nothing cancels
     near r = 0, and C4 and C6 need no division. It is finite at r = 0 for C4 and C6 and grows like 1 / r for
-    C2 and the cubic spline, for which r = 0 gives 0 (the term b x x^T vanishes there)."""
+    C2 and the cubic spline, for which r = 0 gives 0 (the term b x x^T vanishes there). A NaN distance gives
+    NaN."""
     q = r * kp[3]
     kid = kp[0]
     scale = kp[4] * kp[3] * kp[3]
@@ -196,7 +193,7 @@ def kernel_b(r, kp):
         return scale * _c6_bq(q)
     if kid == 1:
         return scale * _c4_bq(q)
-    if not q > 0.0:
+    if q == 0.0:
         return 0.0
     if kid == 0:
         return scale * _c2_bq(q)

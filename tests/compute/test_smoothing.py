@@ -110,7 +110,8 @@ def test_hessian_coefficient_closed_forms_against_sympy():
                     assert np.isclose(b, expect, rtol=1e-13, atol=0.0), (name, dim, qv, b, expect)
             at_zero = {"wendland_c4": 1680.0, "wendland_c6": 528.0}.get(name, 0.0)  # C2, cubic: b x x^T -> 0
             assert np.isclose(hessian_coefficients(0.0, k.params)[1], k.params[4] * per_r**2 * at_zero, rtol=1e-14)
-            assert hessian_coefficients(k.support, k.params) == (0.0, 0.0)
+            assert hessian_coefficients(1.001 * k.support, k.params) == (0.0, 0.0)
+            assert all(np.isnan(hessian_coefficients(np.nan, k.params)))  # a NaN distance is not a zero weight
 
 
 def test_c6_misprint_corrected():
