@@ -40,7 +40,7 @@ from psph.profiling import phase
 from psph.shifting.base import ShiftReport, measure
 from psph.shifting.iips_operator import iips_operator
 from psph.solvers.linear import LinearSolver
-from psph.solvers.petsc import petsc
+from psph.solvers.petsc import destroy_at_exit, petsc
 
 SHIFT_FIELD = FieldSpec("iips_shift", ("d",))
 # the call's displacement at its iterate of lowest Linf(grad C) (a field: it migrates with the particles)
@@ -82,6 +82,7 @@ class ImplicitShifting:
         self.newton_iterations = 0
         self.rejections = 0
         self.failures = 0
+        destroy_at_exit(self)  # a script that never calls destroy() must not crash at exit
 
     COUNTERS = ("threshold", "initial_linf", "calls", "newton_iterations", "rejections", "failures")
 

@@ -1,11 +1,18 @@
 """PETSc start-up: initialised once, with the command line's PETSc options, before any PETSc object."""
 
+import atexit
 import glob
 import importlib.util
+import itertools
 import os
 import sys
+import weakref
 
 _state = {"argv": None}
+# objects to destroy before PETSc finalises, in the order they were registered (the same on every rank: a
+# destroy is collective)
+_live = weakref.WeakValueDictionary()
+_registered = itertools.count()
 
 
 def _find_debian_petsc4py() -> None:
@@ -41,6 +48,7 @@ def initialize(options=()) -> None:
         petsc4py.init(argv)
         _state["argv"] = argv
         _ignore_sigpipe()
+        atexit.register(_destroy_live)
     elif _state["argv"] != argv:
         raise RuntimeError("PETSc is already initialised with other options")
 
@@ -55,6 +63,21 @@ def _ignore_sigpipe() -> None:
 
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGPIPE, signal.SIG_IGN)
+
+
+def destroy_at_exit(obj) -> None:
+    """Call obj.destroy() when Python exits, if obj is still alive then. petsc4py finalises PETSc after the
+    interpreter has shut down, destroying the objects still alive: a KSP holding a Python matrix (the
+    matrix-free IIPS operator) then calls into the dead interpreter, and the process ends with a
+    segmentation fault. Python's own exit handlers run before that."""
+    _live[next(_registered)] = obj
+
+
+def _destroy_live() -> None:
+    for key in sorted(_live.keys()):
+        obj = _live.get(key)
+        if obj is not None:
+            obj.destroy()
 
 
 def petsc():

@@ -2,6 +2,8 @@
 Procedures A/B, failures, and the extreme inputs of the IIPS issue."""
 
 import gc
+import subprocess
+import sys
 import weakref
 from contextlib import contextmanager
 
@@ -18,6 +20,7 @@ from psph.shifting.explicit import ExplicitIterativeShifting
 from psph.shifting.iips import ImplicitShifting
 from psph.simulation import build_system, unperturbed
 from tests.conftest import periodic_scene
+from tests.helpers import ROOT, mpi_environment
 
 
 @contextmanager
@@ -563,3 +566,33 @@ def test_particle_without_neighbours_stays_put():
     pos = p.owned("position")
     assert np.array_equal(pos[p.owned("gid") == len(lattice)][0], [5.0, 5.0])
     assert np.all(np.isfinite(pos)) and report.L2_grad_c < start["L2_grad_c"]
+
+
+EXIT_SCRIPT = """
+import sys
+from mpi4py import MPI
+from psph.shifting.iips import ImplicitShifting
+from psph.simulation import build_system
+from tests.conftest import periodic_scene
+
+scene = periodic_scene(n=10, sigma=0.1, iips={"operator": sys.argv[1]})
+shifting = ImplicitShifting(scene.iips, MPI.COMM_WORLD)
+shifting.assemble(build_system(scene, MPI.COMM_WORLD))
+if sys.argv[2] == "destroyed":
+    shifting.destroy()
+print("done")
+"""
+
+
+@pytest.mark.parametrize("operator", ["matrix_free", "assembled"])
+@pytest.mark.parametrize("ending", ["alive", "destroyed"])
+def test_a_script_that_keeps_its_solver_until_exit_ends_cleanly(operator, ending):
+    """An ImplicitShifting still alive when Python exits is destroyed by Python's exit handlers. petsc4py
+    finalises PETSc after the interpreter has shut down, and a KSP still holding the matrix-free operator's
+    Python matrix then called into the dead interpreter: the script printed its output and ended with a
+    segmentation fault (exit code 59 under PETSc's signal handler). Destroying it twice is harmless."""
+    proc = subprocess.run([sys.executable, "-c", EXIT_SCRIPT, operator, ending], capture_output=True, text=True,
+                          timeout=300, cwd=ROOT, env=mpi_environment())
+    assert proc.stdout.strip() == "done"
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "SEGV" not in proc.stderr
