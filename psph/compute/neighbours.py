@@ -127,15 +127,11 @@ def _scan(query, n_rows, sorted_pos, members, start, qcell, ncell, reach, r2max,
     rows_in = np.zeros(n0 * n1 * n2, dtype=np.int64)  # query points per cell
     for i in range(n_rows):
         rows_in[qcell[i]] += 1
-    bound = 0  # the candidates' count, cell by cell (no division per row)
-    for a0 in range(n0):
-        for a1 in range(n1):
-            for a2 in range(n2):
-                rows = rows_in[(a0 * n1 + a1) * n2 + a2]
-                if rows:
-                    bound += rows * _candidates(start, ncell, max(a0 - reach, 0), min(a0 + reach + 1, n0),
-                                                max(a1 - reach, 0), min(a1 + reach + 1, n1),
-                                                max(a2 - reach, 0), min(a2 + reach + 1, n2))
+    bound = 0  # the candidates' count, cell by cell
+    for c in range(rows_in.size):
+        if rows_in[c]:
+            lo0, hi0, lo1, hi1, lo2, hi2 = _stencil(c, ncell, reach)
+            bound += rows_in[c] * _candidates(start, ncell, lo0, hi0, lo1, hi1, lo2, hi2)
     idx = np.empty(int(min(expected, bound)) + 1, dtype=np.int64)
     ptr = np.zeros(n_rows + 1, dtype=np.int64)
     out = 0
@@ -152,7 +148,7 @@ def _scan(query, n_rows, sorted_pos, members, start, qcell, ncell, reach, r2max,
         x0, x1, x2 = x[0], x[1], x[2]
         for a0 in range(lo0, hi0):
             for a1 in range(lo1, hi1):
-                row = (a0 * ncell[1] + a1) * ncell[2]
+                row = (a0 * n1 + a1) * n2
                 for m in range(start[row + lo2], start[row + hi2]):
                     t0 = x0 - sorted_pos[m, 0]
                     t1 = x1 - sorted_pos[m, 1]
