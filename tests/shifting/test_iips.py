@@ -452,7 +452,7 @@ def test_a_guess_worse_than_zero_is_not_used():
     assert guessed.Linf_grad_c == pytest.approx(zero.Linf_grad_c, rel=1e-6)
 
 
-def test_a_solve_from_zero_computes_no_initial_residual_product():
+def test_a_solve_from_zero_computes_no_initial_residual_product(monkeypatch):
     """A call with nothing to start from (a static run, a rejected guess) tells PETSc the solve starts from
     zero, so BCGS takes b as its initial residual: at most two operator products per KSP iteration, none for
     b - A 0 (PETSc otherwise computes it once the guess's array was set)."""
@@ -461,11 +461,9 @@ def test_a_solve_from_zero_computes_no_initial_residual_product():
     scene = periodic_scene(n=24, sigma=0.1, iips={"max_newton": 3, "procedure": "A", "operator": "matrix_free"})
     products = []
     product = MatrixFreeOperator.product
-    MatrixFreeOperator.product = lambda self, *args, **kwargs: products.append(1) or product(self, *args, **kwargs)
-    try:
-        _, shifting, _ = run_iips(scene)
-    finally:
-        MatrixFreeOperator.product = product
+    monkeypatch.setattr(MatrixFreeOperator, "product",
+                        lambda self, *args, **kwargs: products.append(1) or product(self, *args, **kwargs))
+    _, shifting, _ = run_iips(scene)
     its = shifting.solver.iterations
     assert its > 0 and len(products) <= 2 * its, (len(products), its)
 
