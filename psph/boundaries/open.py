@@ -156,6 +156,9 @@ class NoOpenBoundaries:
     def apply(self, system, t) -> dict:
         return {"joined": 0, "emitted": 0, "removed": 0}
 
+    def extrapolate(self, system) -> None:
+        pass
+
     def checkpoint_state(self):
         return None
 
@@ -212,7 +215,7 @@ class OpenBoundaries:
         counts = allreduce_sum(system.comm, np.array([joined.sum(), removed.sum()], dtype=np.int64))
         out = {"joined": int(counts[0]), "emitted": n_new, "removed": int(counts[1])}
         if not (out["joined"] or out["emitted"] or out["removed"]):
-            self._extrapolate(system)
+            self.extrapolate(system)
             return out
         if out["removed"]:
             p.set_owned({name: arr[~removed] for name, arr in p.owned_arrays().items()})
@@ -224,14 +227,15 @@ class OpenBoundaries:
             p.append_owned({k: v for k, v in arrays.items() if k in p}, fill={"body": -1})
         self.next_gid += n_new
         system.rebuild()
-        self._extrapolate(system)
+        self.extrapolate(system)
         for key in self.totals:
             self.totals[key] += out[key]
         return out
 
-    def _extrapolate(self, system) -> None:
+    def extrapolate(self, system) -> None:
         """Set the outflow buffer's density, pressure, mass and velocity from the fluid beside it (lists
-        current). Collective."""
+        current): in `apply`, and again after a shifting that moves the fluid after `apply` (IIPS and its field
+        update), so that the buffer continues the fluid the next step starts from. Collective."""
         if not self.buffer:
             return
         from psph.compute.sums import shepard_from_fluid

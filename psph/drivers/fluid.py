@@ -330,6 +330,7 @@ class FluidDriver:
                 # best iterate was its start (on_stall = "best")
                 if report.iterations and not report.rejected and self.iips.max_shift(system) > 0.0:
                     self.update.after(system, self.scheme)
+                    self.open.extrapolate(system)  # the outflow buffer from the shifted fluid
             totals["iips_time_s"] += time.perf_counter() - t0
             totals["iips_newton"] += report.iterations
             totals["iips_linear"] += report.linear_iterations
