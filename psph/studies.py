@@ -239,6 +239,24 @@ def last_snapshot(out, index=-1) -> tuple:
         return {k: f["particles"][k][:] for k in f["particles"]}, float(f.attrs["time"])
 
 
+def spot_noise(pos, values, radius) -> float:
+    """RMS over the particles of each one's departure from the plane fitted, by least squares, to its own and
+    its neighbours' values within `radius` (the particles with fewer than d + 2 of them are left out): the
+    noise of a field made of spots, zero for any linear field (a hydrostatic pressure, also at a surface,
+    where a neighbours' mean would be biased). pos: (n, d); values: (n,)."""
+    from scipy.spatial import cKDTree
+
+    d = pos.shape[1]
+    residuals = []
+    for i, near in enumerate(cKDTree(pos).query_ball_point(pos, radius)):
+        if len(near) < d + 2:
+            continue
+        design = np.hstack([np.ones((len(near), 1)), pos[near] - pos[i]])
+        coef = np.linalg.lstsq(design, values[near], rcond=None)[0]
+        residuals.append(values[i] - coef[0])
+    return float(np.sqrt(np.mean(np.square(residuals)))) if residuals else float("nan")
+
+
 def shepard_sample(pos, vol, values, points, kernel):
     """Kernel (Shepard) interpolation sum_j W_j V_j f_j / sum_j W_j V_j of particle `values` at `points`
     (probes, e.g. a centreline), from the particles within the kernel support."""

@@ -69,14 +69,14 @@ def test_a_tables_command_line_is_the_study_as_typed(monkeypatch):
     assert studies.command_line() == "run_scripts/cavity.py --re 1000 --set iips.update=nfts --out 'results/a b'"
 
 
-def cavity_study():
-    """run_scripts/cavity.py as a module."""
+def study_module(name="cavity"):
+    """run_scripts/NAME.py as a module."""
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("cavity_study", studies.CASES.parent / "run_scripts" / "cavity.py")
-    cavity = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(cavity)
-    return cavity
+    spec = importlib.util.spec_from_file_location(f"{name}_study", studies.CASES.parent / "run_scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 @pytest.mark.parametrize("argv, expected", [
@@ -87,7 +87,7 @@ def cavity_study():
 ])
 def test_the_cavity_study_samples_with_the_kernel_of_its_runs(tmp_path, monkeypatch, argv, expected):
     """run_scripts/cavity.py interpolates the centrelines with the h/dx its run used."""
-    cavity = cavity_study()
+    cavity = study_module()
     seen = {}
 
     def fake_run(scene, out, sets, ranks):
@@ -129,7 +129,7 @@ def test_histories_are_written_as_data(tmp_path):
 
 def test_the_cavity_study_measures_how_steady_the_flow_is():
     """kinetic_energy_change: KE(t_end) / KE(t1) - 1 with t1 the last row at or before 0.8 t_end."""
-    cavity = cavity_study()
+    cavity = study_module()
     rows = [{"time": t, "kinetic_energy": 1.0 + 0.01 * t} for t in np.linspace(0.0, 10.0, 11)]
     assert cavity.kinetic_energy_change(rows) == pytest.approx(1.10 / 1.08 - 1.0)
     rows = [{"time": t, "kinetic_energy": 2.0} for t in (0.0, 4.0, 7.9, 8.5, 10.0)]
@@ -139,7 +139,7 @@ def test_the_cavity_study_measures_how_steady_the_flow_is():
 def test_the_cavity_study_refuses_a_setting_a_wall_model_cannot_take(tmp_path, monkeypatch, capsys):
     """IIPS needs clone walls: --walls clone ghost --set shifting.method=iips stops with the scene's one-line
     error before the first run, not after the clone-wall runs."""
-    cavity = cavity_study()
+    cavity = study_module()
 
     def no_run(*args, **kwargs):
         raise AssertionError("a run started")
@@ -166,3 +166,45 @@ def test_shepard_sample_reproduces_a_linear_field_inside_and_is_nan_outside():
     out = shepard_sample(grid, np.full(len(grid), 0.0025), values, np.array([[0.5, 0.5], [5.0, 5.0]]), kernel)
     assert np.allclose(out[0], [2.0, 0.5], atol=1e-12)
     assert np.isnan(out[1]).all()
+
+
+def test_spot_noise_is_zero_for_a_linear_field_and_measures_spots():
+    """run_scripts/dam_break_long.py's measure of seed 001's spots: a plane, also at the lattice's edges, gives
+    round-off; a checkerboard of amplitude a on top of it gives nearly a; random spots their RMS."""
+    x, y = np.meshgrid(np.arange(20) * 0.05, np.arange(8) * 0.05)
+    pos = np.stack([x.ravel(), y.ravel()], axis=1)
+    plane = 0.4 - pos[:, 1] + 0.3 * pos[:, 0]
+    assert studies.spot_noise(pos, plane, 0.1) < 1e-13
+    checker = np.where((np.rint(x / 0.05) + np.rint(y / 0.05)).ravel() % 2 == 0, 1.0, -1.0)
+    assert 0.6 < studies.spot_noise(pos, plane + 0.01 * checker, 0.1) / 0.01 < 1.0
+    spots = np.random.default_rng(0).standard_normal(len(pos))
+    assert 0.7 < studies.spot_noise(pos, 1e-3 * spots, 0.1) / 1e-3 < 1.0
+
+
+def test_the_long_dam_break_study_tables_finished_and_stopped_runs(tmp_path, monkeypatch):
+    """run_scripts/dam_break_long.py end to end at H/dx = 5 to t = 0.1 (its standard SPH run made to stop, as
+    it does at t = 6-8): a row of measures per finished run, the stop's message in one cell of its row, and
+    the figure."""
+    study = study_module("dam_break_long")
+    real = study.run_scene
+
+    def run_scene(scene, out, sets=(), **kwargs):
+        if "physics.delta=0" in sets:
+            raise RuntimeError("psph ... failed:\npsph: error: density left the weakly compressible range: "
+                               "|rho/rho0 - 1| = 0.58 > 0.5 [step 9, t = 0.01]")
+        return real(scene, out, sets=sets, **kwargs)
+
+    monkeypatch.setattr(study, "run_scene", run_scene)
+    monkeypatch.setattr("sys.argv", ["dam_break_long.py", "--resolutions", "5", "--t-end", "0.1", "--out",
+                                     str(tmp_path)])
+    study.main()
+    lines = (tmp_path / "long.md").read_text().splitlines()
+    rows = {line.split(" | ")[0].removeprefix("| "): line for line in lines if line.startswith("| ")}
+    assert set(rows) == {"scheme", "delta-ALE-SPH", "standard SPH", "Lagrangian delta-SPH"}
+    columns = rows["scheme"].count(" | ")
+    assert all(row.replace("\\|", "").count(" | ") == columns for row in rows.values())
+    assert "stopped: density left the weakly compressible range: \\|rho/rho0 - 1\\| = 0.58" in rows["standard SPH"]
+    for scheme in ("delta-ALE-SPH", "Lagrangian delta-SPH"):
+        cells = rows[scheme].strip("| ").split(" | ")
+        assert int(cells[2]) > 50 and all(np.isfinite(float(c)) for c in cells[3:])
+    assert (tmp_path / "long.png").stat().st_size > 10_000
