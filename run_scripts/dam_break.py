@@ -228,7 +228,7 @@ def main():
                    "Dam break: kinetic + potential energy")
     write_histories(args.out / "histories.csv", ["H/dx"], runs,
                     ["front_x", "column_height", "kinetic_energy", "potential_energy", "volume_error",
-                     "total_mass", "max_density_variation"])
+                     "total_mass", "max_density_variation", "wall_reflections"])
     snapshots_figure(args.out / "snapshots.png", runs[-1][1].out, np.arange(1.0, 9.0))
 
 

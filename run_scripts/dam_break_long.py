@@ -13,12 +13,12 @@ cases/dam_break.toml at the --resolutions given, each scheme on one rank, --jobs
 - delta-ALE-SPH: the scene as it is (delta-plus shifting, D^rho and D^m with delta = delta_m = 0.1, none
   where lambda < 0.2);
 - standard SPH: the same scene with no shifting (the particles move with the fluid) and no diffusive terms
-  (physics.delta = physics.delta_m = 0), the weakly compressible SPH with artificial viscosity the paper
-  compares against. Its masses are those of the hydrostatic start, rho_i dx^2, and never change. At
-  H/dx = 20 it stops at t = 6.17, where the plunging wave closes an air cavity: a particle driven to 0.1 dx
-  above the floor reaches |rho / rho0 - 1| = 0.58, past the scene's limit of 0.5 (with a limit of 0.9 it
-  stops at t = 6.19, at 0.97); at H/dx = 40 it stops at t = 7.67, a particle's volume off by 51%. The
-  table reports the stop;
+  (physics.delta = physics.delta_m = 0, and so free_surface.lambda_diffusion = 0, which switches them),
+  the weakly compressible SPH with artificial viscosity the paper compares against. Its masses are those
+  of the hydrostatic start, rho_i dx^2, and never change. At H/dx = 20 it stops at t = 6.17, where the
+  plunging wave closes an air cavity: a particle driven to 0.1 dx above the floor reaches |rho / rho0 - 1|
+  = 0.58, past the scene's limit of 0.5 (with a limit of 0.9 it stopped at t = 6.19, at 0.97); at H/dx =
+  40 it stops at t = 7.67, a particle's volume off by 51%. The table reports the stop;
 - Lagrangian delta-SPH: standard SPH with the density diffusion D^rho (delta = 0.1) but still no shifting and
   no mass diffusion, so its masses are as Lagrangian as the standard SPH's: it shows what mixing makes of
   them at t_end.
@@ -30,8 +30,9 @@ the free surface) and eps_V = V_i / dx^2 - 1 over the fluid, and their "spot" no
 fitted to its own and its fluid neighbours' values within 2 dx; zero for a linear field, the spots' size
 for a field of spots); the same noise of the pressure (in rho0 g H) and the pressure's departure from the
 hydrostatic pressure of the flat layer; the kinetic energy left, the largest density variation of the
-run, the wall reflections and the wall time. long.png: the pressure, eps_V and eps_m near the left wall
-(x < 1.5 H), the finished runs side by side at the finest resolution, as in the paper's figures.
+run's history rows (every 10th step), the wall reflections and the wall time. long.png: the pressure,
+eps_V and eps_m near the left wall (x < 1.5 H), the finished runs side by side at the finest resolution
+that has one, as in the paper's figures.
 """
 
 import argparse
@@ -86,7 +87,8 @@ def figure(path, runs, n):
 
     data = {scheme: fields(run.out, H / n) for (scheme, m), run in runs.items() if m == n}
     panels = [("p / (rho0 g H)", 3), ("eps_V", 2), ("eps_m", 1)]
-    fig, axes = plt.subplots(len(panels), len(data), figsize=(5.5 * len(data), 1.7 * len(panels)), squeeze=False)
+    fig, axes = plt.subplots(len(panels), len(data), figsize=(5.5 * len(data), 2.3 * len(panels)), squeeze=False)
+    fig.subplots_adjust(hspace=0.55)
     for r, (label, k) in enumerate(panels):
         for c, (scheme, values) in enumerate(data.items()):
             ax = axes[r, c]
@@ -94,7 +96,7 @@ def figure(path, runs, n):
             shown = values[k][near]  # each panel its own scale: the schemes' masses differ by 20 times their spots
             art = ax.scatter(values[0][near, 0], values[0][near, 1], c=shown, s=9.0, cmap="viridis",
                              vmin=np.percentile(shown, 1), vmax=np.percentile(shown, 99))
-            ax.set(xlim=(0.0, DETAIL), ylim=(0.0, 1.3 * LAYER), aspect="equal",
+            ax.set(xlim=(0.0, DETAIL), ylim=(0.0, 1.6 * LAYER), aspect="equal",
                    title=f"{scheme}, {label}, t sqrt(g/H) = {values[4]:.0f}")
             ax.tick_params(labelsize=7)
             ax.title.set_fontsize(8)
@@ -114,20 +116,22 @@ def main():
     cases = [(scheme, n) for n in args.resolutions for scheme in args.schemes]
 
     def run(case):
-        """The run, or psph's message if it stopped."""
+        """The run, or psph's message if psph stopped it with a diagnosis (any other failure is raised)."""
         scheme, n = case
         sets, tag = SCHEMES[scheme]
+        out = args.out / f"{tag}_h{n}"
         try:
-            return run_scene(CASES / "dam_break.toml", args.out / f"{tag}_h{n}",
-                             sets=[f"domain.dx={H / n}", f"time.t_end={args.t_end}", "output.every=1",
-                                   "output.history_every=10"] + sets)
+            return run_scene(CASES / "dam_break.toml", out, sets=[f"domain.dx={H / n}", f"time.t_end={args.t_end}",
+                                                                  "output.every=1", "output.history_every=10"] + sets)
         except RuntimeError as err:
+            if not (out / "study_stopped.txt").exists():
+                raise
             return stop_message(err)
 
     with ThreadPoolExecutor(args.jobs) as pool:
         runs = dict(zip(cases, pool.map(run, cases)))
     rows = [row(scheme, n, runs[scheme, n]) if isinstance(runs[scheme, n], Run) else
-            [scheme, n, "stopped: " + runs[scheme, n].removeprefix("psph: error: ").replace("|", "\\|")]
+            [scheme, n, "stopped: " + runs[scheme, n].removeprefix("psph: error: ")]
             + ["-"] * (len(HEADER) - 3) for scheme, n in cases]
     finished = {case: run for case, run in runs.items() if isinstance(run, Run)}
     print(write_table(args.out / "long", HEADER, rows,
@@ -135,7 +139,9 @@ def main():
                             "fluid (eps = value / (rho0 dx^2 or dx^2) - 1; spot noise: RMS of a particle's departure "
                             "from the plane fitted to its fluid neighbours within 2 dx; pressures in rho0 g H)",
                       note="Command: " + command_line()))
-    figure(args.out / "long.png", finished, max(args.resolutions))
+    shown = max((n for _, n in finished), default=None)
+    if shown is not None:
+        figure(args.out / "long.png", finished, shown)
 
 
 if __name__ == "__main__":

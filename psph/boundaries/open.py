@@ -241,8 +241,9 @@ class OpenBoundaries:
         from psph.compute.sums import shepard_from_fluid
 
         p = system.particles
-        # the fluid's halo copies as the step left them, and the kinds this step changed (fluid into buffer)
-        system.refresh(["kind", "density", "velocity"])
+        # the fluid's halo copies as the step (and a field update after IIPS: its volumes too) left them, and the
+        # kinds this step changed (fluid into buffer)
+        system.refresh(["kind", "density", "velocity", "volume"])
         rows = np.flatnonzero(p.owned("kind") == Kind.OUTLET)
         shepard_from_fluid(p["position"], p["volume"], p["kind"], rows, system.nbr_ptr, system.nbr_idx,
                            system.kernel.params, p["density"], p["velocity"])
