@@ -95,6 +95,38 @@ def _add_rates(i, rho_i, v_i, mu, variant, cont, gp0, gp1, vs0, vs1, sh0, sh1, d
 
 
 @njit(cache=True)
+def off_walls(near, rows, du):
+    """du[rows[r]] (2-D) replaced by the vector closest to it with no positive part along any of near[r]
+    (unit normals; zero rows are padding): itself, its projection on one wall's line, or zero (the
+    admissible set is a wedge, so its closest point is one of these). boundaries.clone.keep_shift_off."""
+    for r in range(rows.size):
+        i = rows[r]
+        u0, u1 = du[i, 0], du[i, 1]
+        tol = 1e-12 * np.sqrt(u0 * u0 + u1 * u1)
+        into = False
+        for k in range(near.shape[1]):
+            if near[r, k, 0] * u0 + near[r, k, 1] * u1 > tol:
+                into = True
+        if not into:
+            continue
+        best0 = best1 = 0.0
+        miss = np.inf
+        for k in range(near.shape[1]):
+            n0, n1 = near[r, k, 0], near[r, k, 1]
+            along = n0 * u0 + n1 * u1
+            if along <= tol or along >= miss:
+                continue
+            c0, c1 = u0 - along * n0, u1 - along * n1
+            ok = True
+            for m in range(near.shape[1]):
+                if near[r, m, 0] * c0 + near[r, m, 1] * c1 > tol:
+                    ok = False
+            if ok:
+                best0, best1, miss = c0, c1, along
+        du[i, 0], du[i, 1] = best0, best1
+
+
+@njit(cache=True)
 def near_wall_rows(kind, ptr, idx):
     """Owned fluid rows (kind 0) with at least one solid neighbour (a wall's or a body's)."""
     out = np.zeros(ptr.size - 1, dtype=np.bool_)

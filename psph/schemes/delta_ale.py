@@ -228,7 +228,7 @@ class DeltaALE:
                 self.walls.place(system, t, positions=False)
                 system.refresh(["normal", "wall_accel", "wall_velocity"])
         system.refresh(["density", "mass", "velocity", "volume", "pressure"])
-        self.shift_and_density_gradient(system, dt, fluid_only=walls)
+        self.shift_and_density_gradient(system, t, dt, fluid_only=walls)
         du = p["shift_velocity"] if self.shift.active else p["velocity"]  # (not read without a shift)
         system.refresh(["grad_rho"])
         kp = system.kernel.params
@@ -258,7 +258,7 @@ class DeltaALE:
             out["velocity"] = d_mom
         return out
 
-    def shift_and_density_gradient(self, system, dt, fluid_only) -> None:
+    def shift_and_density_gradient(self, system, t, dt, fluid_only) -> None:
         """The shifting velocity (owned rows, then their halo copies) and the renormalised density gradient
         with the pair cache (owned rows; the caller refreshes the halo). A law built on the corrected grad C
         gets it from the gradient's own pass over the lists (compute.fluid.renormalised_gradient), which
@@ -271,7 +271,10 @@ class DeltaALE:
                               system.kernel.params, p["kind"], fluid_only, p["grad_rho"], self.pairs, grad_c=grad_c)
         if law.active:
             law.velocity(system, self, dt, grad=None if grad_c is None else grad_c[3])
-            self.surface.restrict(system, p.owned("shift_velocity"))
+            du = p.owned("shift_velocity")
+            self.surface.restrict(system, du)
+            if self.walls is not None and self.surface.active:
+                self.walls.keep_shift_off(system, t, p.owned("free_surface") > 0, du)
             system.refresh(["shift_velocity"])
 
     def free_stream_velocity(self, t):

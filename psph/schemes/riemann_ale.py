@@ -63,7 +63,7 @@ class RiemannALE(DeltaALE):
         """d(state)/dt of the owned particles. Collective (halo exchanges)."""
         p = system.particles
         system.refresh(["density", "mass", "velocity", "volume", "pressure"])
-        self.shift_and_density_gradient(system, dt, fluid_only=False)
+        self.shift_and_density_gradient(system, t, dt, fluid_only=False)
         v0 = p["velocity"] + p["shift_velocity"] if self.shift.active else p["velocity"]
         velocity_gradient(p["position"], p["volume"], p["velocity"], self.pairs, p["grad_velocity"])
         system.refresh(["grad_rho", "grad_velocity"])

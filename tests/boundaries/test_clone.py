@@ -291,3 +291,63 @@ def test_the_node_tree_is_kept_only_while_no_clone_body_moves():
     assert np.allclose(late[0].data[-len(square):], square)
     fixed = WallTerms(load_scene(CASES / "hydrostatic_tank.toml"))
     assert fixed._node_tree(0.0) is fixed._node_tree(5.0)
+
+
+@pytest.mark.parametrize("model", ["clone", "ghost"])
+def test_no_shifting_into_a_wall_in_the_free_surface_region(tmp_path, model):
+    """WallTerms.keep_shift_off: a row of the free-surface region closer than dx/2 to a wall loses its
+    shifting velocity's part into the wall (on the floor; into both walls in a corner), keeps the rest and
+    the part out of the wall; a row farther than dx/2 or outside the region keeps its du."""
+    driver, system, p = cavity(tmp_path, **{"bodies.0.model": model, "shifting.method": "delta_plus",
+                                            "iips.update": "none"})
+    cases = {  # where, du given, du expected
+        "floor": ((0.5 + DX / 2, 0.3 * DX), (0.3, -1.0), (0.3, 0.0)),
+        "corner": ((0.3 * DX, 0.3 * DX), (-0.5, -1.0), (0.0, 0.0)),
+        "off the floor": ((0.5 + DX / 2, 0.3 * DX), (0.3, 1.0), (0.3, 1.0)),
+        "beyond dx/2": ((0.5 + DX / 2, 0.6 * DX), (0.3, -1.0), (0.3, -1.0)),
+        "outside the region": ((0.5 - DX / 2, 0.3 * DX), (0.3, -1.0), (0.3, -1.0))}
+    rows = {name: particle_at(p, x, DX / 2) for name, ((x, _), _, _) in cases.items()}
+    region = np.zeros(p.n_owned, dtype=bool)
+    for name, ((x, y), given, expected) in cases.items():
+        i = rows[name]
+        p.owned("position")[i] = (x, y)
+        region[i] = name != "outside the region"
+        du = np.zeros((p.n_owned, 2))
+        du[i] = given
+        driver.scheme.walls.keep_shift_off(system, 0.0, region, du)
+        assert np.allclose(du[i], expected, atol=1e-12), (name, du[i])
+        assert np.count_nonzero(du) == np.count_nonzero(expected)
+
+
+def test_no_shifting_into_an_immersed_body(tmp_path):
+    """The same for an immersed body (its node normals point out of the fluid too): a row within dx of the
+    moving square's side, shifted towards its centre, keeps only the part along the side."""
+    scene = load_scene(CASES / "moving_square.toml", ["domain.dx=0.05"])
+    driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path)
+    system = driver.system
+    p = system.particles
+    i = particle_at(p, 1.0 - 0.02, 2.5 + DX / 2)  # left of the square's left side x = 1
+    assert 1.0 - p.owned("position")[i, 0] < DX
+    du = np.zeros((p.n_owned, 2))
+    du[i] = (1.0, 0.4)
+    driver.scheme.walls.keep_shift_off(system, 0.0, np.ones(p.n_owned, dtype=bool), du)
+    assert np.allclose(du[i], (0.0, 0.4), atol=1e-12)
+
+
+def test_off_walls_is_the_closest_admissible_vector():
+    """compute.walls.off_walls against a constrained minimisation (SLSQP) of |v - du| subject to
+    v . n <= 0 for every normal: a wall, a right-angled corner and an obtuse and an acute wedge."""
+    from scipy.optimize import minimize
+
+    from psph.compute.walls import off_walls
+
+    rng = np.random.default_rng(5)
+    for angle in (None, 90.0, 135.0, 45.0):
+        normals = np.array([[0.0, -1.0]] + ([] if angle is None else
+                                            [[-np.sin(np.radians(angle)), np.cos(np.radians(angle))]]))
+        for du in rng.normal(size=(20, 2)):
+            best = minimize(lambda v, du=du: ((v - du) ** 2).sum(), np.zeros(2), method="SLSQP",
+                            constraints={"type": "ineq", "fun": lambda v, n=normals: -n @ v}, tol=1e-14).x
+            got = du[None, :].copy()
+            off_walls(np.vstack([normals, np.zeros((1, 2))])[None], np.zeros(1, dtype=np.int64), got)
+            assert np.allclose(got[0], best, atol=1e-6), (angle, du)
