@@ -17,7 +17,7 @@ from psph.parallel.comm import allreduce_sum
 from psph.particles import Kind
 from psph.schemes.eos import GAMMA
 
-NEAR_NODES = 16  # WallTerms.keep_shift_off: the body nodes a row looks at (within dx/2, ds = dx/4)
+NEAR_NODES = 16  # WallTerms.keep_shift_off: the body nodes a row looks at (within dx/2: 5 on a side, ds = dx/4)
 MOTIONS = {"fixed": "fixed", "constant": "constant velocity", "ramp": "ramped velocity",
            "spheric6": "SPHERIC 6 acceleration law", "oscillate": "oscillating"}
 
@@ -140,32 +140,26 @@ class WallTerms:
 
     def keep_shift_off(self, system, t, region, du) -> None:
         """No shifting into a wall in the free-surface region: each owned fluid row in `region` (bool, owned
-        rows) closer than dx/2 (shift_reach) to a wall gets, for its shifting velocity `du` (owned rows, in
-        place), the closest vector with no part into any wall that near (compute.walls.off_walls). The free-surface
-        restriction (du . n = 0 at the surface, seed 001 section 6.3, thesis eq. 6.29) projects du on the
-        surface's tangent, which crosses a wall where the surface meets it and along a film on it; and
-        grad C does not hold a particle off a wall's line, which lies halfway between the first solid and
-        the first fluid row. Such rows were driven through the wall (README "Dam break", "To t = 30"). dx/2
-        leaves the lattice's first row, at dx/2 from the wall, free to be shifted back towards it. The walls'
-        own terms already mirror du with du . n = 0 on the wall (clone_rhs, ghost_rhs)."""
+        rows) closer than dx/2 (shift_reach) to a clone wall gets, for its shifting velocity `du` (owned
+        rows, in place), the closest vector with no part into any wall that near (compute.walls.off_walls;
+        the node normals point out of the fluid). The free-surface restriction (du . n = 0 at the surface,
+        seed 001 section 6.3, thesis eq. 6.29) projects du on the surface's tangent, which crosses a wall
+        where the surface meets it and along a film on it, and grad C does not hold a particle off a wall's
+        line, which lies halfway between the first solid and the first fluid row: the dam break's film and
+        floor particles were driven through the walls (README "Dam break"). Rows farther than dx/2 (the
+        lattice's first row lies at dx/2, within round-off) stay free to be shifted back towards the wall.
+        Within dx/2 of a convex corner every node's wall counts, so sliding along either face towards the
+        other is held too (conservative). Ghost walls need no such rule: the scene refuses them with a free
+        surface and a shifting law (schema)."""
         rows = np.flatnonzero(region & (system.particles.owned("kind") == Kind.FLUID))
-        if not len(rows):
+        if not len(rows) or not self.clones:
             return
-        pos = system.particles.owned("position")[rows]
-        near = []  # per row, the normals (out of the fluid) of the walls within reach; zero rows pad
-        if self.clones:  # the closest NEAR_NODES nodes within reach (a straight side has 5 or fewer)
-            tree, normals, _ = self._node_tree(t)
-            close = np.isfinite(tree.query(pos, distance_upper_bound=self.shift_reach)[0])
-            rows, pos = rows[close], pos[close]
-            nodes = tree.query(pos, k=NEAR_NODES, distance_upper_bound=self.shift_reach)[1]
-            near.append(np.vstack([normals, np.zeros((1, 2))])[nodes])  # tree.n where none is left
-        if self.ghost is not None:
-            w = self.ghost
-            for a, c, s in zip(w["axis"], w["coord"], w["sign"]):
-                side = np.zeros((len(rows), 1, 2))
-                side[s * (pos[:, a] - c) < self.shift_reach, 0, a] = -s
-                near.append(side)
-        off_walls(np.concatenate(near, axis=1), rows, du)
+        tree, normals, _ = self._node_tree(t)
+        dist, nodes = tree.query(system.particles.owned("position")[rows], k=NEAR_NODES,
+                                 distance_upper_bound=self.shift_reach)
+        close = np.isfinite(dist[:, 0])
+        padded = np.vstack([normals, np.zeros((1, 2))])  # tree.n stands for no node left within reach
+        off_walls(padded[nodes[close]], rows[close], du)
 
     # ----------------------------------------------------------------- rhs
     def add(self, system, scheme, t, d_rho, d_mom):

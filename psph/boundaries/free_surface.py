@@ -53,7 +53,7 @@ class NoFreeSurface:
     def detect(self, system) -> None:
         pass
 
-    def restrict(self, system, du) -> None:
+    def restrict(self, system, du, walls=None, t=0.0) -> None:
         pass
 
     def interior(self, system) -> np.ndarray:
@@ -105,11 +105,14 @@ class FreeSurface(NoFreeSurface):
             mark_region(pos, fluid, ptr, idx, k.support, flag)
             region_normals(pos, flag, ptr, idx, k.params, p["surface_normal"])
 
-    def restrict(self, system, du) -> None:
-        """Thesis eq. 6.29 on the owned shifting velocities `du` (in place)."""
+    def restrict(self, system, du, walls=None, t=0.0) -> None:
+        """Thesis eq. 6.29 on the owned shifting velocities `du` (in place); then, with `walls` (the
+        scheme's WallTerms at time t), no shifting into a wall in the region (WallTerms.keep_shift_off)."""
         p = system.particles
         restrict_shift(p.owned("free_surface"), p.owned("surface_lambda"), p.owned("surface_normal"),
                        self.spec.lambda_normal, du)
+        if walls is not None:
+            walls.keep_shift_off(system, t, p.owned("free_surface") > 0, du)
 
     def interior(self, system) -> np.ndarray:
         return _fluid(system) & (system.particles.owned("free_surface") == 0)

@@ -271,10 +271,7 @@ class DeltaALE:
                               system.kernel.params, p["kind"], fluid_only, p["grad_rho"], self.pairs, grad_c=grad_c)
         if law.active:
             law.velocity(system, self, dt, grad=None if grad_c is None else grad_c[3])
-            du = p.owned("shift_velocity")
-            self.surface.restrict(system, du)
-            if self.walls is not None and self.surface.active:
-                self.walls.keep_shift_off(system, t, p.owned("free_surface") > 0, du)
+            self.surface.restrict(system, p.owned("shift_velocity"), self.walls, t)
             system.refresh(["shift_velocity"])
 
     def free_stream_velocity(self, t):

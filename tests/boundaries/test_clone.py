@@ -293,45 +293,55 @@ def test_the_node_tree_is_kept_only_while_no_clone_body_moves():
     assert fixed._node_tree(0.0) is fixed._node_tree(5.0)
 
 
-@pytest.mark.parametrize("model", ["clone", "ghost"])
-def test_no_shifting_into_a_wall_in_the_free_surface_region(tmp_path, model):
+def test_no_shifting_into_a_wall_in_the_free_surface_region(tmp_path):
     """WallTerms.keep_shift_off: a row of the free-surface region closer than dx/2 to a wall loses its
-    shifting velocity's part into the wall (on the floor; into both walls in a corner), keeps the rest and
-    the part out of the wall; a row farther than dx/2 or outside the region keeps its du."""
-    driver, system, p = cavity(tmp_path, **{"bodies.0.model": model, "shifting.method": "delta_plus",
-                                            "iips.update": "none"})
+    shifting velocity's part into the wall (the floor, the right wall, the lid; into both walls in a
+    corner), keeps the rest and the part out of the wall; a row farther than dx/2 or outside the region
+    keeps its du, and so does every other row."""
+    driver, system, p = cavity(tmp_path, **{"shifting.method": "delta_plus", "iips.update": "none"})
+    near, top = 0.3 * DX, 1.0 - 0.3 * DX
     cases = {  # where, du given, du expected
-        "floor": ((0.5 + DX / 2, 0.3 * DX), (0.3, -1.0), (0.3, 0.0)),
-        "corner": ((0.3 * DX, 0.3 * DX), (-0.5, -1.0), (0.0, 0.0)),
-        "off the floor": ((0.5 + DX / 2, 0.3 * DX), (0.3, 1.0), (0.3, 1.0)),
+        "floor": ((0.5 + DX / 2, near), (0.3, -1.0), (0.3, 0.0)),
+        "right wall": ((top, 0.5 + DX / 2), (1.0, 0.3), (0.0, 0.3)),
+        "lid": ((0.5 + DX / 2, top), (-0.2, 0.7), (-0.2, 0.0)),
+        "corner": ((near, near), (-0.5, -1.0), (0.0, 0.0)),
+        "off the floor": ((0.5 + DX / 2, near), (0.3, 1.0), (0.3, 1.0)),
         "beyond dx/2": ((0.5 + DX / 2, 0.6 * DX), (0.3, -1.0), (0.3, -1.0)),
-        "outside the region": ((0.5 - DX / 2, 0.3 * DX), (0.3, -1.0), (0.3, -1.0))}
-    rows = {name: particle_at(p, x, DX / 2) for name, ((x, _), _, _) in cases.items()}
-    region = np.zeros(p.n_owned, dtype=bool)
+        "outside the region": ((0.5 - DX / 2, near), (0.3, -1.0), (0.3, -1.0))}
+    rng = np.random.default_rng(3)
     for name, ((x, y), given, expected) in cases.items():
-        i = rows[name]
+        i = particle_at(p, x, y)
         p.owned("position")[i] = (x, y)
+        region = np.zeros(p.n_owned, dtype=bool)
         region[i] = name != "outside the region"
-        du = np.zeros((p.n_owned, 2))
+        du = rng.normal(size=(p.n_owned, 2))
         du[i] = given
+        before = du.copy()
         driver.scheme.walls.keep_shift_off(system, 0.0, region, du)
         assert np.allclose(du[i], expected, atol=1e-12), (name, du[i])
-        assert np.count_nonzero(du) == np.count_nonzero(expected)
+        others = np.arange(p.n_owned) != i
+        assert np.array_equal(du[others], before[others])
 
 
-def test_no_shifting_into_an_immersed_body(tmp_path):
-    """The same for an immersed body (its node normals point out of the fluid too): a row within dx of the
-    moving square's side, shifted towards its centre, keeps only the part along the side."""
+@pytest.mark.parametrize("t", [0.0, 2.0])
+def test_no_shifting_into_an_immersed_body(tmp_path, t):
+    """The same for an immersed body (its node normals point out of the fluid too), where the moving square
+    is at time t: a row 0.3 dx left of its left side, shifted towards its centre, keeps only the part along
+    the side; 0.6 dx away it keeps all."""
     scene = load_scene(CASES / "moving_square.toml", ["domain.dx=0.05"])
     driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path)
-    system = driver.system
+    system, walls = driver.system, driver.scheme.walls
     p = system.particles
-    i = particle_at(p, 1.0 - 0.02, 2.5 + DX / 2)  # left of the square's left side x = 1
-    assert 1.0 - p.owned("position")[i, 0] < DX
-    du = np.zeros((p.n_owned, 2))
-    du[i] = (1.0, 0.4)
-    driver.scheme.walls.keep_shift_off(system, 0.0, np.ones(p.n_owned, dtype=bool), du)
-    assert np.allclose(du[i], (0.0, 0.4), atol=1e-12)
+    square = walls.clones[1]
+    side = square.rigid(t)[0][0] - 0.5  # x of the left side (size 1)
+    assert t == 0.0 or side > 1.5
+    i = particle_at(p, 1.0, 2.5)
+    for gap, expected in ((0.3, (0.0, 0.4)), (0.6, (1.0, 0.4))):
+        p.owned("position")[i] = (side - gap * DX, 2.5 + DX / 2)
+        du = np.zeros((p.n_owned, 2))
+        du[i] = (1.0, 0.4)
+        walls.keep_shift_off(system, t, np.ones(p.n_owned, dtype=bool), du)
+        assert np.allclose(du[i], expected, atol=1e-12), (gap, du[i])
 
 
 def test_off_walls_is_the_closest_admissible_vector():
