@@ -39,35 +39,46 @@ def fluid_mask(scene, pos) -> np.ndarray:
     return keep
 
 
-def extended_lattice(scene, lower=None, upper=None) -> np.ndarray:
-    """The fluid's lattice inside [lower, upper] (default: the domain; an unrotated box container's sides)
-    continued one solid thickness beyond it along non-periodic axes.
+def extended_lattice(scene, lower=None, upper=None):
+    """Lattice points and their volumes: the fluid's lattice inside the domain, or, given an unrotated box
+    container's sides [lower, upper], a lattice fitted between them; continued one solid thickness beyond
+    the sides along non-periodic axes.
 
     Beyond each side the rows continue from that side, (k + 1/2) dx away from it, so that a container's
     first solid row sits dx/2 behind its wall as it does when the side lies on the lattice's midlines:
     otherwise (seed 001's tank, 5.367 H long) the solid rows would stand up to dx behind the wall, the fluid
-    would settle as close to the wall as to them, and cross it."""
+    would settle as close to the wall as to them, and cross it. Between a box's sides the n = round(L / dx)
+    rows are spaced L / n (within dx / (2 n) of dx), so that they meet the rows beyond both sides without
+    a gap: from the domain's lattice, the tank's bottom-right corner had one of 1.34 dx (H/dx = 20), a
+    hole in the concentration into which the shifting drove the fluid particles there, through the floor
+    (README "Dam break"). Each point's volume is the product of its spacings."""
     d = scene.domain
     m = int(np.ceil((thickness(scene) + d.dx) / d.dx))
+    fitted = lower is not None
     lower = d.lower if lower is None else lower
     upper = d.upper if upper is None else upper
-    axes = []
+    axes, spacings = [], []
     for a in range(d.dimension):
         axis = d.lower[a] + (np.arange(int(round((d.upper[a] - d.lower[a]) / d.dx))) + 0.5) * d.dx
+        spacing = np.full(len(axis), d.dx)
         if not d.periodic[a]:
             rows = np.arange(m) + 0.5
-            sides = []
-            for side in (lower[a], upper[a]):  # side = lattice line k dx + offset
-                k = int(round((side - d.lower[a]) / d.dx))
-                offset = side - d.lower[a] - k * d.dx
-                sides.append((k, 0.0 if abs(offset) < 1e-9 * d.dx else offset))
-            (k_lo, off_lo), (k_hi, off_hi) = sides
             tol = 1e-9 * d.dx  # a side on a lattice point: that point is the wall's, not a row
-            axis = np.concatenate([d.lower[a] + off_lo + (k_lo - rows[::-1]) * d.dx,
-                                   axis[(axis > lower[a] + tol) & (axis < upper[a] - tol)],
-                                   d.lower[a] + off_hi + (k_hi + rows) * d.dx])
+            n = max(int(round((upper[a] - lower[a]) / d.dx)), 1)
+            on_lattice = abs(upper[a] - lower[a] - n * d.dx) < tol and \
+                abs((lower[a] - d.lower[a]) / d.dx - round((lower[a] - d.lower[a]) / d.dx)) < 1e-9
+            if fitted and not on_lattice:
+                inner = lower[a] + (np.arange(n) + 0.5) * (upper[a] - lower[a]) / n
+                spacing = np.concatenate([np.full(m, d.dx), np.full(n, (upper[a] - lower[a]) / n),
+                                          np.full(m, d.dx)])
+            else:  # the domain's own lattice (bit for bit the fluid's)
+                inner = axis[(axis > lower[a] + tol) & (axis < upper[a] - tol)]
+                spacing = np.full(len(inner) + 2 * m, d.dx)
+            axis = np.concatenate([lower[a] - rows[::-1] * d.dx, inner, upper[a] + rows * d.dx])
         axes.append(axis)
-    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, d.dimension)
+        spacings.append(spacing)
+    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, d.dimension)
+    return points, np.prod(np.stack(np.meshgrid(*spacings, indexing="ij"), axis=-1), axis=-1).ravel()
 
 
 def solid_arrays(scene, rank, size, first_gid):
@@ -81,8 +92,8 @@ def solid_arrays(scene, rank, size, first_gid):
         own = lattice
         if body.spec.shape == "box" and body.spec.angle == 0.0:
             own = extended_lattice(scene, *bounds(body.spec))
-        pos, normal, dist, node = body.solid_particles(own, thickness(scene))
-        parts.append((body, pos, normal, dist, node))
+        pos, normal, dist, node, vol = body.solid_particles(*own, thickness(scene))
+        parts.append((body, pos, normal, dist, node, vol))
     total = sum(len(p[1]) for p in parts)
     start, stop = total * rank // size, total * (rank + 1) // size
     if total == 0:
@@ -97,4 +108,4 @@ def solid_arrays(scene, rank, size, first_gid):
     return {"gid": first_gid + np.arange(start, stop, dtype=np.int64), "position": pos[sl].copy(),
             "ref_position": pos[sl].copy(), "normal": normal[sl], "ref_normal": normal[sl],
             "wall_distance": dist[sl], "body": body[sl], "wall_node": node[sl], "kind": kind[sl].astype(np.int8),
-            "volume": np.full(stop - start, scene.domain.dx ** scene.domain.dimension)}
+            "volume": np.concatenate([p[5] for p in parts])[sl].copy()}

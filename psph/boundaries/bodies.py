@@ -149,10 +149,12 @@ class Body:
         vel[self.lid] += self.lid_velocity @ rot.T
         return pos, normals, vel
 
-    def solid_particles(self, lattice, thickness):
-        """Reference positions, normals, distances and closest nodes of this body's solid particles."""
-        pos, node, dist = solid_particles(self.profile, shape_spec(self.spec), lattice, thickness)
-        return pos, self.profile.normals[node], dist, node
+    def solid_particles(self, lattice, volumes, thickness):
+        """Reference positions, normals, distances, closest nodes and volumes of this body's solid particles
+        (from the `lattice` points and their `volumes`)."""
+        pos, node, dist, kept = solid_particles(self.profile, shape_spec(self.spec), lattice, thickness,
+                                                with_index=True)
+        return pos, self.profile.normals[node], dist, node, volumes[kept]
 
 
 def _rot(angle_deg):

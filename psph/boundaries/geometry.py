@@ -4,9 +4,9 @@ Following section III of the clone-particle paper (seed 004): the profile is dis
 every ds = dx / 4, each with the unit normal pointing out of the fluid (into the solid) and the tangent
 completing a right-handed frame (t = (-n_y, n_x)). The solid is filled over one kernel support behind the
 profile: here with the points of the fluid lattice (spacing dx) that lie inside the solid within that
-distance, so that a solid particle sits where a fluid particle would; an unrotated box takes the
-lattice continued from its own sides (boundaries.extended_lattice), its rows dx/2, 3 dx/2, ... behind
-each. Each solid particle takes the normal,
+distance, so that a solid particle sits where a fluid particle would; an unrotated box takes a
+lattice fitted between its own sides and continued from them (boundaries.extended_lattice), its rows
+dx/2, 3 dx/2, ... behind each. Each solid particle takes the normal,
 tangent and node index of its closest body node and keeps its distance s_j to the profile (seed 004 eq. 5-7).
 
 Shapes: `box` (the fluid is inside: the outer walls of a tank or cavity), `rectangle` and `ellipse` (the
@@ -140,13 +140,15 @@ def nearest_nodes(nodes, points):
     return idx.astype(np.int64), dist
 
 
-def solid_particles(profile, spec, lattice_points, thickness):
+def solid_particles(profile, spec, lattice_points, thickness, with_index=False):
     """Lattice points inside the solid side of `profile` within `thickness` of it.
 
-    Returns (positions, node index, distance to the profile) of the solid particles."""
+    Returns (positions, node index, distance to the profile) of the solid particles, and with_index their
+    indices in lattice_points."""
     is_in = inside(spec, lattice_points)
-    solid_side = ~is_in if profile.fluid_inside else is_in
+    solid_side = np.flatnonzero(~is_in if profile.fluid_inside else is_in)
     candidates = lattice_points[solid_side]
     node, dist = nearest_nodes(profile.nodes, candidates)
     keep = dist <= thickness
-    return candidates[keep], node[keep], dist[keep]
+    out = candidates[keep], node[keep], dist[keep]
+    return (*out, solid_side[keep]) if with_index else out

@@ -85,3 +85,4 @@ def warm_up(dim: int, kernel_name: str) -> None:
                         idx, kp, 1.0, 1.0, 0.0, 7.0, 0.1, True, np.zeros(2), 0.1, 0, True, np.zeros(n, dtype=np.int8),
                         np.zeros((bodies, 2)), scalar.copy(), vector.copy(), np.zeros((bodies, 2, 2)),
                         np.zeros((bodies, 2)), np.zeros((n, 2)))
+        walls.off_walls(np.zeros((1, 2, 2)), np.zeros(1, dtype=np.int64), vector.copy())
