@@ -29,7 +29,9 @@ the free surface) and eps_V = V_i / dx^2 - 1 over the fluid, and their "spot" no
 (psph.studies.spot_noise: the RMS over the fluid particles of a particle's departure from the plane
 fitted to its own and its fluid neighbours' values within 2 dx; zero for a linear field, the spots' size
 for a field of spots); the same noise of the pressure (in rho0 g H) and the pressure's departure from the
-hydrostatic pressure of the flat layer; the kinetic energy left, the largest density variation of the
+hydrostatic pressure of the flat layer; how many fluid particles are still above 1.5 times the layer's
+depth (drops, films held on the walls and the roof) and the spot noises of eps_m and p without them, in
+the layer; the kinetic energy left, the largest density variation of the
 run's history rows (every 10th step), the wall reflections and the wall time. long.png: the pressure,
 eps_V and eps_m near the left wall (x < 1.5 H), the finished runs side by side at the finest resolution
 that has one, as in the paper's figures.
@@ -51,9 +53,10 @@ SCHEMES = {"delta-ALE-SPH": ([], "delta_ale"),
            "standard SPH": (LAGRANGIAN + ["physics.delta=0", "free_surface.lambda_diffusion=0"], "standard"),
            "Lagrangian delta-SPH": (LAGRANGIAN, "delta_sph")}
 DETAIL = 1.5  # x / H shown in long.png (the paper's side panels: the flow close to the left wall)
+ABOVE = 1.5 * LAYER  # fluid higher up at t_end has not come back to the layer (drops, films on the walls)
 HEADER = ["scheme", "H/dx", "particles", "eps_m min", "eps_m max", "eps_m spot noise", "eps_V std", "eps_V spot noise",
-          "p spot noise", "p - hydrostatic, RMS", "kinetic energy", "max density variation", "wall reflections",
-          "wall s"]
+          "p spot noise", "p - hydrostatic, RMS", "fluid above 1.5 x layer", "eps_m spot noise, layer",
+          "p spot noise, layer", "kinetic energy", "max density variation", "wall reflections", "wall s"]
 
 
 def fields(out, dx):
@@ -70,10 +73,13 @@ def row(scheme, n, run):
     pos, eps_m, eps_v, p, _ = fields(run.out, dx)
     hydrostatic = np.clip(LAYER - pos[:, 1], 0.0, None)
     radius = 2.0 * dx
+    layer = pos[:, 1] < ABOVE
     last = run.history[-1]
     return [scheme, n, run.summary["n_particles"], float(eps_m.min()), float(eps_m.max()),
             spot_noise(pos, eps_m, radius), float(eps_v.std()), spot_noise(pos, eps_v, radius),
-            spot_noise(pos, p, radius), float(np.sqrt(np.mean((p - hydrostatic) ** 2))), last["kinetic_energy"],
+            spot_noise(pos, p, radius), float(np.sqrt(np.mean((p - hydrostatic) ** 2))),
+            int(np.count_nonzero(~layer)), spot_noise(pos[layer], eps_m[layer], radius),
+            spot_noise(pos[layer], p[layer], radius), last["kinetic_energy"],
             max(r["max_density_variation"] for r in run.history), last["wall_reflections"],
             run.summary["wall_time_s"]]
 

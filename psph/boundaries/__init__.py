@@ -40,18 +40,20 @@ def fluid_mask(scene, pos) -> np.ndarray:
 
 
 def extended_lattice(scene, lower=None, upper=None):
-    """Lattice points and their volumes: the fluid's lattice inside the domain, or, given an unrotated box
-    container's sides [lower, upper], a lattice fitted between them; continued one solid thickness beyond
-    the sides along non-periodic axes.
+    """Lattice points and their volumes: the fluid's lattice inside the domain or, given an unrotated box
+    container's sides [lower, upper], between them (fitted where they are off the lattice); continued one
+    solid thickness beyond the sides along non-periodic axes.
 
     Beyond each side the rows continue from that side, (k + 1/2) dx away from it, so that a container's
     first solid row sits dx/2 behind its wall as it does when the side lies on the lattice's midlines:
     otherwise (seed 001's tank, 5.367 H long) the solid rows would stand up to dx behind the wall, the fluid
-    would settle as close to the wall as to them, and cross it. Between a box's sides the n = round(L / dx)
-    rows are spaced L / n (within dx / (2 n) of dx), so that they meet the rows beyond both sides without
-    a gap: from the domain's lattice, the tank's bottom-right corner had one of 1.34 dx (H/dx = 20), a
-    hole in the concentration into which the shifting drove the fluid particles there, through the floor
-    (README "Dam break"). Each point's volume is the product of its spacings."""
+    would settle as close to the wall as to them, and cross it. Unless both of a box's sides along an axis
+    lie on lattice midlines, the n = round(L / dx) rows between them are spaced L / n (within dx / (2 n)
+    of dx), so that they meet the rows beyond both sides without a gap: from the domain's lattice, the
+    tank's bottom-right corner had one of 1.34 dx (H/dx = 20), a hole in the concentration into which the
+    shifting drove the fluid particles there, through the floor (README "Dam break"). Fitted rows drift
+    from the fluid's lattice, which starts at the domain's lower corner: by 0.13 dx under the dam-break
+    column's right end at H/dx = 20. Each point's volume is the product of its spacings."""
     d = scene.domain
     m = int(np.ceil((thickness(scene) + d.dx) / d.dx))
     fitted = lower is not None
@@ -71,7 +73,7 @@ def extended_lattice(scene, lower=None, upper=None):
                 inner = lower[a] + (np.arange(n) + 0.5) * (upper[a] - lower[a]) / n
                 spacing = np.concatenate([np.full(m, d.dx), np.full(n, (upper[a] - lower[a]) / n),
                                           np.full(m, d.dx)])
-            else:  # the domain's own lattice (bit for bit the fluid's)
+            else:  # the domain's own lattice points between the sides (the fluid's)
                 inner = axis[(axis > lower[a] + tol) & (axis < upper[a] - tol)]
                 spacing = np.full(len(inner) + 2 * m, d.dx)
             axis = np.concatenate([lower[a] - rows[::-1] * d.dx, inner, upper[a] + rows * d.dx])

@@ -5,8 +5,8 @@ every ds = dx / 4, each with the unit normal pointing out of the fluid (into the
 completing a right-handed frame (t = (-n_y, n_x)). The solid is filled over one kernel support behind the
 profile: here with the points of the fluid lattice (spacing dx) that lie inside the solid within that
 distance, so that a solid particle sits where a fluid particle would; an unrotated box takes a
-lattice fitted between its own sides and continued from them (boundaries.extended_lattice), its rows
-dx/2, 3 dx/2, ... behind each. Each solid particle takes the normal,
+lattice continued from its own sides (boundaries.extended_lattice), its rows dx/2, 3 dx/2, ... behind
+each, and fitted between them where they are off the lattice. Each solid particle takes the normal,
 tangent and node index of its closest body node and keeps its distance s_j to the profile (seed 004 eq. 5-7).
 
 Shapes: `box` (the fluid is inside: the outer walls of a tank or cavity), `rectangle` and `ellipse` (the

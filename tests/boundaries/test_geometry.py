@@ -162,7 +162,7 @@ def test_a_container_s_solid_rows_stand_from_each_of_its_sides(case, sets):
                                         ("hydrostatic_tank", ["bodies.0.center=[1.0,0.6]",
                                                               "bodies.0.size=[1.475,1.025]"])])
 def test_a_container_s_solid_rows_meet_at_its_corners_without_a_gap(case, sets):
-    """Along every solid row behind a side, the points are spaced L / round(L / dx) between the box's sides
+    """Along the first solid row behind each side, the points are spaced L / round(L / dx) between the box's sides
     (within dx / (2 n) of dx) and dx beyond them, with no gap where the rows behind two sides meet (from
     the domain's lattice, seed 001's tank at H/dx = 20 had 1.34 dx at its bottom-right corner); each
     solid's volume is the product of its spacings."""
@@ -180,11 +180,11 @@ def test_a_container_s_solid_rows_meet_at_its_corners_without_a_gap(case, sets):
     for a in range(2):
         n = round((upper[a] - lower[a]) / dx)
         spacing.append((upper[a] - lower[a]) / n)
-        row = np.abs(pos[:, 1 - a] - (lower[1 - a] - dx / 2)) < 1e-9  # the first row behind the lower side
-        along = np.sort(pos[row, a])
-        gaps = np.diff(along)
-        assert along[0] < lower[a] and along[-1] > upper[a]
-        assert gaps.max() <= dx * (1.0 + 0.5 / n) + 1e-12 and gaps.min() >= dx * (1.0 - 0.5 / n) - 1e-12, gaps
+        for behind in (lower[1 - a] - dx / 2, upper[1 - a] + dx / 2):  # the first row behind either side
+            along = np.sort(pos[np.abs(pos[:, 1 - a] - behind) < 1e-9, a])
+            gaps = np.diff(along)
+            assert along[0] < lower[a] and along[-1] > upper[a]
+            assert gaps.max() <= dx * (1.0 + 0.5 / n) + 1e-12 and gaps.min() >= dx * (1.0 - 0.5 / n) - 1e-12
     inner = (pos > np.asarray(lower)) & (pos < np.asarray(upper))
     expected = np.prod(np.where(inner, np.asarray(spacing), dx), axis=1)
     assert np.allclose(vol, expected, rtol=1e-12, atol=0.0)
