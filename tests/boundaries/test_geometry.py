@@ -126,26 +126,35 @@ def test_translation_and_rotation_follow_their_own_laws():
                          motion=MotionSpec(rotation_law="oscillate", angular_velocity=1.0)), 0, 0.1, (1.0, 0.0)).moves
 
 
-@pytest.mark.parametrize("case, sets", [("dam_break", ["domain.dx=0.025"]), ("dam_break", ["domain.dx=0.05"]),
-                                        ("dam_break", ["domain.dx=0.1"]),
-                                        ("hydrostatic_tank", ["bodies.0.center=[0.96,0.607]",
-                                                              "bodies.0.size=[1.83,1.111]"]),
-                                        ("hydrostatic_tank", ["bodies.0.center=[1.0,0.6]",
-                                                              "bodies.0.size=[1.475,1.025]"])])
-def test_a_container_s_solid_rows_stand_from_each_of_its_sides(case, sets):
-    """A box container whose sides are not on the lattice's midlines (seed 001's tank, 5.367 x 3; a tank
-    inside its domain, off the lattice; one whose sides fall on lattice points): behind every side the
-    solid rows stand dx/2, 3 dx/2, ... away, as behind a side on the midlines, and fill one support."""
-    from psph.boundaries import solid_arrays, thickness
+# box containers whose sides are not on the lattice's midlines: seed 001's tank (5.367 x 3) at three
+# resolutions, a tank inside its domain off the lattice, and one whose sides fall on lattice points
+OFF_LATTICE_CONTAINERS = [("dam_break", ["domain.dx=0.025"]), ("dam_break", ["domain.dx=0.05"]),
+                          ("dam_break", ["domain.dx=0.1"]),
+                          ("hydrostatic_tank", ["bodies.0.center=[0.96,0.607]", "bodies.0.size=[1.83,1.111]"]),
+                          ("hydrostatic_tank", ["bodies.0.center=[1.0,0.6]", "bodies.0.size=[1.475,1.025]"])]
+
+
+def container_solids(case, sets):
+    """(the scene, its solid particles' fields, its container's lower and upper sides)."""
+    from psph.boundaries import solid_arrays
     from psph.boundaries.bodies import bounds
     from psph.scene.load import load_scene
     from tests.helpers import CASES
 
     scene = load_scene(CASES / f"{case}.toml", sets)
+    return scene, solid_arrays(scene, 0, 1, 0), *bounds(scene.bodies[0])
+
+
+@pytest.mark.parametrize("case, sets", OFF_LATTICE_CONTAINERS)
+def test_a_container_s_solid_rows_stand_from_each_of_its_sides(case, sets):
+    """A box container whose sides are not on the lattice's midlines (OFF_LATTICE_CONTAINERS): behind every
+    side the solid rows stand dx/2, 3 dx/2, ... away, as behind a side on the midlines, and fill one
+    support."""
+    from psph.boundaries import thickness
+
+    scene, solids, lower, upper = container_solids(case, sets)
     dx = scene.domain.dx
-    solids = solid_arrays(scene, 0, 1, 0)
     pos, dist = solids["position"], solids["wall_distance"]
-    lower, upper = bounds(scene.bodies[0])
     rows = (np.arange(int(np.ceil(thickness(scene) / dx))) + 0.5) * dx
     for a in range(2):
         for side, beyond in ((lower[a], pos[:, a] < lower[a]), (upper[a], pos[:, a] > upper[a])):
@@ -155,27 +164,15 @@ def test_a_container_s_solid_rows_stand_from_each_of_its_sides(case, sets):
     assert not inside.any() and dist.min() == pytest.approx(dx / 2, rel=1e-3)
 
 
-@pytest.mark.parametrize("case, sets", [("dam_break", ["domain.dx=0.025"]), ("dam_break", ["domain.dx=0.05"]),
-                                        ("dam_break", ["domain.dx=0.1"]),
-                                        ("hydrostatic_tank", ["bodies.0.center=[0.96,0.607]",
-                                                              "bodies.0.size=[1.83,1.111]"]),
-                                        ("hydrostatic_tank", ["bodies.0.center=[1.0,0.6]",
-                                                              "bodies.0.size=[1.475,1.025]"])])
+@pytest.mark.parametrize("case, sets", OFF_LATTICE_CONTAINERS)
 def test_a_container_s_solid_rows_meet_at_its_corners_without_a_gap(case, sets):
-    """Along the first solid row behind each side, the points are spaced L / round(L / dx) between the box's sides
-    (within dx / (2 n) of dx) and dx beyond them, with no gap where the rows behind two sides meet (from
+    """Along the first solid row behind each side, the points are spaced L / round(L / dx) between the
+    box's sides (within dx / (2 n) of dx) and dx beyond them, with no gap where the rows behind two sides meet (from
     the domain's lattice, seed 001's tank at H/dx = 20 had 1.34 dx at its bottom-right corner); each
     solid's volume is the product of its spacings."""
-    from psph.boundaries import solid_arrays
-    from psph.boundaries.bodies import bounds
-    from psph.scene.load import load_scene
-    from tests.helpers import CASES
-
-    scene = load_scene(CASES / f"{case}.toml", sets)
+    scene, solids, lower, upper = container_solids(case, sets)
     dx = scene.domain.dx
-    solids = solid_arrays(scene, 0, 1, 0)
     pos, vol = solids["position"], solids["volume"]
-    lower, upper = bounds(scene.bodies[0])
     spacing = []
     for a in range(2):
         n = round((upper[a] - lower[a]) / dx)
