@@ -252,6 +252,9 @@ class FluidDriver:
         self.potential = bool(np.any(g)) and not any(g[a] and scene.domain.periodic[a] for a in range(len(g)))
         self.initial_volume = allreduce_sum(self.sim.comm, float(
             self.system.particles.owned("volume")[fluid_mask(self.system)].sum()))
+        if self.open.active:
+            self.open.mass["initial"] = allreduce_sum(self.sim.comm, float(
+                self.system.particles.owned("mass")[fluid_mask(self.system)].sum()))
         self.first_dt = None
         if self.resumed:
             self.initial_volume = self.resumed["initial_volume"]
@@ -431,6 +434,8 @@ class FluidDriver:
                                                                              @ self.scheme.gravity)).sum()))
         if surface.active:
             out["surface_particles"] = surface.count(self.system)
+        if self.open.active:
+            out.update(self.open.budget(sums[1]))
         if self.reference is not None:
             out.update(self.reference.errors(self.system, t, sums[0]))
         if self.scheme.walls is not None:

@@ -93,6 +93,11 @@ def test_uniform_jet_through_inflow_and_outflow_stays_exact(tmp_path, dim):
     rows = read_history(tmp_path / "history.csv")
     mass = np.array([r["total_mass"] for r in rows])
     assert np.abs(mass / mass[0] - 1.0).max() < 1e-12
+    # the budget: 6 rows of rho0 dx^d in, 6 out
+    row_mass = section * sc.domain.dx ** dim
+    assert rows[-1]["mass_in"] == pytest.approx(6 * row_mass, rel=1e-12)
+    assert rows[-1]["mass_out"] == pytest.approx(6 * row_mass, rel=1e-12)
+    assert max(abs(r["mass_balance_error"]) for r in rows) < 1e-12
 
 
 def test_a_retried_step_emits_joins_and_removes_its_rows_once(tmp_path):
@@ -166,6 +171,24 @@ def coarse_jet(t_end, *sets):
         "bodies.0.size=[5.0,1.0]", f"time.t_end={t_end}", "output.every=0", "output.history_every=5", *sets])
 
 
+@pytest.mark.parametrize("sets, bound", [(["shifting.method=none"], 1e-13),
+                                         (["shifting.method=none", "domain.outflow_buffer=true"], 5e-3),
+                                         (["shifting.method=delta_plus"], 2e-2)])
+def test_the_jets_mass_budget(tmp_path, sets, bound):
+    """history.csv's budget in the coarse jet to t = 1.5: the mass that joined the fluid from the inflow
+    buffer and left it at the outflow faces (or into the outflow buffer, less what the buffer gave back)
+    balances the fluid's mass. Without shifting or buffer, to round-off (each particle keeps its mass); the
+    outflow buffer's particles take the extrapolated density's mass, and delta+'s ALE fluxes exchange mass
+    with the buffers' particles (whose fields are prescribed), which the budget shows (README, "Open
+    boundaries")."""
+    driver = FluidDriver(coarse_jet(1.5, *sets), MPI.COMM_SELF, tmp_path)
+    driver.run()
+    rows = read_history(tmp_path / "history.csv")
+    assert rows[-1]["mass_in"] > 1.0 and rows[-1]["mass_out"] > 0.1
+    error = [r["mass_balance_error"] for r in rows]
+    assert error[0] == 0.0 and max(map(abs, error)) < bound
+
+
 def test_open_boundary_restart_continues_bit_for_bit(tmp_path):
     """A checkpoint carries the emitted rows and the next gid: the continued run equals the whole one, and so
     does its wall-pressure file (the rows written after the checkpoint are not repeated)."""
@@ -178,6 +201,7 @@ def test_open_boundary_restart_continues_bit_for_bit(tmp_path):
     assert again.open.emitted[0] > 0
     summary2 = again.run()
     assert summary2["steps"] == summary["steps"] and again.open.totals == whole.open.totals
+    assert again.open.mass == whole.open.mass and whole.open.mass["in"] > 0.0
     a, b = whole.system.particles, again.system.particles
     for k in ("gid", "position", "velocity", "density", "kind"):
         assert np.array_equal(a.owned(k)[np.argsort(a.owned("gid"))], b.owned(k)[np.argsort(b.owned("gid"))]), k
@@ -203,7 +227,8 @@ def test_impinging_jet_matches_serial(comm, mpi_tmp_path, buffer):
         out[name]["totals"] = dict(driver.open.totals)
         c.Barrier()
         rows = read_history(driver.sim.out_dir / "history.csv")
-        out[name]["history"] = np.array([[r["cl_pressure"], r["stagnation_pressure"]] for r in rows])
+        out[name]["history"] = np.array([[r[k] for k in ("cl_pressure", "stagnation_pressure", "mass_in", "mass_out",
+                                                          "mass_balance_error")] for r in rows])
     par, ser = out["par"], out["ser"]
     assert par["totals"] == ser["totals"]
     if buffer:  # by t = 0.9 fluid is in the buffer, none yet past it
