@@ -11,7 +11,8 @@ Near a free surface the shifting would push the surface particles outward, where
 (grad C points into the fluid there). So:
 - explicit laws: thesis eq. 6.29 (Sun et al.'s delta+-SPH): in the region, du = 0 where lambda < 0.4 and
   du = (I - n (x) n) du elsewhere (seed 001 section 6.3: du . n = 0 close to the free surface);
-- IIPS: the whole region is fixed, not unknowns: the surface particles, as thesis section 10.2.1 fixes the
+- IIPS: the fluid within a kernel support of an outflow face is fixed (see FreeSurface.unknowns); and the
+  whole region is fixed, not unknowns: the surface particles, as thesis section 10.2.1 fixes the
   interface particles (which it finds by a grad C threshold), and their neighbours too, whose supports the
   surface cuts. There grad C cannot vanish, and with only the surface row fixed the Newton iteration drives
   the next rows through it (a slab perturbed by 0.1 dx: out of the domain within one call of 20 iterations;
@@ -37,7 +38,9 @@ from psph.parallel.comm import allreduce_sum
 from psph.particles import FieldSpec, Kind
 from psph.profiling import phase
 
-FIELDS = (FieldSpec("free_surface", (), np.int8), FieldSpec("surface_lambda"), FieldSpec("surface_normal", ("d",)))
+# outflow_band: 1 for the fluid within a kernel support of an outflow face at detection (IIPS keeps it fixed)
+FIELDS = (FieldSpec("free_surface", (), np.int8), FieldSpec("surface_lambda"), FieldSpec("surface_normal", ("d",)),
+          FieldSpec("outflow_band", (), np.int8))
 
 
 def _fluid(system):
@@ -104,6 +107,7 @@ class FreeSurface(NoFreeSurface):
             system.refresh(["free_surface", "surface_normal"])
             mark_region(pos, fluid, ptr, idx, k.support, flag)
             region_normals(pos, flag, ptr, idx, k.params, p["surface_normal"])
+            p.owned("outflow_band")[:] = system.domain.past_outflow(p.owned("position"), -k.support)
 
     def restrict(self, system, du, walls=None, t=0.0) -> None:
         """Thesis eq. 6.29 on the owned shifting velocities `du` (in place); then, with `walls` (the
@@ -117,7 +121,14 @@ class FreeSurface(NoFreeSurface):
     def interior(self, system) -> np.ndarray:
         return _fluid(system) & (system.particles.owned("free_surface") == 0)
 
-    unknowns = interior
+    def unknowns(self, system) -> np.ndarray:
+        """The interior fluid, but for the fluid within a kernel support of an outflow face, which IIPS keeps
+        fixed as the thesis does the inflow and outflow particles (section 10.2.1). Without an outflow buffer
+        that fluid is the cut face's surface region anyway. Beside a buffer that is still filling, its support
+        is cut while its lambda is an interior particle's (0.83 one dx above a face with one buffer row), and
+        IIPS pulled it by 0.7 dx towards the face in one call. The band is taken where detect() found the
+        particles (field outflow_band), so that the unknowns stay those of the call's start."""
+        return self.interior(system) & (system.particles.owned("outflow_band") == 0)
 
     def count(self, system) -> int:
         """Surface particles on all ranks (collective)."""

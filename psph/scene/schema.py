@@ -608,11 +608,6 @@ class Scene:
         if d.outflow_buffer and self.physics.scheme == "riemann_ale":
             raise SceneError("domain.outflow_buffer", "outflow buffers need a delta_ale scheme, not "
                              "physics.scheme = 'riemann_ale'")
-        if d.outflow_buffer and self.shifting.method == "iips" and self.iips.update == "nfts":
-            # a uniform jet through the buffer (tests/boundaries/test_open.py) left the weakly compressible
-            # range next to the face within 27 steps with NFTS (15% off), and ran exactly with mls2 or none
-            raise SceneError("iips.update", "nfts does not work beside an outflow buffer (domain.outflow_buffer): "
-                             "the density next to the face drifts; use mls2 or none")
         if (self.inflow or d.outflow) and self.packing.iterations > 0:
             raise SceneError("packing.iterations", "the packing's frame closes no open boundary: pack without "
                              "[[inflow]] and domain.outflow (or start from the lattice)")
