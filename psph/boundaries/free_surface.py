@@ -4,7 +4,8 @@ Detection (psph.compute.free_surface: Marrone et al. 2010, seed 004 ref. [25]; l
 flags each fluid particle SURFACE (on the free surface), REGION (within a kernel support of a surface
 particle: seed 004's "free-surface particles and their neighbouring particles") or 0 (interior), in the
 particle field `free_surface`, with lambda in `surface_lambda` and the outward normal in `surface_normal` (in
-the region, the surface's normal nearby; zero inside), all written to the snapshots. It runs at the start of
+the region, the surface's normal nearby; zero inside), all written to the snapshots; with outflow faces,
+`outflow_band` marks the particles within a kernel support of one. It runs at the start of
 every time step of an explicit law, at the start of every IIPS call, and for every history row.
 
 Near a free surface the shifting would push the surface particles outward, where no particle holds them
@@ -28,6 +29,7 @@ import numpy as np
 from psph.compute import sums
 from psph.compute.free_surface import (
     SURFACE,
+    TIE,
     mark_region,
     outward_normals,
     region_normals,
@@ -38,9 +40,9 @@ from psph.parallel.comm import allreduce_sum
 from psph.particles import FieldSpec, Kind
 from psph.profiling import phase
 
-# outflow_band: 1 for the fluid within a kernel support of an outflow face at detection (IIPS keeps it fixed)
-FIELDS = (FieldSpec("free_surface", (), np.int8), FieldSpec("surface_lambda"), FieldSpec("surface_normal", ("d",)),
-          FieldSpec("outflow_band", (), np.int8))
+FIELDS = (FieldSpec("free_surface", (), np.int8), FieldSpec("surface_lambda"), FieldSpec("surface_normal", ("d",)))
+# with outflow faces: 1 for the particles within a kernel support of one at detection (IIPS keeps that fluid fixed)
+BAND = FieldSpec("outflow_band", (), np.int8)
 
 
 def _fluid(system):
@@ -107,7 +109,9 @@ class FreeSurface(NoFreeSurface):
             system.refresh(["free_surface", "surface_normal"])
             mark_region(pos, fluid, ptr, idx, k.support, flag)
             region_normals(pos, flag, ptr, idx, k.params, p["surface_normal"])
-            p.owned("outflow_band")[:] = system.domain.past_outflow(p.owned("position"), -k.support)
+            if system.domain.outflow:
+                p.add_field(BAND)
+                p.owned(BAND.name)[:] = system.domain.past_outflow(p.owned("position"), -k.support * (1.0 - TIE))
 
     def restrict(self, system, du, walls=None, t=0.0) -> None:
         """Thesis eq. 6.29 on the owned shifting velocities `du` (in place); then, with `walls` (the
@@ -123,12 +127,18 @@ class FreeSurface(NoFreeSurface):
 
     def unknowns(self, system) -> np.ndarray:
         """The interior fluid, but for the fluid within a kernel support of an outflow face, which IIPS keeps
-        fixed as the thesis does the inflow and outflow particles (section 10.2.1). Without an outflow buffer
-        that fluid is the cut face's surface region anyway. Beside a buffer that is still filling, its support
-        is cut while its lambda is an interior particle's (0.83 one dx above a face with one buffer row), and
-        IIPS pulled it by 0.7 dx towards the face in one call. The band is taken where detect() found the
-        particles (field outflow_band), so that the unknowns stay those of the call's start."""
-        return self.interior(system) & (system.particles.owned("outflow_band") == 0)
+        fixed as the thesis does the inflow and outflow particles (section 10.2.1). Beside an outflow buffer
+        that is still filling, that fluid's support is cut while its lambda is an interior particle's (0.83 one
+        dx above a face with one buffer row): IIPS pulled it by 0.7 dx towards the face in one call. Without
+        a buffer most of it is the cut face's surface region already, but not where a wall's solids fill its
+        support (the impinging jet's sheet along the plate), which IIPS moved with a cut support too. The band
+        is taken where detect() found the particles (field outflow_band), so that the unknowns stay those of
+        the call's start. IIPS measures its Linf(grad C) (threshold, stall, divergence) over these; the
+        history's L2/Linf(grad C) over interior()."""
+        unknowns = self.interior(system)
+        if BAND.name in system.particles:
+            unknowns &= system.particles.owned(BAND.name) == 0
+        return unknowns
 
     def count(self, system) -> int:
         """Surface particles on all ranks (collective)."""
@@ -140,7 +150,7 @@ class FreeSurface(NoFreeSurface):
         return (f"free-surface detection (Marrone et al. 2010): lambda <= {s.lambda_surface:g} surface, "
                 f"> {s.lambda_interior:g} interior, scan region between; explicit shifting du . n = 0 in the "
                 f"region, du = 0 where lambda < {s.lambda_normal:g} (thesis eq. 6.29); IIPS fixes the "
-                "surface particles and their neighbours")
+                "surface particles and their neighbours, and the fluid within a kernel support of an outflow face")
 
 
 def make_free_surface(scene, pre_procedure=False):

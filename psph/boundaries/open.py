@@ -179,10 +179,11 @@ class OpenBoundaries:
         self.next_gid = int(allreduce_max(system.comm, int(p.owned("gid").max()) if p.n_owned else -1)) + 1
         self.emitted = [0] * len(self.inflows)
         self.totals = {"joined": 0, "emitted": 0, "removed": 0}
-        # the fluid's mass budget: its mass at the start (set by the driver once the fields exist), and the mass
-        # of the particles that have joined it (inflow buffer; buffer particles carried back) or left it
-        # (removed, or into the outflow buffer), each at the moment it did
-        self.mass = {"initial": 0.0, "in": 0.0, "out": 0.0}
+        # the fluid's mass budget: its mass at the start (or at a restart from a checkpoint without the budget),
+        # and the mass of the particles that have joined it (inflow buffer; buffer particles carried back) or
+        # left it (removed, or into the outflow buffer), each at the moment it did
+        fluid = p.owned("kind") == Kind.FLUID
+        self.mass = {"initial": allreduce_sum(system.comm, float(p.owned("mass")[fluid].sum())), "in": 0.0, "out": 0.0}
         self.buffer = scene.domain.outflow_buffer
         if self.buffer:
             from psph.schemes.eos import make_eos
@@ -205,9 +206,10 @@ class OpenBoundaries:
             # buffer carried back inside by the extrapolated velocity is fluid again)
             past = system.domain.past_outflow(pos, tie)
             left = (kind == Kind.FLUID) & past
-            entered |= (kind == Kind.OUTLET) & ~past
+            back = (kind == Kind.OUTLET) & ~past
+            entered |= back
             kind[left] = Kind.OUTLET
-            kind[entered] = Kind.FLUID
+            kind[back] = Kind.FLUID
             removed = (kind == Kind.OUTLET) & system.domain.past_outflow(pos, self.scene.domain.support + tie)
         else:
             removed = left = (kind == Kind.FLUID) & system.domain.past_outflow(pos, tie)
@@ -264,24 +266,26 @@ class OpenBoundaries:
 
     def budget(self, total_mass) -> dict:
         """history.csv's mass budget from the fluid's `total_mass` now: the mass that has entered and left
-        the fluid, and the relative error of the balance (total_mass - initial - in + out) / initial, which is
-        zero to round-off when the scheme conserves the fluid's mass between its own particles."""
+        the fluid, and the error of the balance total_mass - initial - in + out relative to the initial mass
+        (to the mass that came in, for a fluid that starts empty), zero to round-off when the scheme moves no
+        mass between the fluid and the buffers' particles."""
         m = self.mass
+        scale = m["initial"] or m["in"] or 1.0
         return {"mass_in": m["in"], "mass_out": m["out"],
-                "mass_balance_error": (total_mass - m["initial"] - m["in"] + m["out"]) / m["initial"]}
+                "mass_balance_error": (total_mass - m["initial"] - m["in"] + m["out"]) / scale}
 
     def checkpoint_state(self) -> dict:
         return {"next_gid": self.next_gid, "emitted": list(self.emitted), "totals": dict(self.totals),
                 "mass": dict(self.mass)}
 
     def restore(self, state) -> None:
-        if state is None:  # a checkpoint written before the scene had open boundaries
+        if state is None:  # a checkpoint written before the scene had open boundaries (the budget: as above)
             return
         self.next_gid = int(state["next_gid"])
         self.emitted = [int(e) for e in state["emitted"]]
         self.totals = {k: int(v) for k, v in state["totals"].items()}
-        # a checkpoint written before the budget existed: its balance is unknown (NaN)
-        self.mass = {k: float(v) for k, v in state.get("mass", {"initial": np.nan, "in": 0.0, "out": 0.0}).items()}
+        if "mass" in state:  # else (a checkpoint written before the budget) it starts from the restart's mass
+            self.mass = {k: float(v) for k, v in state["mass"].items()}
 
 
 def make_open_boundaries(scene, system):

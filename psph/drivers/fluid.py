@@ -252,9 +252,6 @@ class FluidDriver:
         self.potential = bool(np.any(g)) and not any(g[a] and scene.domain.periodic[a] for a in range(len(g)))
         self.initial_volume = allreduce_sum(self.sim.comm, float(
             self.system.particles.owned("volume")[fluid_mask(self.system)].sum()))
-        if self.open.active:
-            self.open.mass["initial"] = allreduce_sum(self.sim.comm, float(
-                self.system.particles.owned("mass")[fluid_mask(self.system)].sum()))
         self.first_dt = None
         if self.resumed:
             self.initial_volume = self.resumed["initial_volume"]
