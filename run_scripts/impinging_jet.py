@@ -1,7 +1,8 @@
 """The jet impinging on a flat plate (thesis 000 sections 3.3 and 10.2) against Taylor's wall solution, without
 shifting and with the delta+ and Skillen et al. laws (and IIPS, if asked), at H/dx = 10 and 20.
 
-    .venv/bin/python run_scripts/impinging_jet.py [--resolutions 10 20] [--methods none delta_plus skillen iips]
+    .venv/bin/python run_scripts/impinging_jet.py [--resolutions 10 20]
+                                                  [--methods none delta_plus skillen iips iips_backtrack]
                                                   [--iips-resolutions 10] [--t-end 10] [--average-from 5]
                                                   [--ranks 2] [--no-run]
 
@@ -13,7 +14,9 @@ averages over t U/H in [--average-from, --t-end] of the history's rows and of OU
     profile   RMS over |x| <= 2 H of the time-averaged wall pressure minus Taylor's (psph.analytic)
     force     cl = 2 F_y / (rho0 U^2 2 H) on the plate, pressure plus viscous (-2: the jet's momentum flux)
 IIPS runs as the thesis runs it with a free surface (section 10.2.2): Procedure A, threshold
-Linf(grad C) = 0.02, the MLS II field update; a run that stops is reported in the table with psph's message.
+Linf(grad C) = 0.02, the MLS II field update; iips_backtrack the same with iips.backtrack = 1 (a Newton step
+that raises L2(grad C) is halved, then undone, ending the call). A run that stops is reported in the table
+with psph's message.
 Writes, in --out (results/impinging_jet): jet.md/.csv, wall_pressure.png (time-averaged profiles against
 Taylor's) and stagnation.png (p0 against time). --no-run builds them from the finished runs in --out only.
 """
@@ -33,8 +36,8 @@ from psph.studies import CASES, NotRun, command_line, plot_histories, run_scene,
 
 IIPS = ["shifting.method=iips", "iips.procedure=A", "iips.threshold=0.02", "iips.update=mls2"]
 METHODS = {"none": ["shifting.method=none"], "delta_plus": ["shifting.method=delta_plus"],
-           "skillen": ["shifting.method=skillen"], "iips": IIPS}
-STYLE = {"none": ":", "delta_plus": "-", "skillen": "-.", "iips": "--"}
+           "skillen": ["shifting.method=skillen"], "iips": IIPS, "iips_backtrack": [*IIPS, "iips.backtrack=1"]}
+STYLE = {"none": ":", "delta_plus": "-", "skillen": "-.", "iips": "--", "iips_backtrack": (0, (5, 1, 1, 1))}
 SPAN = 2.0  # |x| / H of the compared stretch (psph.drivers.fluid.ImpingingJetReference.SPAN)
 
 
@@ -74,7 +77,7 @@ def main():
     rows, profiles, curves = [], [], []
     for n in args.resolutions:
         for method in args.methods:
-            if method == "iips" and n not in args.iips_resolutions:
+            if method.startswith("iips") and n not in args.iips_resolutions:
                 continue
             out = args.out / f"jet_{method}_h{n}"
             sets = [f"domain.dx={1.0 / n}", "output.every=0", f"output.history_every={2 * n}",

@@ -419,6 +419,9 @@ class IIPSSpec:
                              "(initial.sigma_over_dx) it gives a relaxed start", ge=0)
     divergence_factor: float = option(100.0, doc="a call whose Linf(grad C) grows by this factor has diverged",
                                       gt=1.0)
+    backtrack: int = option(0, doc="a Newton step that raises L2(grad C) is halved, up to this many times, "
+                            "and undone if that does not help, which ends the call (a stall if above the "
+                            "threshold); 0: never, the thesis takes every full step", ge=0, le=30)
     operator: str = option("auto", doc="assembled: a PETSc AIJ matrix (BAIJ with -iips_mat_type baij), "
                            "any preconditioner; matrix_free: the product computed pair by pair, no pattern "
                            "to build (faster per Newton iteration), preconditioner jacobi or none; auto: "

@@ -47,6 +47,8 @@ SHIFT_FIELD = FieldSpec("iips_shift", ("d",))
 BEST_FIELD = FieldSpec("iips_best_shift", ("d",))
 # each particle's first Newton step of the last call: the next call's initial guess
 GUESS_FIELD = FieldSpec("iips_first_step", ("d",))
+# the last Newton step (iips.backtrack halves it back; a field, so that it follows the particles)
+STEP_FIELD = FieldSpec("iips_step", ("d",))
 # particles closer than COINCIDENT h count as coincident and are first nudged NUDGE h apart
 COINCIDENT = 1e-6
 NUDGE = 1e-3
@@ -149,6 +151,9 @@ class ImplicitShifting:
             p.owned(GUESS_FIELD.name)[~self.free] = 0.0  # no stale guess for a particle that becomes free later
         p.owned("position")[rows] += step
         p.owned(SHIFT_FIELD.name)[rows] += step
+        if self.spec.backtrack:
+            p.owned(STEP_FIELD.name)[:] = 0.0
+            p.owned(STEP_FIELD.name)[rows] = step
         self.newton_iterations += 1
         system.update()
         return its
@@ -223,7 +228,10 @@ class ImplicitShifting:
         failure = None
         p.add_field(BEST_FIELD)
         p.owned(BEST_FIELD.name)[:] = 0.0
+        if self.spec.backtrack:
+            p.add_field(STEP_FIELD)
         best_linf = linf
+        stuck = False
         while report.iterations < max_newton:
             above = threshold is None or linf > threshold
             if not (above or (at_least_one and report.iterations == 0)):
@@ -234,10 +242,15 @@ class ImplicitShifting:
             except SolverError as err:
                 failure = err
                 break
+            previous = l2
             grad, l2, linf = self.measure(system)
             report.iterations += 1
             report.linear_iterations += its
+            if self.spec.backtrack and l2 > previous:
+                grad, l2, linf, stuck = self._backtrack(system, previous)
             report.L2_grad_c, report.Linf_grad_c = l2, linf
+            if stuck:  # back at the step's start, which the best iterate has already counted
+                break
             if linf < best_linf:
                 best_linf = linf
                 p.owned(BEST_FIELD.name)[:] = p.owned(SHIFT_FIELD.name)
@@ -250,21 +263,49 @@ class ImplicitShifting:
                      "newton_time_s": time.perf_counter() - t0}):
                 break
         mode = self.spec.on_failure
-        if failure is None and threshold is not None and linf > threshold and report.iterations >= max_newton:
+        if failure is None and threshold is not None and linf > threshold and (report.iterations >= max_newton
+                                                                               or stuck):
             mode = self.spec.on_stall
             failure = NumericalError(f"IIPS Newton stalled: Linf(grad C) = {linf:.3e} above the threshold "
-                                     f"{threshold:.3e} after {report.iterations} iterations", **where)
+                                     f"{threshold:.3e} after {report.iterations} iterations"
+                                     + (f" (no descent in {self.spec.backtrack} halvings)" if stuck else ""),
+                                     **where)
             if mode == "best":
                 self._restore(system, p.owned(BEST_FIELD.name), report)
                 failure = NumericalError(f"{failure}; kept the iterate of Linf(grad C) = "
                                          f"{report.Linf_grad_c:.3e}", **where)
         if failure is not None:
             self._fail(system, report, failure, where, mode)
+        elif stuck:
+            report.message = (f"IIPS call ended after {report.iterations} iterations: no descent in "
+                              f"{self.spec.backtrack} halvings")
         return report
 
     def measure(self, system):
         """(grad C, L2, Linf) over the unknowns. Collective."""
         return measure(system, self.volume, self.surface.unknowns(system))
+
+    def _backtrack(self, system, previous):
+        """The last Newton step raised L2(grad C) above `previous`: halve it back (iips.backtrack times at
+        most) until L2 falls below `previous`; failing that, return to the step's start (stuck: the call
+        ends, a stall). Returns (grad C, L2, Linf, stuck). Collective."""
+        p = system.particles  # the step is a field: a rebuild in _move reorders the particles
+        for halving in range(1, self.spec.backtrack + 1):
+            self._move(system, -0.5 ** halving * p.owned(STEP_FIELD.name))
+            grad, l2, linf = self.measure(system)
+            if l2 <= previous:
+                return grad, l2, linf, False
+        self._move(system, -0.5 ** self.spec.backtrack * p.owned(STEP_FIELD.name))
+        grad, l2, linf = self.measure(system)
+        return grad, l2, linf, True
+
+    def _move(self, system, by) -> None:
+        """Move the owned particles by `by` (a field's values, or what follows them), their accumulated
+        displacement with them. Collective."""
+        p = system.particles
+        p.owned("position")[:] += by
+        p.owned(SHIFT_FIELD.name)[:] += by
+        system.update()
 
     def _restore(self, system, shift, report):
         """Move the particles back to the iterate whose accumulated displacement is `shift` (None: the

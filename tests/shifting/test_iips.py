@@ -493,9 +493,19 @@ def test_printed_operator_iteration_turns_on_a_strained_lattice():
     lowers Linf(grad C), then a mode grows several-fold per iteration. Why Procedure B stops at
     dx = 0.00625 in the Taylor-Green runs of run_scripts/tgv_tradeoff.py from the lattice, and Procedure A
     does not; from a relaxed start the flow strains no lattice (tests/drivers/test_drivers.py)."""
+    scene = periodic_scene(n=40, iips={"max_newton": 9})
+    _, norms, _ = strained_lattice_call(scene)
+    linf = [value for _, value in norms]
+    low = int(np.argmin(linf))
+    assert 0 < low < len(linf) - 1 and linf[low] < 0.8 * linf[0]  # it converged for a while ...
+    assert max(linf[low:]) > 3.0 * linf[low]  # ... then turned (5x here)
+
+
+def strained_lattice_call(scene):
+    """One IIPS call (scene.iips) on the 40 x 40 lattice strained by the frozen Taylor-Green flow for
+    t = 0.07: (system, [(L2, Linf) of grad C at the start and after each iteration], the call's report)."""
     from psph.analytic import taylor_green
 
-    scene = periodic_scene(n=40, iips={"max_newton": 9})
     system = build_system(scene, MPI.COMM_SELF)
     x = system.particles.owned("position").copy()
     dt = 0.07 / 100
@@ -506,12 +516,28 @@ def test_printed_operator_iteration_turns_on_a_strained_lattice():
         x = x + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + taylor_green(x + dt * k3)[0])
     system.particles.owned("position")[:] = np.mod(x, 1.0)
     system.rebuild()
-    linf = [measure(system)[2]]
+    norms = [measure(system)[1:]]
     shifting = ImplicitShifting(scene.iips, MPI.COMM_SELF)
-    shifting.correct(system, lambda info: linf.append(info["Linf_grad_c"]) and False)
-    low = int(np.argmin(linf))
-    assert 0 < low < len(linf) - 1 and linf[low] < 0.8 * linf[0]  # it converged for a while ...
-    assert max(linf[low:]) > 3.0 * linf[low]  # ... then turned (5x here)
+    report = shifting.correct(system, lambda info: norms.append((info["L2_grad_c"], info["Linf_grad_c"])) and False)
+    return system, norms, report
+
+
+def test_backtracking_keeps_l2_falling_and_ends_a_call_that_cannot_descend():
+    """iips.backtrack on the strained lattice where the full steps turn (above): every accepted iterate lowers
+    L2(grad C), and the call ends, as a stall kept at its best iterate, once a step halved that many times
+    still raises it: at the full steps' best iterate, one iteration sooner. (Linf(grad C) is no merit
+    function: the first full step raises it, then lowers it by a third.) Each halving costs a grad C."""
+    _, full, _ = strained_lattice_call(periodic_scene(n=40, iips={"max_newton": 9, "threshold": 1e-6}))
+    best = min(linf for _, linf in full)
+    for halvings in (1, 2):
+        system, norms, report = strained_lattice_call(periodic_scene(
+            n=40, iips={"max_newton": 9, "threshold": 1e-6, "backtrack": halvings}))
+        assert all(b[0] <= a[0] for a, b in zip(norms, norms[1:]))
+        assert report.failed and f"no descent in {halvings} halvings" in report.message
+        assert report.Linf_grad_c == pytest.approx(best, rel=1e-12)
+        # the undone iteration has no row
+        assert report.iterations == len(norms) < len(full) and report.iterations < 9
+        assert np.all(np.isfinite(system.particles.owned("position")))
 
 
 # ------------------------------------------------------------------ extremes (issue: IIPS, "Extremes")

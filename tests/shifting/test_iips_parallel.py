@@ -38,6 +38,26 @@ def test_static_iips_positions_independent_of_rank_count(comm, dim, n, operator)
     assert a.L2_grad_c == pytest.approx(b.L2_grad_c, rel=1e-6)
 
 
+def test_backtracking_independent_of_rank_count(comm):
+    """iips.backtrack = 1 at h/dx = 1.2, where the fifth full step raises L2(grad C) and the call ends back
+    at the fourth iterate: the same iterations and positions on 1, 2 and 3 ranks (the step it halves and
+    undoes is a field that migrates with the particles)."""
+    scene = periodic_scene(n=20, h_over_dx=1.2, sigma=0.1, iips={"max_newton": 12, "backtrack": 1})
+    with petsc_options(iips_ksp_rtol=1e-13, iips_ksp_atol=1e-30):
+        par_shift = ImplicitShifting(scene.iips, comm)
+        ser_shift = ImplicitShifting(scene.iips, MPI.COMM_SELF)
+    parallel = build_system(scene, comm)
+    serial = build_system(scene, MPI.COMM_SELF)
+    a = par_shift.correct(parallel)
+    b = ser_shift.correct(serial)
+    assert a.iterations == b.iterations == 5 and a.message == b.message == ("IIPS call ended after 5 iterations: "
+                                                                              "no descent in 1 halvings")
+    _, pos = gather_by_gid(comm, parallel.particles.owned("gid"), parallel.particles.owned("position"))
+    expect = serial.particles.owned("position")[np.argsort(serial.particles.owned("gid"))]
+    assert np.abs(parallel.domain.minimum_image(pos - expect)).max() < 1e-8
+    assert a.L2_grad_c == pytest.approx(b.L2_grad_c, rel=1e-6)
+
+
 @pytest.mark.parametrize("dim,n", [(2, 12), (3, 6)])
 def test_matrix_free_products_on_ranks_are_the_assembled_ones(comm, dim, n):
     """On several ranks, the matrix-free operator's product and transpose's product (through its halo
