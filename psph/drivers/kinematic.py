@@ -56,12 +56,12 @@ class KinematicDriver:
         """Pre-procedure, the history's first row and the first snapshot; returns the distribution report."""
         sim, system = self.sim, self.sim.system
         t0 = time.perf_counter()
-        init_linf = pre_procedure(self.scene.iips, sim.comm, system,
-                                  self.shifting if self.scene.shifting.method == "iips" else None)
+        init_linf, iterations = pre_procedure(self.scene.iips, sim.comm, system,
+                                              self.shifting if self.scene.shifting.method == "iips" else None)
         self.pre = {"time_s": time.perf_counter() - t0, "linf": init_linf}
         if init_linf is not None:
             threshold = getattr(self.shifting, "threshold", None)
-            sim.log(f"pre-procedure: Linf(grad C) = {init_linf:.4e}"
+            sim.log(f"pre-procedure: {iterations} IIPS iterations, Linf(grad C) = {init_linf:.4e}"
                     + (f", threshold {threshold:.4e}" if threshold else ""))
         report = distribution_report(system, self.scene.diagnostics.test_wavelength)
         sim.history.append({"time": 0.0, "step": 0, **report, "newton": 0, "ksp_iterations": 0, **totals})

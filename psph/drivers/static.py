@@ -64,7 +64,9 @@ class StaticDriver:
 
         with sim.diagnose_failures(lambda: (len(sim.history.rows), 0.0)):
             result = self.shifting.correct(system, on_iteration, iterations=scene.shifting.max_iterations, step=0)
-        iterations = result.iterations
+        iterations = len(sim.history.rows) - 1  # an iteration iips.backtrack undid has no row, nor a state
+        if result.message:
+            sim.log(result.message)
         if iterations:
             path = sim.snapshots.write(system.particles, step=iterations, time=0.0, extra={"grad_c": grad_c(system)})
             if stopped and stopped[-1]:  # (a failed first iteration reports none)

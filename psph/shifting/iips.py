@@ -26,6 +26,9 @@ Triggering and stopping (thesis Algorithms 1-3, eq. 8.34-8.35):
   converging. Growth of Linf(grad C) by `iips.divergence_factor` within a call is a divergence; it and a
   diverged linear solve stop the run (`iips.on_failure = "stop"`), or undo the call's displacements and
   carry on (`"reject"`), reported either way.
+- step control (`iips.backtrack = k`, default 0): a step that raises L2(grad C) is halved up to k times,
+  and undone if L2 still rises, which ends the call: a stall (iips.on_stall) above the threshold. Accepted
+  iterates then never raise L2, so the divergence check above seldom fires (Linf can still grow).
 """
 
 import time
@@ -78,6 +81,7 @@ class ImplicitShifting:
         self.use_guess = self.solver.ksp.getInitialGuessNonzero()
         self.threshold = spec.threshold if spec.threshold > 0.0 else None
         self.initial_linf = None  # Linf(grad C) after the pre-procedure (thesis: Linf(grad C)_Init)
+        self.pre_iterations = 0
         self._structure_of = None
         self._unknowns_moved = False  # a free-surface detection changed the unknowns: rebuild the structure
         self.calls = 0
@@ -179,6 +183,8 @@ class ImplicitShifting:
         if self.spec.pre_newton > 0:
             report = self._iterate(system, self.spec.pre_newton, None, False, on_iteration, {})
             self.set_initial_linf(report.Linf_grad_c)
+            # fewer where iips.backtrack found no descent (counting the undone iteration)
+            self.pre_iterations = report.iterations
         return self.initial_linf
 
     def set_initial_linf(self, linf) -> None:
@@ -277,8 +283,9 @@ class ImplicitShifting:
         if failure is not None:
             self._fail(system, report, failure, where, mode)
         elif stuck:
-            report.message = (f"IIPS call ended after {report.iterations} iterations: no descent in "
-                              f"{self.spec.backtrack} halvings")
+            ended = (f"IIPS call ended after {report.iterations} iterations: no descent in "
+                     f"{self.spec.backtrack} halvings")
+            report.message = f"{report.message}; {ended}" if report.message else ended
         return report
 
     def measure(self, system):
@@ -287,8 +294,8 @@ class ImplicitShifting:
 
     def _backtrack(self, system, previous):
         """The last Newton step raised L2(grad C) above `previous`: halve it back (iips.backtrack times at
-        most) until L2 falls below `previous`; failing that, return to the step's start (stuck: the call
-        ends, a stall). Returns (grad C, L2, Linf, stuck). Collective."""
+        most) until L2 is at most `previous`; failing that, return to the step's start (stuck: the call ends,
+        a stall if above the threshold). Returns (grad C, L2, Linf, stuck). Collective."""
         p = system.particles  # the step is a field: a rebuild in _move reorders the particles
         for halving in range(1, self.spec.backtrack + 1):
             self._move(system, -0.5 ** halving * p.owned(STEP_FIELD.name))
@@ -344,12 +351,13 @@ def pre_procedure(spec, comm, system, iips=None, surface=None):
     threshold, whatever the run's shifting method, so that every method starts from the same distribution.
     From a perturbed lattice (`initial.sigma_over_dx`) it gives a relaxed distribution that is not a lattice.
     `iips`: the run's own ImplicitShifting, which then keeps its beta threshold; without it a temporary one
-    is used and freed. Returns Linf(grad C) after it, or None when `spec.pre_newton` is 0. Collective."""
+    is used and freed. Returns Linf(grad C) after it and the iterations it took (with iips.backtrack, possibly
+    fewer than pre_newton), or (None, 0) when `spec.pre_newton` is 0. Collective."""
     if spec.pre_newton == 0:
-        return None
+        return None, 0
     if iips is not None:
-        return iips.prepare(system)
+        return iips.prepare(system), iips.pre_iterations
     temporary = ImplicitShifting(spec, comm, surface=surface)
     linf = temporary.prepare(system)
     temporary.destroy()
-    return linf
+    return linf, temporary.pre_iterations

@@ -28,6 +28,23 @@ def test_static_iips_run_writes_one_row_per_newton_iteration(tmp_path):
         assert not np.allclose(first["particles/position"][:], last["particles/position"][:])
 
 
+def test_a_static_run_ended_by_backtracking_counts_and_labels_its_accepted_iterations(tmp_path):
+    """iips.backtrack = 3 at h/dx = 1.2 (the case of tests/shifting/test_iips.py): the sixth step is undone,
+    which ends the run after five iterations: five rows, 5 steps in the summary, the last snapshot labelled
+    step 5, and the reason in the log."""
+    out = tmp_path / "out"
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", out, "--set", "shifting.method=iips",
+                   "--set", "domain.dx=0.0625", "--set", "domain.h_over_dx=1.2", "--set", "initial.seed=3",
+                   "--set", "iips.max_newton=15", "--set", "iips.backtrack=3")
+    assert res.returncode == 0, res.stderr
+    rows = read_history(out / "history.csv")
+    assert [r["iteration"] for r in rows] == [0, 1, 2, 3, 4, 5]
+    assert json.loads((out / "summary.json").read_text())["steps"] == 5
+    with h5py.File(out / "snapshot_000001.h5") as last:
+        assert last.attrs["step"] == 5
+    assert "IIPS call ended after 6 iterations: no descent in 3 halvings" in (out / "psph.log").read_text()
+
+
 @pytest.mark.parametrize("procedure", ["A", "B"])
 def test_kinematic_iips_procedures(tmp_path, procedure):
     out = tmp_path / procedure
