@@ -338,7 +338,8 @@ def iips_pair_defects(pos, vol, h_over_dx, newton=3) -> dict:
 
     all_pos, kern, ptr, idx, grad, matrix = state(pos)
     nearest = np.zeros(n)
-    sums.nearest_distance(all_pos, ptr, idx, np.zeros(len(all_pos), np.int8), nearest)
+    group = np.zeros(len(all_pos), np.int8)
+    sums.nearest_distance(all_pos, ptr, idx, group, group, nearest)
     hess_c = np.stack([matrix @ np.tile(e, n) for e in np.eye(2)], axis=-1).reshape(n, 2, 2)
     self_term = np.abs(vol * kern.radial(np.zeros(1))[0])
     ratio = np.linalg.norm(hess_c, ord=2, axis=(1, 2)) / self_term

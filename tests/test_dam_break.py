@@ -61,7 +61,8 @@ def test_the_surge_runs_behind_ritter_and_keeps_its_mass(tmp_path):
 
 def test_the_film_on_the_right_wall_is_not_shifted_through_it(tmp_path):
     """H/dx = 10 to t sqrt(g/H) = 5.5: the run-up's film on the right wall stays in the tank, no particle
-    is mirrored back (history column wall_reflections). Before WallTerms.keep_shift_off, a particle of the
+    is mirrored back (history column wall_reflections), none comes within half a spacing of a solid particle
+    (min_wall_spacing). Before WallTerms.keep_shift_off, a particle of the
     film's surface, its delta+ shifting velocity projected on the surface's tangent and so tilted into the
     wall, crossed the wall's line from step 2 731 on and was mirrored back again and again: 20 reflections
     by t = 5.5 (measured by hand with keep_shift_off replaced by a no-op; 186 from step 2 569 on with the
@@ -69,7 +70,12 @@ def test_the_film_on_the_right_wall_is_not_shifted_through_it(tmp_path):
     scene = load_scene(CASES / "dam_break.toml", ["domain.dx=0.1", "time.t_end=5.5", "output.every=0",
                                                    "output.history_every=100"])
     FluidDriver(scene, MPI.COMM_SELF, tmp_path).run()
-    assert read_history(tmp_path / "history.csv")[-1]["wall_reflections"] == 0
+    rows = read_history(tmp_path / "history.csv")
+    assert rows[-1]["wall_reflections"] == 0
+    # the fluid's nearest approach to a solid particle: dx on the lattice at t = 0 (the first rows dx/2 either
+    # side of the walls), 0.67 dx at the closest by t = 5.5 (measured); a crossing particle would come to 0
+    spacing = [r["min_wall_spacing"] for r in rows]
+    assert spacing[0] == pytest.approx(1.0) and 0.5 < min(spacing) < 0.95
 
 
 @pytest.mark.mpi

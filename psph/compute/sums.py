@@ -334,15 +334,17 @@ def invert_renormalisation(mat, lambda_min, tol, out):
 
 
 @njit(cache=True)
-def nearest_distance(pos, ptr, idx, same, out):
-    """Distance from each particle to its nearest neighbour j != i with same[j] == same[i] (inf if none):
-    particles drawing closer than the lattice allows (pairing) show here long before grad C sees them."""
+def nearest_distance(pos, ptr, idx, row_group, col_group, out):
+    """Distance from each particle i to its nearest neighbour j != i with col_group[j] == row_group[i] (inf
+    if none): with both the kinds, particles drawing closer than the lattice allows (pairing) show here long
+    before grad C sees them; with row_group 0 and col_group 0 at the solids only, the distance to the
+    nearest solid particle."""
     d = pos.shape[1]
     for i in range(ptr.size - 1):
         best = np.inf
         for k in range(ptr[i], ptr[i + 1]):
             j = idx[k]
-            if j == i or same[j] != same[i]:
+            if j == i or col_group[j] != row_group[i]:
                 continue
             rr = pair2(pos, i, j, d)[3]
             if rr < best:

@@ -33,7 +33,7 @@ def warm_up(dim: int, kernel_name: str) -> None:
     field = np.ones(n)
     sums.concentration(pos, vol, ptr, idx, kp, scalar)
     sums.grad_concentration(pos, vol, ptr, idx, kp, vector)
-    sums.nearest_distance(pos, ptr, idx, np.zeros(n, dtype=np.int8), scalar)
+    sums.nearest_distance(pos, ptr, idx, np.zeros(n, dtype=np.int8), np.zeros(n, dtype=np.int8), scalar)
     sums.gradient(pos, vol, ptr, idx, kp, field, vector)
     sums.gradient_difference(pos, vol, ptr, idx, kp, field, vector)
     sums.divergence(pos, vol, ptr, idx, kp, vector, scalar)

@@ -27,6 +27,7 @@ from psph.errors import NumericalError
 from psph.initial import reset_initial_fields
 from psph.io.history import start_series
 from psph.parallel.comm import allreduce_max, allreduce_min, allreduce_sum, raise_if_any
+from psph.particles import Kind
 from psph.probes import Probes
 from psph.profiling import phase
 from psph.schemes import make_scheme
@@ -401,6 +402,14 @@ class FluidDriver:
             dt = min(dt, 0.125 * h * h / scheme.nu)
         return dt, vmax
 
+    def _min_spacing(self, mask, row_group, col_group) -> float:
+        """The smallest distance, in dx, from an owned particle in `mask` to a neighbour j with col_group[j] ==
+        row_group[i] (compute.sums.nearest_distance; inf if none on any rank). Collective."""
+        nearest = np.empty(self.system.particles.n_owned)
+        nearest_distance(self.system.particles["position"], self.system.nbr_ptr, self.system.nbr_idx, row_group,
+                         col_group, nearest)
+        return allreduce_min(self.sim.comm, float(nearest[mask].min()) if mask.any() else np.inf) / self.scene.domain.dx
+
     def diagnostics(self, t) -> dict:
         p, comm = self.system.particles, self.sim.comm
         mask = fluid_mask(self.system)
@@ -418,12 +427,13 @@ class FluidDriver:
         dvol = allreduce_max(comm, float(np.abs(vol / p.owned("volume0") - 1.0).max()) if p.n_owned else 0.0)
         speed = np.sqrt((u * u).sum(axis=1))[mask]
         vmax = allreduce_max(comm, float(speed.max()) if len(speed) else 0.0)
-        nearest = np.empty(p.n_owned)
-        nearest_distance(p["position"], self.system.nbr_ptr, self.system.nbr_idx, p["kind"], nearest)
-        spacing = allreduce_min(comm, float(nearest[mask].min()) if mask.any() else np.inf)
         out = {"kinetic_energy": sums[0], "total_mass": sums[1], "volume_error": sums[2] / self.initial_volume - 1.0,
-               "max_speed": vmax, "min_spacing": spacing / self.scene.domain.dx,
+               "max_speed": vmax, "min_spacing": self._min_spacing(mask, p["kind"], p["kind"]),
                "max_density_variation": drho, "max_volume_variation": dvol, "L2_grad_c": l2, "Linf_grad_c": linf}
+        if self.scheme.walls is not None and self.scheme.walls.clones:  # solid particles: how near the fluid comes
+            solid = (p["kind"] == Kind.WALL) | (p["kind"] == Kind.BODY)
+            out["min_wall_spacing"] = self._min_spacing(mask, np.zeros(p.n_local, np.int8),
+                                                        (~solid).astype(np.int8))
         for a in range(p.dim):
             out[f"momentum_{'xyz'[a]}"] = sums[3 + a]
         if self.potential:  # -sum m g . x: kinetic + potential energy falls by the dissipation

@@ -163,17 +163,21 @@ def test_isolated_particle_gets_identity_renormalisation():
     assert np.all(lam == 0.0) and np.allclose(lmat, np.eye(2))
 
 
-def test_nearest_distance_sees_a_pair_among_particles_of_the_same_kind():
+def test_nearest_distance_sees_a_pair_among_particles_of_the_same_kind_and_the_nearest_wall():
     pos, _ = lattice(2, 10)
     dx = 0.1
     ptr, idx = build_neighbour_lists(pos, len(pos), 0.35)
     kind = np.zeros(len(pos), dtype=np.int8)
     out = np.zeros(len(pos))
-    sums.nearest_distance(pos, ptr, idx, kind, out)
+    sums.nearest_distance(pos, ptr, idx, kind, kind, out)
     assert np.allclose(out, dx)
     pos[55, 0] -= 0.6 * dx  # particle 55 moves to 0.4 dx of particle 45
-    sums.nearest_distance(pos, ptr, idx, kind, out)
+    sums.nearest_distance(pos, ptr, idx, kind, kind, out)
     assert np.isclose(out[55], 0.4 * dx) and np.isclose(out[45], 0.4 * dx) and np.isclose(out.max(), dx)
     kind[45] = 1  # a wall particle, the only one: no pair of fluid particles, no wall neighbour
-    sums.nearest_distance(pos, ptr, idx, kind, out)
+    sums.nearest_distance(pos, ptr, idx, kind, kind, out)
     assert np.isclose(out[55], np.sqrt(0.4 ** 2 + 1.0) * dx) and out[45] == np.inf
+    # the distance to the nearest wall particle (every row in group 0, the wall particle the only column in it)
+    sums.nearest_distance(pos, ptr, idx, np.zeros_like(kind), (kind == 0).astype(np.int8), out)
+    assert np.isclose(out[55], 0.4 * dx) and np.isclose(out[44], dx) and out[45] == np.inf
+    assert out[0] == np.inf  # no wall particle within the lists' reach
