@@ -203,14 +203,15 @@ class WallTerms:
         rows = np.flatnonzero((p.owned("kind") == Kind.FLUID) & (dist < support).any(axis=1))
         return rows, ghost_images(p["position"], p["kind"], rows, w, system.nbr_ptr, system.nbr_idx, support)
 
-    def add_ghost_grad_c(self, system, coeff, power, w_ref, out):
-        """Add the ghost images' part of grad C^ (psph.compute.walls.ghost_grad_c) to the owned rows of out."""
+    def add_ghost_grad_c(self, system, coeff, power, w_ref, out, mat=None):
+        """Add the ghost images' part of grad C^ (psph.compute.walls.ghost_grad_c) to the owned rows of out, and
+        with `mat` their part of the renormalisation matrix (the free-surface detection's)."""
         if self.ghost is None:
             return
         p, w = system.particles, self.ghost
         rows, images = self._ghost_images(system)
         ghost_grad_c(p["position"], p["volume"], rows, *images, w["axis"], w["coord"], system.kernel.params,
-                     coeff, power, w_ref, out)
+                     coeff, power, w_ref, out, np.zeros((0, 2, 2)) if mat is None else mat)
 
     def body_forces(self, comm) -> dict:
         """Drag and lift coefficients 2 F / (rho0 U^2 D) of every immersed body, pressure and viscous parts,

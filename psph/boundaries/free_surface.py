@@ -82,6 +82,8 @@ class FreeSurface(NoFreeSurface):
 
     def __init__(self, spec):
         self.spec = spec
+        # the scheme's WallTerms when it has ghost walls: their images complete the support in lambda
+        self.ghost_walls = None
 
     def detect(self, system) -> None:
         """Flag the surface and its region, with lambda and the outward normals (owned rows; the halo gets the
@@ -95,6 +97,8 @@ class FreeSurface(NoFreeSurface):
         with phase("free_surface"):
             mat, grad = np.empty((n, d, d)), np.empty((n, d))
             sums.renormalisation_and_grad_c(pos, vol, ptr, idx, k.params, mat, grad)
+            if self.ghost_walls is not None:  # else the fluid along a ghost wall would count as a surface
+                self.ghost_walls.add_ghost_grad_c(system, 0.0, 1.0, 1.0, grad, mat)
             lam = p.owned("surface_lambda")
             sums.smallest_eigenvalue(mat, lam)
             normal = p.owned("surface_normal")

@@ -373,8 +373,11 @@ def ghost_rhs(pos, vol, rho, vel, du, prs, rows, img_ptr, img_j, img_w, w_axis, 
 
 
 @njit(cache=True)
-def ghost_grad_c(pos, vol, rows, img_ptr, img_j, img_w, w_axis, w_coord, kp, coeff, power, w_ref, out):
-    """Add the images' part of grad C^ = sum_g F(r_ig) V_g [1 + coeff (W_ig / w_ref)^power] x_ig to out."""
+def ghost_grad_c(pos, vol, rows, img_ptr, img_j, img_w, w_axis, w_coord, kp, coeff, power, w_ref, out, mat):
+    """Add the images' part of grad C^ = sum_g F(r_ig) V_g [1 + coeff (W_ig / w_ref)^power] x_ig to out, and
+    unless mat is empty (shape (0, 2, 2)) their part of the renormalisation matrix, mat -= F V_g x_ig x_ig^T
+    (compute.sums.renormalisation_and_grad_c, with coeff = 0: the free-surface detection's sums)."""
+    with_mat = mat.shape[0] > 0
     for r in range(rows.size):
         i = rows[r]
         for k in range(img_ptr[r], img_ptr[r + 1]):
@@ -384,6 +387,11 @@ def ghost_grad_c(pos, vol, rows, img_ptr, img_j, img_w, w_axis, w_coord, kp, coe
             if rr == 0.0:
                 continue
             s = kernel_f(rr, kp) * vol[img_j[k]]
+            if with_mat:
+                mat[i, 0, 0] -= s * x0 * x0
+                mat[i, 0, 1] -= s * x0 * x1
+                mat[i, 1, 0] -= s * x0 * x1
+                mat[i, 1, 1] -= s * x1 * x1
             if coeff != 0.0:
                 s *= 1.0 + coeff * fast_power(kernel_w(rr, kp) / w_ref, power)
             out[i, 0] += s * x0

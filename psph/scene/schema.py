@@ -789,8 +789,9 @@ class Scene:
                 what = "shifting" if method != "none" or self.iips.pre_newton > 0 else \
                     "free_surface.lambda_diffusion"
                 raise SceneError(f"bodies[{ghosts[0]}].model", f"{what} with a free surface ({surface}) needs "
-                                 "clone walls: ghost walls have no solid particles, so the free-surface detection "
-                                 "would take the fluid along them for a surface")
+                                 "clone walls: psph builds the shifting and the diffusion switch near a free "
+                                 "surface on the walls' solid particles (WallTerms.keep_shift_off; IIPS takes them "
+                                 "as neighbours), which ghost walls do not have")
         if self.free_surface.lambda_diffusion > 0.0 and not (fluid and surface
                                                                and self.physics.scheme != "riemann_ale"):
             raise SceneError("free_surface.lambda_diffusion", "switches the diffusive terms of a delta_ale scheme off "

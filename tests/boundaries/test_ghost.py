@@ -9,6 +9,7 @@ from psph.compute import fluid
 from psph.compute.neighbours import build_neighbour_lists
 from psph.compute.shift_velocity import corrected_grad_c
 from psph.compute.smoothing import make_kernel
+from psph.compute.sums import renormalisation_and_grad_c
 from psph.compute.walls import ghost_grad_c, ghost_images, ghost_rhs
 
 C0, RHO0, MU = 10.0, 1.0, 0.01
@@ -113,9 +114,11 @@ def test_no_slip_images_reverse_the_velocity_about_the_lid(morris):
     assert np.abs(free_slip - want).max() > 1e-3 * np.abs(want).max()  # the two mirrorings differ
 
 
-def test_images_complete_the_concentration_gradient():
+def test_images_complete_the_concentration_gradient_and_the_renormalisation_matrix():
     """On a lattice filling the box, grad C with the images vanishes to round-off at the walls and corners
-    (without them it points out of the fluid there)."""
+    (without them it points out of the fluid there), and the free-surface detection's renormalisation
+    matrix is everywhere the one in the middle of the box (without them its smallest eigenvalue, lambda,
+    falls to about half at a wall)."""
     n_side = 12
     dx = 1.0 / n_side
     g = (np.stack(np.meshgrid(np.arange(n_side), np.arange(n_side), indexing="ij"), -1).reshape(-1, 2) + 0.5) * dx
@@ -128,6 +131,13 @@ def test_images_complete_the_concentration_gradient():
     rows = np.arange(len(pos))
     images = ghost_images(pos, np.zeros(len(pos), np.int8), rows, box_walls(), ptr, idx, kern.support)
     ghost_grad_c(pos, vol, rows, *images, box_walls()["axis"], box_walls()["coord"], kern.params, 0.0, 1.0, 1.0,
-                 grad)
+                 grad, np.zeros((0, 2, 2)))
     assert truncated > 1.0 and np.abs(grad).max() < 1e-10 * truncated
+    mat, grad = np.zeros((len(pos), 2, 2)), np.zeros_like(pos)
+    renormalisation_and_grad_c(pos, vol, ptr, idx, kern.params, mat, grad)
+    middle = mat[np.argmin(np.linalg.norm(pos - 0.5, axis=1))]
+    assert np.abs(mat - middle).max() > 0.3 * np.abs(middle).max()
+    ghost_grad_c(pos, vol, rows, *images, box_walls()["axis"], box_walls()["coord"], kern.params, 0.0, 1.0, 1.0,
+                 grad, mat)
+    assert np.abs(mat - middle).max() < 1e-10 * np.abs(middle).max() and np.abs(grad).max() < 1e-10 * truncated
 
