@@ -61,8 +61,8 @@ def test_the_surge_runs_behind_ritter_and_keeps_its_mass(tmp_path):
 
 def test_the_film_on_the_right_wall_is_not_shifted_through_it(tmp_path):
     """H/dx = 10 to t sqrt(g/H) = 5.5: the run-up's film on the right wall stays in the tank, no particle
-    is mirrored back (history column wall_reflections), none comes within half a spacing of a solid particle
-    (min_wall_spacing). Before WallTerms.keep_shift_off, a particle of the
+    is mirrored back (history column wall_reflections), and at the history's rows none is within half a
+    spacing of a solid particle (min_wall_spacing). Before WallTerms.keep_shift_off, a particle of the
     film's surface, its delta+ shifting velocity projected on the surface's tangent and so tilted into the
     wall, crossed the wall's line from step 2 731 on and was mirrored back again and again: 20 reflections
     by t = 5.5 (measured by hand with keep_shift_off replaced by a no-op; 186 from step 2 569 on with the

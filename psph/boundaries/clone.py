@@ -12,7 +12,7 @@ The body forces of the last right-hand side evaluation are kept for the history.
 import numpy as np
 
 from psph.boundaries.bodies import make_bodies
-from psph.compute.walls import clone_rhs, ghost_grad_c, ghost_images, ghost_rhs, near_wall_rows, off_walls
+from psph.compute.walls import NO_MATRIX, clone_rhs, ghost_grad_c, ghost_images, ghost_rhs, near_wall_rows, off_walls
 from psph.parallel.comm import allreduce_sum
 from psph.particles import Kind
 from psph.schemes.eos import GAMMA
@@ -211,7 +211,7 @@ class WallTerms:
         p, w = system.particles, self.ghost
         rows, images = self._ghost_images(system)
         ghost_grad_c(p["position"], p["volume"], rows, *images, w["axis"], w["coord"], system.kernel.params,
-                     coeff, power, w_ref, out, np.zeros((0, 2, 2)) if mat is None else mat)
+                     coeff, power, w_ref, out, NO_MATRIX if mat is None else mat)
 
     def body_forces(self, comm) -> dict:
         """Drag and lift coefficients 2 F / (rho0 U^2 D) of every immersed body, pressure and viscous parts,

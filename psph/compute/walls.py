@@ -372,10 +372,14 @@ def ghost_rhs(pos, vol, rho, vel, du, prs, rows, img_ptr, img_j, img_w, w_axis, 
         _add_rates(i, rho_i, v_i, mu, variant, cont, gp0, gp1, vs0, vs1, sh0, sh1, d_rho, d_mom)
 
 
+# ghost_grad_c's `mat` when only grad C is wanted
+NO_MATRIX = np.zeros((0, 2, 2))
+
+
 @njit(cache=True)
 def ghost_grad_c(pos, vol, rows, img_ptr, img_j, img_w, w_axis, w_coord, kp, coeff, power, w_ref, out, mat):
     """Add the images' part of grad C^ = sum_g F(r_ig) V_g [1 + coeff (W_ig / w_ref)^power] x_ig to out, and
-    unless mat is empty (shape (0, 2, 2)) their part of the renormalisation matrix, mat -= F V_g x_ig x_ig^T
+    unless mat is empty (NO_MATRIX) their part of the renormalisation matrix, mat -= F V_g x_ig x_ig^T
     (compute.sums.renormalisation_and_grad_c, with coeff = 0: the free-surface detection's sums)."""
     with_mat = mat.shape[0] > 0
     for r in range(rows.size):

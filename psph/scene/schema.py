@@ -782,16 +782,13 @@ class Scene:
         self._check_dam_break()
         self._check_probes(fluid)
         surface = self.describe_free_surface()
-        if fluid and surface and (method != "none" or self.iips.pre_newton > 0
-                                  or self.free_surface.lambda_diffusion > 0.0):
+        if fluid and surface and (method != "none" or self.iips.pre_newton > 0):
             ghosts = [k for k, b in enumerate(self.bodies) if b.model == "ghost"]
             if ghosts:
-                what = "shifting" if method != "none" or self.iips.pre_newton > 0 else \
-                    "free_surface.lambda_diffusion"
-                raise SceneError(f"bodies[{ghosts[0]}].model", f"{what} with a free surface ({surface}) needs "
-                                 "clone walls: psph builds the shifting and the diffusion switch near a free "
-                                 "surface on the walls' solid particles (WallTerms.keep_shift_off; IIPS takes them "
-                                 "as neighbours), which ghost walls do not have")
+                raise SceneError(f"bodies[{ghosts[0]}].model", f"shifting with a free surface ({surface}) needs "
+                                 "clone walls: it relies on the walls' solid particles (IIPS takes them as "
+                                 "neighbours of grad C, WallTerms.keep_shift_off holds an explicit law's shifting "
+                                 "off them), which ghost walls do not have")
         if self.free_surface.lambda_diffusion > 0.0 and not (fluid and surface
                                                                and self.physics.scheme != "riemann_ale"):
             raise SceneError("free_surface.lambda_diffusion", "switches the diffusive terms of a delta_ale scheme off "

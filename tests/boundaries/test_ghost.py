@@ -10,7 +10,7 @@ from psph.compute.neighbours import build_neighbour_lists
 from psph.compute.shift_velocity import corrected_grad_c
 from psph.compute.smoothing import make_kernel
 from psph.compute.sums import renormalisation_and_grad_c
-from psph.compute.walls import ghost_grad_c, ghost_images, ghost_rhs
+from psph.compute.walls import NO_MATRIX, ghost_grad_c, ghost_images, ghost_rhs
 
 C0, RHO0, MU = 10.0, 1.0, 0.01
 LID = np.array([0.7, 0.0])
@@ -131,7 +131,7 @@ def test_images_complete_the_concentration_gradient_and_the_renormalisation_matr
     rows = np.arange(len(pos))
     images = ghost_images(pos, np.zeros(len(pos), np.int8), rows, box_walls(), ptr, idx, kern.support)
     ghost_grad_c(pos, vol, rows, *images, box_walls()["axis"], box_walls()["coord"], kern.params, 0.0, 1.0, 1.0,
-                 grad, np.zeros((0, 2, 2)))
+                 grad, NO_MATRIX)
     assert truncated > 1.0 and np.abs(grad).max() < 1e-10 * truncated
     mat, grad = np.zeros((len(pos), 2, 2)), np.zeros_like(pos)
     renormalisation_and_grad_c(pos, vol, ptr, idx, kern.params, mat, grad)

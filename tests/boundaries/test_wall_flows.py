@@ -138,15 +138,17 @@ def test_hydrostatic_tank_stays_at_rest(tmp_path, model):
 
 @pytest.mark.parametrize("model", ["clone", "ghost"])
 def test_the_tanks_free_surface_is_its_top_only(tmp_path, model):
-    """The hydrostatic tank's free-surface detection, which the tensile switch (on here) reads, off in the region:
-    surface particles only in the top row and the region within a kernel support below it, with clone
-    walls and with ghost walls, whose images complete the support in lambda. Without them the fluid along
-    the ghost walls and the floor was taken for a surface, and the tensile switch was off there."""
+    """The hydrostatic tank's free-surface detection (dx = 0.05), which the tensile switch (on here) and the
+    diffusion switch (lambda_diffusion = 0.2) read: surface particles only in the top row and the region
+    within a kernel support below it, with clone walls and with ghost walls, whose images complete the
+    support in lambda. Without them the fluid along the ghost walls and the floor was taken for a surface
+    (116 surface particles instead of 40), the tensile switch was off there, and the diffusion switch was
+    refused with ghost walls."""
     from psph.compute.free_surface import SURFACE
     from psph.drivers.fluid import FluidDriver
 
     scene = load_scene(CASES / "hydrostatic_tank.toml", ["domain.dx=0.05", "physics.tensile_switch=true",
-                                                          *walls(model)])
+                                                          "free_surface.lambda_diffusion=0.2", *walls(model)])
     driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path, log=lambda message: None)
     driver.scheme.detect_surface(driver.system)
     p = driver.system.particles
@@ -155,7 +157,9 @@ def test_the_tanks_free_surface_is_its_top_only(tmp_path, model):
     top, dx = y.max(), scene.domain.dx
     assert np.count_nonzero(flag == SURFACE) == np.count_nonzero(y > top - 0.5 * dx)
     assert y[flag > 0].min() > top - scene.domain.support - dx
-    assert driver.scheme.tensile_rows(driver.system)[:p.n_owned][fluid & (p.owned("position")[:, 1] < 0.5)].all()
+    deep = fluid & (p.owned("position")[:, 1] < 0.5)
+    assert driver.scheme.tensile_rows(driver.system)[:p.n_owned][deep].all()
+    assert driver.scheme.diffusion_rows(driver.system)[:p.n_owned][deep].all()
 
 
 @pytest.mark.parametrize("model", ["clone", "ghost"])

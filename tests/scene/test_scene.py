@@ -359,8 +359,7 @@ def test_packing_is_accepted_with_clone_walls_and_a_free_surface():
     ("dam_break", ["physics.artificial_viscosity=-0.1"], "physics.artificial_viscosity", ">= 0"),
     ("dam_break", ["physics.gravity=[-1.0]"], "diagnostics.dam_break", "gravity along -y"),
     ("dam_break", ["initial.fill_upper=[5.36, 1.0]"], "diagnostics.dam_break", "short of the domain"),
-    ("dam_break", ["shifting.method=none", "bodies.0.model=ghost"], "bodies[0].model",
-     "free_surface.lambda_diffusion with a free surface"),
+    ("dam_break", ["bodies.0.model=ghost"], "bodies[0].model", "shifting with a free surface"),
 ])
 def test_dam_break_keys_are_refused_where_they_do_not_apply(scene, sets, key, words):
     with pytest.raises(SceneError) as info:
