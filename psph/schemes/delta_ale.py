@@ -72,10 +72,10 @@ class DeltaALE:
             from psph.boundaries.clone import WallTerms
 
             self.walls = WallTerms(scene)
-            if self.walls.ghost is not None:  # the detection sees the fluid along them with its images
-                for surface in (self.surface, self.step_surface):
-                    if isinstance(surface, FreeSurface):
-                        surface.ghost_walls = self.walls
+            # with ghost walls the scene has no shifting near a free surface (schema): only the switches'
+            # detection runs, and it sees the fluid along them with their images
+            if self.walls.ghost is not None and self.step_surface is not None:
+                self.step_surface.ghost_walls = self.walls
 
     # ------------------------------------------------------------ description
     def describe(self) -> list:
