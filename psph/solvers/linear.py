@@ -6,14 +6,21 @@ After each solve the converged reason is checked; a divergence raises SolverErro
 and the iteration count.
 """
 
+import re
 from contextlib import contextmanager
 
 import numpy as np
 from mpi4py import MPI
 
-from psph.errors import PsphError, SolverError
+from psph.errors import PsphError, SolverError, UsageError
 from psph.profiling import phase
 from psph.solvers.petsc import petsc
+
+
+# PETSc's error codes an option can cause (petscerror.h): PETSC_ERR_SUP, _ARG_WRONG, _ARG_OUTOFRANGE,
+# _ARG_INCOMP, _USER (hypre's unknown option values), _ARG_UNKNOWN_TYPE
+OPTION_ERRORS = (56, 62, 63, 75, 83, 86)
+TRACE = re.compile(r"\w+\(\) at ")
 
 
 @contextmanager
@@ -26,10 +33,14 @@ def petsc_errors(what: str):
     try:
         yield
     except PETSc.Error as exc:
-        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
-        detail = next((ln.split("]", 1)[-1].strip() for ln in lines if "No " in ln or "Unknown" in ln
-                       or "not" in ln.lower()), lines[-1] if lines else "")
-        err = PsphError(f"PETSc failed in {what} (error {exc.ierr}): {detail}; check the command-line PETSc options")
+        # PETSc's text: "error code N", then "[rank] Function() at file:line" frames and its messages
+        lines = [ln.split("]", 1)[-1].strip() for ln in str(exc).splitlines()[1:]]
+        messages = [ln.split(": https:", 1)[0] for ln in lines if ln and not TRACE.match(ln)]
+        detail = "; ".join(messages) or str(exc).strip()
+        # an unsupported, unknown, wrong, out-of-range or incompatible option is bad input (exit 2); any other
+        # PETSc error (memory, a library, a bug) exits 1
+        kind = UsageError if exc.ierr in OPTION_ERRORS else PsphError
+        err = kind(f"PETSc failed in {what} (error {exc.ierr}): {detail}; check the command-line PETSc options")
         err.collective = True
         raise err from None
 

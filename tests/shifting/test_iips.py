@@ -189,6 +189,20 @@ def test_command_line_options_reach_the_solver():
     assert default.getTolerances()[0] == 1e-2
 
 
+@pytest.mark.parametrize("options,expect", [
+    ({"iips_pc_type": "nonexistent"}, r"\(error 86\).*Unable to find requested PC type nonexistent"),
+    ({"iips_pc_type": "hypre", "iips_pc_hypre_type": "foo"}, r"\(error 83\): Unknown option foo"),
+    ({"iips_pc_type": "gamg", "iips_mat_type": "baij"}, r"\(error 56\).*seqbaij")])
+def test_a_bad_petsc_option_is_a_usage_error_that_names_it(options, expect):
+    """An unknown type, an unknown option value or an unsupported combination (GAMG on BAIJ, found at the
+    first solve) is bad input: UsageError (exit 2) with PETSc's messages on one line, without its frames."""
+    scene = periodic_scene(n=10, sigma=0.1, iips={"max_newton": 1})
+    with petsc_options(**options), pytest.raises(UsageError, match=expect) as caught:
+        run_iips(scene)
+    message = str(caught.value)
+    assert "\n" not in message and "() at " not in message and "https:" not in message
+
+
 @pytest.mark.parametrize("pc", ["jacobi", "sor"])
 def test_a_baij_matrix_gives_the_iterates_of_aij(pc):
     """-iips_mat_type baij (values written in place, column-major blocks) is the same operator: the same
