@@ -168,6 +168,13 @@ def _scene_and_restart(args, comm):
             if not item.startswith(RESTART_KEYS):
                 raise UsageError(f"--set {item!r}: a restart may change only time.*, output.* and neighbours.* keys")
         restart = read_checkpoint(comm, args.restart)
+        try:  # the checkpoint's own scene first: an error there is the file's, not an override's
+            saved = scene_from_table(restart[0]["scene"])
+        except SceneError as err:
+            raise UsageError(f"cannot restart from {args.restart!r}: its scene: {err}") from None
+        if driver_for(saved) is StaticDriver:
+            raise UsageError(f"cannot restart from {args.restart!r}: its scene is a static run (physics.scheme = "
+                             "'none'), which writes no checkpoints")
         scene = scene_from_table(apply_overrides(restart[0]["scene"], sets))
     elif args.scene:
         scene = load_scene(args.scene, sets)
@@ -178,11 +185,25 @@ def _scene_and_restart(args, comm):
         key = "output.checkpoint_every" if out.checkpoint_every else "output.checkpoint_minutes"
         raise SceneError(key, "checkpoints are written by time-dependent runs (flow, kinematic), not static "
                               "ones (physics.scheme = 'none')")
+    if restart is not None:
+        state = restart[0]
+        if state["time"] >= scene.time.t_end * (1.0 - 1e-12):  # the drivers' end test: nothing would be run
+            raise SceneError("time.t_end", f"{scene.time.t_end:g} is not after the checkpoint's time "
+                                           f"{state['time']:.6g} (step {state['step']}): nothing to continue")
     return scene, restart
+
+
+def _start_log(path, line: str) -> None:
+    """Append the run's first line to its log file `path`, or raise OSError (a log that cannot be written
+    is refused before any work, rather than lost in silence: /dev/full, a missing directory)."""
+    with open(path, "a") as f:
+        f.write(line + "\n")
+        f.flush()  # where the write fails (ENOSPC on /dev/full)
 
 
 def cmd_run(args, petsc_options, comm) -> int:
     from psph.drivers import driver_for
+    from psph.io.checkpoint import results_after
     from psph.io.files import clear_results, holds_results
     from psph.simulation import check_resources
     from psph.solvers.petsc import initialize
@@ -196,22 +217,58 @@ def cmd_run(args, petsc_options, comm) -> int:
         raise UsageError(f"output directory {out!r} already holds results; choose another --out or pass --overwrite")
     if os.path.exists(out) and not os.path.isdir(out):
         raise UsageError(f"output path {out!r} exists and is not a directory")
+    later = []  # an in-place continuation: what the directory holds past the checkpoint, replaced
+    if continuing:
+        final, later = comm.bcast(results_after(out, restart[0]) if comm.rank == 0 else None, root=0)
+        if final and not args.overwrite:
+            state = restart[0]
+            raise UsageError(f"output directory {out!r} holds results past the checkpoint's t = {state['time']:.6g} "
+                             f"(step {state['step']}): {', '.join(os.path.basename(p) for p in final)}; continuing "
+                             "there replaces them: pass --overwrite to do so, or choose another --out")
+        later = final + later
     initialize(petsc_options)
+    if scene.shifting.method == "iips" or scene.iips.pre_newton > 0:
+        from psph.shifting.iips import ImplicitShifting
+
+        ImplicitShifting(scene.iips, comm).destroy()  # a bad -iips_ option stops the run before --overwrite clears
+    log_path = os.path.abspath(args.log) if args.log else os.path.join(out, "psph.log")
+    first = (f"psph: running scene {scene.name!r} on {comm.size} rank(s)"
+             + (f", continuing {args.restart}" if restart else "") + f" ({' '.join(sys.argv[1:]) or 'run'})")
     failure = None
     if comm.rank == 0:
+        try:  # a log the user named is checked first: refused, it leaves everything else untouched
+            if args.log:
+                _start_log(log_path, first)
+        except OSError as err:
+            failure = f"--log {args.log!r}: {err.strerror or err}"
         try:
-            if args.overwrite and not continuing:
-                clear_results(out)
-            os.makedirs(out, exist_ok=True)
+            if failure is None:
+                if args.overwrite and not continuing:
+                    clear_results(out, keep=[log_path] if args.log else [])
+                os.makedirs(out, exist_ok=True)
         except OSError as err:  # every rank stops with it, none waits for rank 0
             failure = f"output directory {out!r}: {err.strerror or err}"
+        try:
+            if failure is None:
+                for path in later:  # before the log line that tells of it
+                    os.unlink(path)
+                if not args.log:
+                    _start_log(log_path, first)
+        except OSError as err:
+            failure = f"{err.filename or log_path!r}: {err.strerror or err}"
     failure = comm.bcast(failure, root=0)
     if failure:
         raise UsageError(failure)
-    _LOG["path"] = os.path.abspath(args.log) if args.log else os.path.join(out, "psph.log")
+    _LOG["path"] = log_path
     log = _say(comm, args.quiet)
-    log(f"psph: running scene {scene.name!r} on {comm.size} rank(s)"
-        + (f", continuing {args.restart}" if restart else "") + f" ({' '.join(sys.argv[1:]) or 'run'})")
+    if comm.rank == 0 and not args.quiet:
+        print(first, flush=True)
+    if later:
+        log(f"psph: removed what {out} held past the checkpoint, which the continuation replaces: "
+            + ", ".join(os.path.basename(p) for p in later))
+    elif restart and not continuing:
+        log(f"psph: {os.path.join(out, 'psph.xdmf')} lists the snapshots from the checkpoint on; the earlier ones "
+            f"are in {os.path.dirname(os.path.abspath(args.restart))}")
     kwargs = {"restart": restart} if restart else {}  # static runs write no checkpoints
     stop.install(comm)
     try:
@@ -223,7 +280,25 @@ def cmd_run(args, petsc_options, comm) -> int:
         log(f"psph: {signal.Signals(late).name} came as the run ended: it is complete")
     log(f"psph: {summary['n_particles']} particles, {summary['steps']} steps, "
         f"{summary['wall_time_s']:.2f} s; results in {out}")
+    _warn_unused_options(comm)
     return 0
+
+
+# PETSc options read only when PETSc finalises, after psph's check
+AT_FINALIZE = ("-options_left", "-options_view", "-malloc_dump", "-memory_view", "-objects_dump")
+
+
+def _warn_unused_options(comm) -> None:
+    """Warn (stderr and the log) about command-line PETSc options that nothing read: a misspelling
+    (-iips_ksp_rtoll) or an option of a solver the scene does not have (-iips_* without IIPS)."""
+    from psph.solvers.petsc import unused_options
+
+    unused = [o for o in unused_options() if not o.startswith(AT_FINALIZE)]
+    if unused and comm.rank == 0:
+        line = (f"psph: warning: PETSc options that nothing read: {', '.join(unused)} (misspelt, or for a solver "
+                "this scene does not have)")
+        print(line, file=sys.stderr, flush=True)
+        _append_log(line)
 
 
 def cmd_keys(args, petsc_options, comm) -> int:
@@ -258,7 +333,8 @@ def main(argv=None) -> int:
         args = _parser().parse_args(ours)
         return COMMANDS[args.command](args, petsc_options, comm)
     except PsphError as err:
-        collective = isinstance(err, (SceneError, UsageError)) or getattr(err, "collective", False)
+        # scene and usage errors are found on every rank, unless the error says otherwise
+        collective = getattr(err, "collective", isinstance(err, (SceneError, UsageError)))
         if comm.size == 1 or collective:
             if comm.rank == 0:
                 line = f"psph: {err}" if isinstance(err, stop.Stopped) else f"psph: error: {err}"

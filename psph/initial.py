@@ -4,6 +4,8 @@ import numpy as np
 
 from psph.analytic import EllipticalDrop, taylor_green
 from psph.compute.random import gaussian_by_gid
+from psph.errors import SceneError
+from psph.parallel.comm import allreduce_max, allreduce_sum
 from psph.particles import FieldSpec, Kind, ParticleSet
 
 
@@ -90,6 +92,12 @@ def create_particles(scene, comm, specs=()) -> ParticleSet:
     gid, pos = lattice_block(dspec, comm.rank, comm.size)
     keep = fluid_mask(scene, pos)
     gid, pos = gid[keep], pos[keep]
+    if not scene.inflow and not allreduce_sum(comm, len(gid)):  # (a jet may start empty: its buffer fills it)
+        ini = scene.initial
+        key = ("initial.drop_radius" if ini.drop_radius > 0 else "initial.fill_upper" if ini.fill_upper else
+               "initial.fill_lower" if ini.fill_lower else "domain.dx")
+        raise SceneError(key, f"no lattice node of dx = {dspec.dx:g} lies in the fluid's region (the fill region or "
+                         "drop, outside the bodies): no fluid particle")
     perturb(gid, pos, scene.initial.sigma_over_dx * dspec.dx, scene.initial.seed)
     fields = initial_fields(scene, pos)
     for name in fields:
@@ -101,7 +109,6 @@ def create_particles(scene, comm, specs=()) -> ParticleSet:
         particles.append_owned(solids)  # pressure 0 in the solids (their own is mirrored from the fluid)
     if scene.inflow:
         from psph.boundaries.open import initial_inflow_particles
-        from psph.parallel.comm import allreduce_max
 
         last = int(particles.owned("gid").max()) if particles.n_owned else -1
         inflow = initial_inflow_particles(scene, comm, int(allreduce_max(comm, last)) + 1)

@@ -45,7 +45,10 @@ class Simulation:
     """A scene set up on a communicator with its output directory. Drivers advance it.
 
     restart: (state, particles, decomposition) from io.checkpoint.read_checkpoint: the particles, the
-    history rows and the snapshot index continue from the checkpoint."""
+    history rows and the snapshot index continue from the checkpoint; history.csv and psph.xdmf are
+    rewritten from them at once (an earlier run's later rows and snapshots never sit beside the
+    continuation's), and the continued run's checkpoints in `out_dir` up to it are replaced by the first
+    checkpoint written (no other file is removed)."""
 
     def __init__(self, scene, comm, out_dir, *, specs=(), halo_fields=BASE_HALO_FIELDS, log=None, restart=None,
                  progress=False):
@@ -64,10 +67,16 @@ class Simulation:
         self.snapshots = SnapshotWriter(self.comm, self.out_dir, self.system.domain)
         self.history = History(self.comm, self.out_dir)
         self.n_particles = self.system.n_global
+        self.replaced_checkpoints = []  # rank 0: what the next checkpoint replaces (this run's own)
         if state is not None:
+            from psph.io.checkpoint import checkpoints_up_to
+
             self.system.rebuilds = state["rebuilds"]
             self.history.restore(state["history"])
+            self.history.flush()
             self.snapshots.restore(state["snapshots"])
+            if self.comm.rank == 0:
+                self.replaced_checkpoints = checkpoints_up_to(self.out_dir, state["step"])
 
     # ------------------------------------------------------------ checkpoints
     def checkpoint_due(self, step, last_wall) -> bool:
@@ -89,7 +98,8 @@ class Simulation:
         self.system.rebuild(rebalance=False)
         path = write_checkpoint(self.comm, self.out_dir, self.system, step, t, {
             "scene": to_table(self.scene), "driver": driver, "history": self.history.rows,
-            "snapshots": self.snapshots.checkpoint_state()})
+            "snapshots": self.snapshots.checkpoint_state()}, replaces=self.replaced_checkpoints)
+        self.replaced_checkpoints = [path]
         self.log(f"step {step}, t = {t:.4g}: checkpoint {path.name}")
         return path
 

@@ -54,6 +54,7 @@ class ParticleSystem:
         self.nbr_idx = np.zeros(0, dtype=np.int64)
         self.rebuilds = 0
         self._reference = None
+        self.where = {}  # the driver's step and time, for the reports of check_escaped
         self.rebuild(rebalance=decomposition is None)
 
     # ----------------------------------------------------------------- layout
@@ -151,14 +152,19 @@ class ParticleSystem:
             halo_exchange(self.comm, self.particles, self.pattern, list(names))
 
     def check_escaped(self) -> None:
-        """Stop all ranks if an owned particle left the box along a non-periodic axis. Collective."""
+        """Stop all ranks if an owned particle left the box along a non-periodic axis or has a non-finite
+        position (which no neighbour search can place), naming the count over all ranks, the first such
+        particle and the driver's step and time (self.where). Collective."""
         pos = self.particles.owned("position")
-        out = np.flatnonzero(self.domain.outside(pos))
+        broken = ~np.isfinite(pos).all(axis=1)
+        out = np.flatnonzero(self.domain.outside(pos) | broken)
+        counts = allreduce_sum(self.comm, np.array([len(out), np.count_nonzero(broken)]))
         error = None
         if len(out):
             k = out[0]
-            error = NumericalError(f"{len(out)} particle(s) left the domain",
-                                   gid=int(self.particles.owned("gid")[k]), position=pos[k])
+            what = (f"{counts[1]} particle(s) with a non-finite position" if broken[k] else
+                    f"{counts[0]} particle(s) left the domain")
+            error = NumericalError(what, gid=int(self.particles.owned("gid")[k]), position=pos[k], **self.where)
         raise_if_any(self.comm, error)
 
     def separate_coincident(self, tolerance: float, offset: float) -> int:

@@ -164,3 +164,30 @@ def test_an_output_directory_that_cannot_be_made_is_one_line(tmp_path):
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("psph: error: output directory") and "Not a directory" in lines[0]
     assert (tmp_path / "file").read_text() == "mine"
+
+
+def test_petsc_options_that_nothing_read_are_named_in_a_warning(tmp_path):
+    """A misspelt option (-iips_ksp_rtoll) or one for a solver the scene lacks ran silently on defaults."""
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "a", "--quiet", "--set",
+                   "domain.dx=0.1", "--set", "shifting.method=iips", "-iips_ksp_rtoll", "1e-3",
+                   "-iips_ksp_type", "gmres")
+    assert res.returncode == 0, res.stderr
+    assert "PETSc options that nothing read: -iips_ksp_rtoll 1e-3 (misspelt" in res.stderr
+    assert "gmres" not in res.stderr  # read: not named
+    assert "-iips_ksp_rtoll" in (tmp_path / "a" / "psph.log").read_text()
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "b", "--quiet", "--set",
+                   "domain.dx=0.1", "-iips_pc_type", "hypre")  # no IIPS in this scene
+    assert res.returncode == 0 and "nothing read: -iips_pc_type hypre" in res.stderr, res.stderr
+
+
+def test_a_bad_iips_option_keeps_the_results_overwrite_would_replace(tmp_path):
+    """--overwrite cleared the directory before the solver read its options: a misspelt preconditioner
+    lost the previous run. The -iips_ options are now checked first."""
+    out = tmp_path / "out"
+    base = ["run", CASES / "static_perturbed.toml", "--out", out, "--quiet", "--set", "domain.dx=0.1", "--set",
+            "shifting.method=iips"]
+    assert run_psph(*base).returncode == 0
+    before = sorted(p.name for p in out.iterdir())
+    res = run_psph(*base, "--overwrite", "-iips_pc_type", "nonexistent")
+    assert res.returncode == 2 and "Unable to find requested PC type nonexistent" in res.stderr, res.stderr
+    assert sorted(p.name for p in out.iterdir()) == before and (out / "summary.json").exists()

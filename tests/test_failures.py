@@ -5,6 +5,7 @@ import sys
 import textwrap
 import time
 
+import numpy as np
 import pytest
 
 from tests.helpers import CASES, ROOT, mpi_environment
@@ -43,3 +44,45 @@ def test_failure_on_rank_1_of_3_ends_the_job_within_seconds(tmp_path, kind, word
     assert proc.returncode != 0
     assert words in proc.stderr and "rank 1" in proc.stderr, proc.stderr
     assert elapsed < 60, elapsed  # start-up (imports, numba cache, PETSc) is most of it
+
+
+def test_a_petsc_option_file_only_rank_0_opens_ends_every_rank_with_exit_2(tmp_path):
+    """-iips_ksp_monitor ascii:PATH is opened by rank 0 alone: a bad PATH fails there only. The error is bad
+    input (exit 2) and the job ends at once; when it was taken for an error of every rank, rank 0 left alone
+    and rank 1 waited in a collective until killed."""
+    from tests.helpers import run_psph
+
+    start = time.monotonic()
+    proc = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "out", "--quiet",
+                    "--set", "shifting.method=iips", "--set", "domain.dx=0.1",
+                    "-iips_ksp_monitor", f"ascii:{tmp_path}/missing/monitor.txt", ranks=2, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert "Cannot open PetscViewer file" in proc.stderr and "rank 0" in proc.stderr, proc.stderr
+    assert time.monotonic() - start < 60
+
+
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_escaped_particles_are_counted_over_every_rank_with_step_and_time(tmp_path, ranks):
+    """The cavity without its walls: its corner particles leave the box in the first step. The report
+    names the step and time and counts the escaped particles of every rank (one rank's count before)."""
+    from tests.helpers import run_psph
+
+    proc = run_psph("run", CASES / "lid_driven_cavity.toml", "--out", tmp_path / "out", "--quiet",
+                    "--set", "domain.dx=0.1", "--set", "time.t_end=0.05", "--set", "bodies=[]", ranks=ranks)
+    assert proc.returncode == 3, proc.stderr
+    assert "36 particle(s) left the domain [step 1, t = 0, particle gid" in proc.stderr, proc.stderr
+
+
+def test_a_non_finite_position_stops_before_the_neighbour_search(tmp_path):
+    """A NaN position is outside no box: it reached the neighbour search, which never returned."""
+    from mpi4py import MPI
+
+    from psph.errors import NumericalError
+    from psph.scene.load import load_scene
+    from psph.simulation import build_system
+
+    system = build_system(load_scene(CASES / "taylor_green.toml", ["domain.dx=0.1"]), MPI.COMM_SELF)
+    system.particles.owned("position")[3] = np.nan
+    system.where = {"step": 7, "time": 0.5}
+    with pytest.raises(NumericalError, match=r"1 particle\(s\) with a non-finite position \[step 7, t = 0.5"):
+        system.rebuild()

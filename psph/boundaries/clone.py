@@ -173,8 +173,9 @@ class WallTerms:
         self.torque[:] = 0.0
         du = p["shift_velocity"] if scheme.shift.active else p["velocity"]
         switch = scheme.tensile_rows(system)
+        no_pull = scheme.no_pull_rows(system)
         if self.clones:
-            self._add_clones(system, scheme, t, du, eos_b, switch, d_rho, d_mom)
+            self._add_clones(system, scheme, t, du, eos_b, switch, no_pull, d_rho, d_mom)
         if self.ghost is not None:
             rows, images = self._ghost_images(system)
             w = self.ghost
@@ -183,7 +184,7 @@ class WallTerms:
                       scheme.rho0, eos_b, GAMMA, scheme.mu, scheme.morris, self.gravity, scheme.variant,
                       scheme.shift.active, switch, d_rho, d_mom)
 
-    def _add_clones(self, system, scheme, t, du, eos_b, switch, d_rho, d_mom):
+    def _add_clones(self, system, scheme, t, du, eos_b, switch, no_pull, d_rho, d_mom):
         p = system.particles
         rows = near_wall_rows(p["kind"], system.nbr_ptr, system.nbr_idx)
         n_i, s_i, _ = self.nearest_node_data(system, rows, t)
@@ -192,7 +193,7 @@ class WallTerms:
                   self.no_slip,
                   system.nbr_ptr, system.nbr_idx, system.kernel.params, scheme.c0, scheme.rho0, eos_b, GAMMA,
                   scheme.mu, scheme.morris, self.gravity, self.ds, scheme.variant, scheme.shift.active,
-                  switch, self.centers, d_rho, d_mom, self.force, self.torque, self.particle_force)
+                  switch, no_pull, self.centers, d_rho, d_mom, self.force, self.torque, self.particle_force)
 
     def _ghost_images(self, system):
         """Owned fluid rows within a support of a ghost wall and the images they see."""

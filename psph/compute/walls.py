@@ -143,7 +143,7 @@ def near_wall_rows(kind, ptr, idx):
 @njit(cache=True)
 def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel, wall_vel, rows, n_i_all, s_i_all,
               no_slip, ptr, idx, kp, c0, rho0, eos_b, eos_gamma, mu, morris, gravity, ds_min, variant,
-              with_shift, tensile_switch, centers, d_rho, d_mom, force, torque, particle_force):
+              with_shift, tensile_switch, no_pull, centers, d_rho, d_mom, force, torque, particle_force):
     """Add the solid neighbours' contributions to the owned fluid `rows` (2-D).
 
     n_i_all, s_i_all: the closest body node's normal and distance, per entry of rows; wall_vel: the velocity
@@ -152,6 +152,10 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
     no_slip: per body; eos_b > 0 selects Tait (p = eos_b ((rho/rho0)^gamma - 1)), else linear.
     tensile_switch: per particle, 1 where p_j - p_i replaces p_j + p_i in its pressure force when p_i < 0
     (eq. 3; 0 in the free-surface region and where the switch is off).
+    no_pull: per particle, 1 where the wall may not pull the particle (the free-surface region without
+    physics.wall_adhesion): where eq. 8-9 extended to the wall, p_i - s_i rho_i (g - a_j) . n, is negative,
+    the fluid would need the wall to pull it to stay in contact, and the solid neighbour's pressure is
+    taken as max(p_j, 0). A resting contact keeps eq. 8-9 (the wall's pressure is positive there).
     force: (n_bodies, 2, 2) pressure and viscous force of the fluid on each body; torque: (n_bodies, 2), about
     centers, each pair's force applied at the solid particle's wall node x_j - s_j n_j; particle_force: (n_owned,
     2), each fluid row's pressure force on the solids (zero for the other rows), for the wall's load along it.
@@ -166,6 +170,7 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
         ui0, ui1 = vel[i, 0], vel[i, 1]
         rho_i, p_i, v_i = rho[i], prs[i], vol[i]
         switch = tensile_switch[i] != 0 and p_i < 0.0
+        pull_free = no_pull[i] != 0
         di0 = du[i, 0] if with_shift else 0.0
         di1 = du[i, 1] if with_shift else 0.0
         # eq. 5 (sign corrected): is the particle behind some solid particle's wall?
@@ -208,7 +213,10 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
             else:
                 ul0, ul1 = ui0, ui1
             # pressure (eq. 8-9)
-            p_j = p_i + rho_i * ((g0 - accel[j, 0]) * (pos[j, 0] - xi0) + (g1 - accel[j, 1]) * (pos[j, 1] - xi1))
+            b0, b1 = g0 - accel[j, 0], g1 - accel[j, 1]  # eq. 9's f_j - a_j
+            p_j = p_i + rho_i * (b0 * (pos[j, 0] - xi0) + b1 * (pos[j, 1] - xi1))
+            if pull_free and p_j < 0.0 and p_i - si * rho_i * (b0 * n0 + b1 * n1) < 0.0:
+                p_j = 0.0  # the wall would pull: no contact pressure below zero
             # shifting velocity: du . n = 0 on the wall
             dn = di0 * n0 + di1 * n1
             dt = di0 * t0 + di1 * t1

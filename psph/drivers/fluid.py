@@ -304,6 +304,7 @@ class FluidDriver:
         """One time step of size dt from state (step, time): integrate, shift, check. Collective."""
         sim, system = self.sim, self.system
         t = state["time"]
+        system.where = {"step": state["step"] + 1, "time": t}
         with phase("fluid_step"):
             system.prepare_step(self.reach * dt * vmax)
             self.scheme.detect_surface(system)  # the step's flags, for the shifting law and the tensile switch

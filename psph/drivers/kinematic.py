@@ -97,6 +97,7 @@ class KinematicDriver:
             last_checkpoint = time.monotonic()
             for step in range(state["step"] + 1, self.n_steps + 1):
                 state["step"] = step
+                system.where = {"step": step, "time": state["time"]}
                 start = time.perf_counter()
                 with phase("shifting"):
                     shift = self.shifting.correct(system, step=step, time=state["time"])

@@ -44,6 +44,8 @@ class StaticDriver:
         elapsed = {"shifting_time_s": 0.0, "linear_iterations": 0}
         sim.history.append({"time": 0.0, "iteration": 0, **report, "L2_dfdx_cartesian": reference,
                             "ksp_iterations": 0, "linear_iterations": 0, "shifting_time_s": 0.0})
+        # a snapshot's time is its iteration: ParaView steps through them (two at time 0 read as one time step,
+        # whose data it cannot show)
         sim.snapshots.write(system.particles, step=0, time=0.0, extra={"grad_c": grad_c(system)})
         sim.log(f"iteration 0: L2(grad C) = {report['L2_grad_c']:.4e}, L2(df/dx) = {report['L2_dfdx']:.4e} "
                 f"(Cartesian {reference:.4e})")
@@ -62,13 +64,14 @@ class StaticDriver:
             stopped.append(sim.stop_requested())
             return stopped[-1] or (stop_ratio > 0 and report["L2_dfdx"] <= stop_ratio * reference)
 
-        with sim.diagnose_failures(lambda: (len(sim.history.rows), 0.0)):
-            result = self.shifting.correct(system, on_iteration, iterations=scene.shifting.max_iterations, step=0)
+        with sim.diagnose_failures(lambda: (len(sim.history.rows), float(len(sim.history.rows)))):
+            result = self.shifting.correct(system, on_iteration, iterations=scene.shifting.max_iterations)
         iterations = len(sim.history.rows) - 1  # an iteration iips.backtrack undid has no row, nor a state
         if result.message:
             sim.log(result.message)
         if iterations:
-            path = sim.snapshots.write(system.particles, step=iterations, time=0.0, extra={"grad_c": grad_c(system)})
+            path = sim.snapshots.write(system.particles, step=iterations, time=float(iterations),
+                                       extra={"grad_c": grad_c(system)})
             if stopped and stopped[-1]:  # (a failed first iteration reports none)
                 sim.stop(f"the state after iteration {iterations} is in {path} (static runs write no checkpoint)")
         return sim.summary(steps=iterations, final={**report, "L2_dfdx_cartesian": reference},

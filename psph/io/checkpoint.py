@@ -7,8 +7,9 @@
                                snapshot index, field specs, rank counts, the decomposition
         attrs: format, step, time
 
-Written to a temporary name, fsynced and renamed; older checkpoints are removed only once the new one
-is complete, so a run killed at any moment leaves its last complete checkpoint. A restart on the same
+Written to a temporary name, fsynced and renamed; the run's previous checkpoint (or, on a restart, the
+continued run's ones up to the restart) is removed only once the new one is complete, so a run killed at
+any moment leaves its last complete checkpoint; no other file is ever removed. A restart on the same
 number of ranks puts every particle back on its rank in its order, with the saved decomposition, and
 continues bit for bit; on another number of ranks the rows are split evenly and rebalanced (results then
 agree to round-off, or to solver tolerance with IIPS). There is no random state to save: the only random
@@ -23,7 +24,7 @@ import numpy as np
 
 from psph.errors import UsageError
 from psph.io.files import jsonable, replace_atomically
-from psph.io.snapshots import h5py, write_particle_file
+from psph.io.snapshots import SNAPSHOT_NAME, h5py, write_particle_file
 from psph.parallel.comm import allreduce_sum, exclusive_scan
 from psph.parallel.decomposition import Decomposition, Split
 from psph.parallel.ordering import block_range
@@ -49,8 +50,9 @@ def _decomposition(table: dict) -> Decomposition:
                                      for lo, hi in table["boxes"]))
 
 
-def write_checkpoint(comm, out_dir, system, step: int, time: float, state: dict) -> Path:
-    """Write the owned particles of `system` and the driver's `state` (JSON-able). Collective."""
+def write_checkpoint(comm, out_dir, system, step: int, time: float, state: dict, replaces=()) -> Path:
+    """Write the owned particles of `system` and the driver's `state` (JSON-able), then remove the
+    checkpoints `replaces` (rank 0's list: the run's own earlier ones), and no other file. Collective."""
     p = system.particles
     counts = comm.allgather(p.n_owned)
     table = dict(state, format=FORMAT, step=int(step), time=float(time), rank_counts=counts,
@@ -67,42 +69,118 @@ def write_checkpoint(comm, out_dir, system, step: int, time: float, state: dict)
     comm.Barrier()
     if comm.rank == 0:
         replace_atomically(tmp, path)
-        for old in _checkpoints(out_dir):
-            if old != path:
-                old.unlink()
+        for old in replaces:
+            if Path(old) != path:
+                Path(old).unlink(missing_ok=True)
     comm.Barrier()
     return path
+
+
+# what every checkpoint's state holds (write_checkpoint and Simulation.checkpoint), and what the drivers'
+# checkpoint() methods add under "driver" and read back on a restart (FluidDriver, KinematicDriver)
+STATE_KEYS = {"scene": dict, "step": int, "time": float, "rank_counts": list, "rebuilds": int,
+              "decomposition": dict, "fields": dict, "history": list, "snapshots": list, "driver": dict}
+DRIVER_KEYS = ("step", "time", "totals", "next_output")
+KINEMATIC_DRIVER_KEYS = ("report", "pre", "shifting")
+FLUID_DRIVER_KEYS = ("first_dt", "initial_volume", "iips")
+
+
+def _check_state(state) -> None:
+    """Raise ValueError naming the first key of a checkpoint's state that is missing or of the wrong type."""
+    if not isinstance(state, dict):
+        raise ValueError("its state is not a table")
+    for key, kind in STATE_KEYS.items():
+        if key not in state:
+            raise ValueError(f"its state lacks {key!r}")
+        value = state[key]
+        ok = (isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)
+              if kind is float else isinstance(value, kind) and not isinstance(value, bool))
+        if not ok:
+            raise ValueError(f"its state's {key!r} is not {'a finite number' if kind is float else kind.__name__}")
+    physics = state["scene"].get("physics")
+    scheme = physics.get("scheme") if isinstance(physics, dict) else None
+    extra = KINEMATIC_DRIVER_KEYS if scheme == "kinematic" else FLUID_DRIVER_KEYS
+    for key in DRIVER_KEYS + extra:
+        if key not in state["driver"]:
+            raise ValueError(f"its state's 'driver' lacks {key!r}")
+    counts = state["rank_counts"]
+    if not counts or not all(isinstance(c, int) and c >= 0 for c in counts):
+        raise ValueError("its state's 'rank_counts' are not counts of particles")
+    if not all(isinstance(row, dict) and "time" in row for row in state["history"]):
+        raise ValueError("its state's 'history' has a row without a time")
+    if not all(isinstance(entry, list) and len(entry) == 5 for entry in state["snapshots"]):
+        raise ValueError("its state's 'snapshots' index is malformed")
+    for name in ("position", "gid"):
+        if name not in state["fields"]:
+            raise ValueError(f"its state lists no field {name!r}")
+
+
+def _read_rows(f, state, name, start, stop, dim) -> np.ndarray:
+    """Rows [start, stop) of /particles/<name>, checked against the state's field list: shape, type, and
+    (floating fields) finite values; ValueError names the field otherwise."""
+    shape, dtype = state["fields"][name]
+    dtype = np.dtype(dtype)
+    total = int(sum(state["rank_counts"]))
+    tail = tuple(dim if s == "d" else int(s) for s in shape)
+    if "particles" not in f or name not in f["particles"]:
+        raise ValueError(f"it has no dataset particles/{name}")
+    ds = f["particles"][name]
+    if ds.shape != (total,) + tail:
+        raise ValueError(f"particles/{name} has shape {ds.shape}, expected {(total,) + tail}")
+    if ds.dtype != dtype:
+        raise ValueError(f"particles/{name} holds {ds.dtype}, expected {dtype}")
+    rows = ds[start:stop]
+    if dtype.kind in "fc":
+        bad = ~np.isfinite(rows)
+        if bad.any():
+            row = int(np.argwhere(bad)[0][0])
+            raise ValueError(f"particles/{name} holds a non-finite value ({rows[row][bad[row]].flat[0]} in "
+                             f"row {start + row})")
+    return rows
 
 
 def read_checkpoint(comm, path) -> tuple:
     """(state, this rank's ParticleSet, saved Decomposition or None). On as many ranks as wrote it, every
     rank gets back its own rows in their order and the decomposition; otherwise an even split and None.
-    Raises UsageError for a missing, incomplete or foreign file. Collective."""
+    Raises UsageError (one line naming the file and what is wrong, on every rank) for a missing,
+    incomplete, foreign or inconsistent file: a state key missing, a field of the wrong shape or type, a
+    non-finite value in a floating field (a NaN position would stall the neighbour search). Collective."""
     path = Path(path)
-    error, state = None, None
+    error, result = None, None
     try:
+        if path.is_dir():
+            latest = latest_checkpoint(path)
+            raise OSError("a directory, not a checkpoint file"
+                          + (f" (its latest checkpoint is {latest})" if latest else ""))
+        if not path.exists():
+            raise OSError("no such file")
         with h5py.File(path, "r") as f:
             if f.attrs.get("format") != FORMAT or "state" not in f:
                 raise OSError("not a psph checkpoint")
             state = json.loads(bytes(f["state"][()]).decode())
+            _check_state(state)
+            boxes = state["decomposition"]["boxes"]
+            dim = len(boxes[0][0])
             counts = state["rank_counts"]
             if len(counts) == comm.size:
                 start = int(sum(counts[: comm.rank]))
                 stop = start + counts[comm.rank]
             else:
                 start, stop = block_range(int(sum(counts)), comm.rank, comm.size)
-            arrays = {name: f["particles"][name][start:stop] for name in state["fields"]}
-    except (OSError, KeyError, ValueError) as exc:
-        error = f"cannot restart from {str(path)!r}: {exc}"
+            arrays = {name: _read_rows(f, state, name, start, stop, dim) for name in state["fields"]}
+        particles = ParticleSet(dim, specs=())
+        for name, (shape, dtype) in state["fields"].items():
+            particles.add_field(FieldSpec(name, tuple(shape), np.dtype(dtype).type))
+        particles.set_owned(arrays)
+        same = len(counts) == comm.size
+        result = state, particles, (_decomposition(state["decomposition"]) if same else None)
+    except (OSError, KeyError, ValueError, TypeError, IndexError, UnicodeDecodeError) as exc:
+        reason = str(exc) if not isinstance(exc, KeyError) else f"{exc} missing"
+        error = f"cannot restart from {str(path)!r}: {' '.join(reason.split())}"  # HDF5's text has newlines
     errors = comm.allgather(error)
     if any(errors):
         raise UsageError(next(e for e in errors if e))
-    particles = ParticleSet(len(state["decomposition"]["boxes"][0][0]), specs=())
-    for name, (shape, dtype) in state["fields"].items():
-        particles.add_field(FieldSpec(name, tuple(shape), np.dtype(dtype).type))
-    particles.set_owned(arrays)
-    same = len(state["rank_counts"]) == comm.size
-    return state, particles, (_decomposition(state["decomposition"]) if same else None)
+    return result
 
 
 def latest_checkpoint(out_dir):
@@ -116,3 +194,32 @@ def _checkpoints(out_dir) -> list:
     found = [(int(m.group(1)), p) for p in Path(out_dir).iterdir() if (m := NAME.fullmatch(p.name))]
     return [p for _, p in sorted(found)]
 
+
+def checkpoints_up_to(out_dir, step: int) -> list:
+    """psph's checkpoints in `out_dir` of steps up to `step`: on a restart, the continued run's own, which the
+    continuation's first checkpoint replaces."""
+    return [p for p in _checkpoints(out_dir) if _step(p) <= step]
+
+
+def _step(path) -> int:
+    return int(NAME.fullmatch(Path(path).name).group(1))
+
+
+def results_after(out_dir, state) -> tuple:
+    """What `out_dir` holds past the checkpoint `state` (read_checkpoint's), which continuing from it there
+    replaces: (final, partial). final: a finished run's summary.json and later checkpoints (a continuation
+    that failed early would leave them contradicting the rest; continuing needs --overwrite); partial: the
+    snapshots past the checkpoint's snapshot index (an interrupted run's, which the continuation writes
+    again). The history's later rows need no list: Simulation rewrites history.csv from the checkpoint's."""
+    from psph.io.history import SUMMARY_NAME
+
+    out_dir = Path(out_dir)
+    final = [p for p in _checkpoints(out_dir) if _step(p) > state["step"]]
+    if (out_dir / SUMMARY_NAME).exists():
+        final.insert(0, out_dir / SUMMARY_NAME)
+    partial = []
+    for p in sorted(out_dir.iterdir()):
+        m = SNAPSHOT_NAME.fullmatch(p.name)
+        if m and int(m.group(1)) >= len(state["snapshots"]):
+            partial.append(p)
+    return final, partial

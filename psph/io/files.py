@@ -50,22 +50,26 @@ OUTPUT_MARKERS = ("summary.json", "history.csv", "psph.xdmf")
 OUTPUT_FILES = re.compile(r"(summary\.json|history\.csv|psph\.xdmf|psph\.log|probes\.csv|wall_pressure\.csv"
                           r"|packing\.csv|(snapshot|checkpoint)_\d{6,}\.h5)(\.tmp)?")
 OUTPUT_FIGURES = re.compile(r"(history|probes|fields|convergence)\.png")
+CHECKPOINT_FILES = re.compile(r"checkpoint_\d{6,}\.h5")  # io.checkpoint.checkpoint_name's
 
 
 def holds_results(directory) -> bool:
-    """True if `directory` already holds psph output (which a new run must not overwrite silently)."""
+    """True if `directory` already holds psph output (which a new run must not overwrite silently): one of
+    OUTPUT_MARKERS, a snapshot or a checkpoint (a run to continue, or one copied there to continue later)."""
     d = Path(directory)
     if not d.is_dir():
         return False
-    return any((d / m).exists() for m in OUTPUT_MARKERS) or any(d.glob("snapshot_*.h5"))
+    return (any((d / m).exists() for m in OUTPUT_MARKERS) or any(d.glob("snapshot_*.h5"))
+            or any(CHECKPOINT_FILES.fullmatch(p.name) for p in d.iterdir()))
 
 
-def clear_results(directory) -> None:
+def clear_results(directory, keep=()) -> None:
     """Remove psph's own output from `directory` (OUTPUT_FILES, unfinished .tmp files included, and
     OUTPUT_FIGURES in its figures/ unless that is a link elsewhere), and nothing else: `psph run
     --overwrite` then leaves no snapshot, checkpoint or log line of the run it replaces (a shorter run would
     otherwise sit beside the older run's later snapshots, and a restart could pick the older run's
-    checkpoint)."""
+    checkpoint). Files in `keep` (the log the user named with --log, already started) stay."""
+    keep = {os.path.realpath(k) for k in keep}
     d = Path(directory)
     if not d.is_dir():
         return
@@ -74,5 +78,6 @@ def clear_results(directory) -> None:
                                     else [])
     for folder, names in places:
         for path in folder.iterdir():
-            if names.fullmatch(path.name) and (path.is_file() or path.is_symlink()):
+            if (names.fullmatch(path.name) and (path.is_file() or path.is_symlink())
+                    and os.path.realpath(path) not in keep):
                 path.unlink()

@@ -3,11 +3,14 @@
 Output contract (read by tools and tests; keep stable):
     OUT/snapshot_NNNNNN.h5   /particles/position (n x d, rows in ascending gid), /particles/gid,
                              /particles/kind, one dataset per field; attributes `time`, `step`
-    OUT/psph.xdmf            temporal collection of all snapshots (ParaView: File > Open, Xdmf Reader)
-Each file is written to a temporary name and renamed once complete.
+    OUT/psph.xdmf            temporal collection of the snapshots in OUT (ParaView: File > Open, Xdmf Reader)
+Each file is written to a temporary name and renamed once complete. The XDMF lists only snapshot files in
+its own directory: a run continued from a checkpoint into another directory starts its series there at
+the checkpoint (the earlier snapshots stay in the original directory, listed by its own psph.xdmf).
 """
 
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +23,7 @@ os.environ.setdefault("H5PY_ALWAYS_USE_MPI", "1")
 import h5py  # noqa: E402
 
 XDMF_NAME = "psph.xdmf"
+SNAPSHOT_NAME = re.compile(r"snapshot_(\d{6,})\.h5(?:\.tmp)?")  # snapshot_name's (and its temporary file)
 
 
 def h5py_has_mpi() -> bool:
@@ -77,10 +81,22 @@ class SnapshotWriter:
                 for name, t, step, total, meta in self.entries]
 
     def restore(self, entries) -> None:
-        """Continue the index from a checkpoint's; snapshots written after the checkpoint are dropped from
-        the XDMF (their files are overwritten as the run reaches them again)."""
+        """Continue the index from a checkpoint's and rewrite the XDMF (rank 0) if this directory holds any of
+        its snapshots: snapshots written after the checkpoint are dropped from it (their files are written
+        again as the run reaches them), and so are the checkpoint's that are not in this directory (a restart
+        into another --out). Collective."""
         self.entries = [(name, t, step, total, {n: (tuple(tail), np.dtype(dt)) for n, (tail, dt) in meta.items()})
                         for name, t, step, total, meta in entries]
+        if self.comm.rank == 0 and (self._present() or (self.out_dir / XDMF_NAME).exists()):
+            self._write_index()
+        self.comm.Barrier()
+
+    def _present(self) -> list:
+        """The index's entries whose files are in the output directory."""
+        return [e for e in self.entries if (self.out_dir / e[0]).is_file()]
+
+    def _write_index(self) -> None:
+        write_text_atomic(self.out_dir / XDMF_NAME, xdmf_document(self._present(), self.domain.dim))
 
     def write(self, particles, step: int, time: float, extra=None, names=None, exclude=("row",)) -> Path:
         """Write owned particles' fields (all but `exclude`, or `names`) plus `extra` owned arrays."""
@@ -105,7 +121,7 @@ class SnapshotWriter:
         self.entries.append((name, float(time), int(step), total, meta))
         if self.comm.rank == 0:
             replace_atomically(tmp, path)
-            write_text_atomic(self.out_dir / XDMF_NAME, xdmf_document(self.entries, particles.dim))
+            self._write_index()
         self.comm.Barrier()
         return path
 

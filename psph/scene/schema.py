@@ -365,6 +365,12 @@ class PhysicsSpec:
                                       choices=("full", "low"))
     tensile_switch: bool = option(True, doc="use p_j - p_i where p_i < 0 (tensile-instability control; "
                                   "delta_ale family only)")
+    wall_adhesion: bool = option(False, doc="clone walls with a free surface: true keeps seed 004's solid "
+                                 "pressures (eq. 8-9) everywhere, whose extension is negative behind a particle "
+                                 "under a roof and holds drops and films on walls and roofs; false, in the "
+                                 "free-surface region (where air can come between the fluid and the wall), takes a "
+                                 "solid neighbour's pressure as max(p_j, 0) wherever eq. 8-9 carried to the wall "
+                                 "gives a negative wall pressure: a wall pushes, never pulls")
     max_density_variation: float = option(0.1, doc="stop when |rho / rho0 - 1| exceeds this (weak "
                                           "compressibility violated)", gt=0.0)
     max_volume_variation: float = option(0.5, doc="delta_ale: stop when a particle volume drifts by more than "
@@ -727,6 +733,10 @@ class Scene:
         if self.diagnostics.impinging_jet:
             raise SceneError(key, "a scene is a dam break or an impinging jet (diagnostics.impinging_jet), not both")
 
+    def has_clone_walls(self) -> bool:
+        """Whether some body is made of clone particles (bodies[].model)."""
+        return any(b.model == "clone" for b in self.bodies)
+
     def describe_free_surface(self) -> str:
         """Where the fluid has a free surface, in words ("" for none): a drop's rim, or the fill region
         stopping short of the domain."""
@@ -774,6 +784,12 @@ class Scene:
             value = getattr(self.initial, key)
             if value and len(value) != self.domain.dimension:
                 raise SceneError(f"initial.{key}", f"expected {self.domain.dimension} entries (domain.dimension)")
+        lo = self.initial.fill_lower or self.domain.lower
+        hi = self.initial.fill_upper or self.domain.upper
+        for a in range(self.domain.dimension):
+            if hi[a] <= lo[a]:
+                key = "initial.fill_upper" if self.initial.fill_upper else "initial.fill_lower"
+                raise SceneError(key, f"the fill region is empty along axis {a}: upper {hi[a]:g} <= lower {lo[a]:g}")
         method = self.shifting.method
         self._check_drop(fluid)
         self._check_packing(fluid)
@@ -789,6 +805,10 @@ class Scene:
                                  "clone walls: it relies on the walls' solid particles (IIPS takes them as "
                                  "neighbours of grad C, WallTerms.keep_shift_off holds an explicit law's shifting "
                                  "off them), which ghost walls do not have")
+        if self.physics.wall_adhesion and not (fluid and surface and self.has_clone_walls()):
+            raise SceneError("physics.wall_adhesion", "keeps the clone walls' pull on the fluid near a free surface: "
+                             "this scene has " + ("no clone walls" if not self.has_clone_walls() else
+                                                  "no free surface" if not surface else "no fluid scheme"))
         if self.free_surface.lambda_diffusion > 0.0 and not (fluid and surface
                                                                and self.physics.scheme != "riemann_ale"):
             raise SceneError("free_surface.lambda_diffusion", "switches the diffusive terms of a delta_ale scheme off "

@@ -61,8 +61,10 @@ class DeltaALE:
         # with a free surface detects it at every step for them, even without shifting
         surface = self.name != "riemann_ale" and bool(scene.describe_free_surface())
         self.lambda_diffusion = scene.free_surface.lambda_diffusion if surface else 0.0
+        # in the free-surface region a wall pushes and never pulls (physics.wall_adhesion = false)
+        self.no_pull = surface and scene.has_clone_walls() and not phys.wall_adhesion
         self.step_surface = None
-        if surface and (self.tensile or self.lambda_diffusion > 0.0):
+        if surface and (self.tensile or self.lambda_diffusion > 0.0 or self.no_pull):
             self.step_surface = self.surface if self.surface.active else FreeSurface(scene.free_surface)
         self.pairs = PairCache()  # the support's pairs, from renormalised_gradient to delta_ale_rhs
         # rows of Kind.INLET and OUTLET keep the fields psph.boundaries.open prescribes
@@ -97,6 +99,10 @@ class DeltaALE:
             lines.append("tensile-instability switch (p_j - p_i where p_i < 0" + (
                 ", off in the free-surface region: seed 004 eq. 3, the surface detected every step)"
                 if self.step_surface is not None else ")"))
+        if self.no_pull:
+            lines.append("clone walls in the free-surface region: a solid neighbour's pressure max(p_j, 0) where "
+                         "the wall would pull the fluid, a wall that pushes and never pulls "
+                         "(physics.wall_adhesion = false)")
         if self.lambda_diffusion > 0.0:
             lines.append(f"diffusive terms only between fluid particles with lambda > {self.lambda_diffusion:g} "
                          "(seed 001 section 6.3: none in thin jets and drops)")
@@ -215,6 +221,14 @@ class DeltaALE:
         if self.step_surface is None:
             return np.ones(p.n_local, dtype=np.int8)
         return (p["free_surface"] == 0).astype(np.int8)
+
+    def no_pull_rows(self, system) -> np.ndarray:
+        """1 where no wall pair may pull the particle towards the wall (the free-surface region, without
+        physics.wall_adhesion), 0 elsewhere, per local particle."""
+        p = system.particles
+        if not self.no_pull:
+            return np.zeros(p.n_local, dtype=np.int8)
+        return (p["free_surface"] != 0).astype(np.int8)
 
     def diffusion_rows(self, system):
         """1 where a particle takes part in the diffusive terms (lambda above free_surface.lambda_diffusion,

@@ -16,19 +16,21 @@ from psph.errors import PsphError, SolverError, UsageError
 from psph.profiling import phase
 from psph.solvers.petsc import petsc
 
-
 # PETSc's error codes an option can cause (petscerror.h): PETSC_ERR_SUP, _ARG_WRONG, _ARG_OUTOFRANGE,
-# _ARG_INCOMP, _USER (hypre's unknown option values), _ARG_UNKNOWN_TYPE
+# _ARG_INCOMP, _USER (hypre's unknown option values), _ARG_UNKNOWN_TYPE: raised by collective set-up calls
+# from the options every rank shares, so on every rank
 OPTION_ERRORS = (56, 62, 63, 75, 83, 86)
+# PETSC_ERR_FILE_OPEN, _FILE_READ, _FILE_WRITE: an option's file (-iips_ksp_monitor ascii:PATH), which only
+# some ranks may open
+FILE_ERRORS = (65, 66, 67)
 TRACE = re.compile(r"\w+\(\) at ")
 
 
 @contextmanager
 def petsc_errors(what: str):
-    """Turn a PETSc error (bad option combination, unsupported operation) into a one-line PsphError.
-
-    PETSc raises these on every rank of the communicator (collective setup calls), so the error is
-    marked collective."""
+    """Turn a PETSc error into a one-line PsphError: a UsageError (exit 2) for a bad option (OPTION_ERRORS) or
+    an option's file (FILE_ERRORS). Only the option errors are marked collective (raised on every rank, the
+    CLI exits cleanly); any other may be one rank's, and the CLI aborts every rank."""
     PETSc = petsc()
     try:
         yield
@@ -37,11 +39,11 @@ def petsc_errors(what: str):
         lines = [ln.split("]", 1)[-1].strip() for ln in str(exc).splitlines()[1:]]
         messages = [ln.split(": https:", 1)[0] for ln in lines if ln and not TRACE.match(ln)]
         detail = "; ".join(messages) or str(exc).strip()
-        # an unsupported, unknown, wrong, out-of-range or incompatible option is bad input (exit 2); any other
-        # PETSc error (memory, a library, a bug) exits 1
-        kind = UsageError if exc.ierr in OPTION_ERRORS else PsphError
+        # a bad option or an option's file is bad input (exit 2); any other PETSc error (memory, a library, a
+        # bug) exits 1
+        kind = UsageError if exc.ierr in OPTION_ERRORS + FILE_ERRORS else PsphError
         err = kind(f"PETSc failed in {what} (error {exc.ierr}): {detail}; check the command-line PETSc options")
-        err.collective = True
+        err.collective = exc.ierr in OPTION_ERRORS
         raise err from None
 
 

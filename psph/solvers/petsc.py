@@ -91,3 +91,29 @@ def petsc():
 
 def is_initialized() -> bool:
     return _state["argv"] is not None
+
+
+def unused_options() -> list:
+    """The command line's PETSc options that nothing has read so far (a misspelling, or an option of a
+    solver the scene does not have), as "-name value" strings. petsc4py 3.18 does not wrap PETSc's
+    PetscOptionsLeftGet, so it is called through ctypes on the PETSc library this process has loaded
+    (found in /proc/self/maps); [] where that is not possible."""
+    import ctypes
+
+    PETSc = petsc()
+    try:
+        with open("/proc/self/maps") as maps:
+            path = next(line.split()[-1] for line in maps if "/libpetsc" in line and ".so" in line)
+        lib = ctypes.CDLL(path)
+        get, restore = lib.PetscOptionsLeftGet, lib.PetscOptionsLeftRestore
+    except (OSError, StopIteration, AttributeError):
+        return []
+    import numpy as np
+
+    count = (ctypes.c_int64 if np.dtype(PETSc.IntType).itemsize == 8 else ctypes.c_int32)()
+    names, values = ctypes.POINTER(ctypes.c_char_p)(), ctypes.POINTER(ctypes.c_char_p)()
+    if get(None, ctypes.byref(count), ctypes.byref(names), ctypes.byref(values)):
+        return []
+    left = [f"-{names[k].decode()}" + (f" {values[k].decode()}" if values[k] else "") for k in range(count.value)]
+    restore(None, ctypes.byref(count), ctypes.byref(names), ctypes.byref(values))
+    return left

@@ -136,6 +136,30 @@ def test_hydrostatic_tank_stays_at_rest(tmp_path, model):
     assert np.abs(p[deep] - (1.0 - y[deep])).max() < 0.03
 
 
+HANGING = ["domain.dx=0.05", "initial.fill_lower=[2.5, 2.8]", "initial.fill_upper=[2.7, 3.0]",
+           "initial.pressure=zero", "diagnostics.dam_break=false", "output.probes=[]", "shifting.method=none",
+           "time.t_end=1.0", "output.every=0"]
+
+
+@pytest.mark.parametrize("adhesion", [False, True])
+def test_a_drop_under_the_roof_falls_unless_the_walls_adhere(tmp_path, adhesion):
+    """A 4 x 4 block of water released under the dam-break tank's roof (clone walls, gravity 1). With seed
+    004's solid pressures (eq. 8-9, physics.wall_adhesion = true) the hydrostatic extension above the top
+    row is negative: it holds that row on the roof (at t = 2 still within dx/2 of it, the block stretched
+    to 1.5 below it). Without adhesion (the default) the wall never pulls where the fluid would need it to
+    stay: the whole block falls, its top row by 0.4 at t = 1 (free fall: 0.5) and its mean velocity within
+    10% of free fall's -g t."""
+    out = run(tmp_path, "dam_break.toml", "drop", *HANGING, f"physics.wall_adhesion={str(adhesion).lower()}")
+    snap, _ = last_snapshot(out)
+    fluid = snap["kind"] == Kind.FLUID
+    y, vy = snap["position"][fluid, 1], snap["velocity"][fluid, 1]
+    assert np.count_nonzero(fluid) == 16
+    if adhesion:
+        assert y.max() > 3.0 - 0.05 and vy.mean() > -0.6
+    else:
+        assert y.max() < 2.975 - 0.3 and -1.15 < vy.mean() < -0.9, (y.max(), vy.mean())  # free fall: vy = -1
+
+
 @pytest.mark.parametrize("model", ["clone", "ghost"])
 def test_the_tanks_free_surface_is_its_top_only(tmp_path, model):
     """The hydrostatic tank's free-surface detection (dx = 0.05), which the tensile switch (on here) and the

@@ -1,6 +1,7 @@
 """Drivers end to end through the command line: static IIPS history, kinematic Procedures A, B and C."""
 
 import json
+import re
 
 import h5py
 import numpy as np
@@ -24,8 +25,11 @@ def test_static_iips_run_writes_one_row_per_newton_iteration(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["steps"] == 5 and summary["final"]["L2_grad_c"] == rows[-1]["L2_grad_c"]
     with h5py.File(out / "snapshot_000000.h5") as first, h5py.File(out / "snapshot_000001.h5") as last:
-        assert last.attrs["step"] == 5
+        assert last.attrs["step"] == 5 and last.attrs["time"] == 5.0  # a static snapshot's time is its iteration
         assert not np.allclose(first["particles/position"][:], last["particles/position"][:])
+    # ParaView reads one time step when both grids say time 0, and shows nothing: the time is the iteration
+    times = re.findall(r'<Time Value="([^"]+)"/>', (out / "psph.xdmf").read_text())
+    assert [float(t) for t in times] == [0.0, 5.0]
 
 
 def test_a_static_run_ended_by_backtracking_counts_and_labels_its_accepted_iterations(tmp_path):

@@ -360,11 +360,34 @@ def test_packing_is_accepted_with_clone_walls_and_a_free_surface():
     ("dam_break", ["physics.gravity=[-1.0]"], "diagnostics.dam_break", "gravity along -y"),
     ("dam_break", ["initial.fill_upper=[5.36, 1.0]"], "diagnostics.dam_break", "short of the domain"),
     ("dam_break", ["bodies.0.model=ghost"], "bodies[0].model", "shifting with a free surface"),
+    ("taylor_green", ["physics.wall_adhesion=true"], "physics.wall_adhesion", "no clone walls"),
+    ("lid_driven_cavity", ["physics.wall_adhesion=true"], "physics.wall_adhesion", "no free surface"),
+    ("dam_break", ["physics.wall_adhesion=true", "shifting.method=none", "bodies.0.model=ghost"],
+     "physics.wall_adhesion", "no clone walls"),
+    ("taylor_green", ["initial.fill_lower=[0.8, 0.8]", "initial.fill_upper=[0.2, 0.2]"], "initial.fill_upper",
+     "empty along axis 0: upper 0.2 <= lower 0.8"),
+    ("taylor_green", ["initial.fill_lower=[1.0, 0.0]"], "initial.fill_lower", "empty along axis 0"),
 ])
 def test_dam_break_keys_are_refused_where_they_do_not_apply(scene, sets, key, words):
     with pytest.raises(SceneError) as info:
         load_scene(CASES / f"{scene}.toml", sets)
     assert info.value.key == key and words in str(info.value), str(info.value)
+
+
+def test_a_fill_region_between_lattice_nodes_is_refused():
+    """A fill region that is not empty but holds no node of the lattice: no fluid particle (the run went on
+    with none, and a NaN volume error). A jet's fluid, which its inflow buffer brings, may start empty."""
+    from mpi4py import MPI
+
+    from psph.initial import create_particles
+
+    scene = load_scene(CASES / "taylor_green.toml", ["domain.dx=0.1", "initial.fill_lower=[0.31, 0.31]",
+                                                      "initial.fill_upper=[0.32, 0.32]"])
+    with pytest.raises(SceneError, match="no lattice node of dx = 0.1") as info:
+        create_particles(scene, MPI.COMM_SELF)
+    assert info.value.key == "initial.fill_upper"
+    jet = load_scene(CASES / "impinging_jet.toml", ["domain.dx=0.1"])
+    assert create_particles(jet, MPI.COMM_SELF).n_owned > 0
 
 
 def test_artificial_viscosity_sets_nu_from_h_and_c0():

@@ -501,6 +501,16 @@ def test_explicit_iteration_with_lind_coefficient_is_unstable_for_c6():
     assert report.L2_grad_c > 0.3 * start
 
 
+@pytest.mark.parametrize("diffusion", [5.0, 10.0])
+def test_a_diverging_explicit_iteration_stops_with_a_diagnosis(diffusion):
+    """Far above its stability limit the explicit iteration scrambles the particles at once (L2(grad C)
+    7-fold at 5 h^2) and then stays there: psph ran on silently. Now the call stops, naming the key."""
+    scene = periodic_scene(n=20, sigma=0.1, shifting={"method": "explicit_iterative", "diffusion": diffusion})
+    system = build_system(scene, MPI.COMM_SELF)
+    with pytest.raises(NumericalError, match=r"diverged at iteration 1: .*shifting.diffusion = .*\[step 4\]"):
+        ExplicitIterativeShifting(scene.shifting).correct(system, iterations=50, step=4)
+
+
 def test_printed_operator_iteration_turns_on_a_strained_lattice():
     """A known limit of the printed operator (seeds/README.md), kept in view: on a lattice the Taylor-Green
     flow has strained for t = 0.07 (squeezed to ~0.7 dx at its stagnation points), the iteration first

@@ -1,0 +1,278 @@
+"""Restarts and output directories that must refuse, in one line, before any work: a checkpoint holding a
+non-finite value or an inconsistent state, an end time not after the checkpoint's, a new run over a
+checkpoint, a log that cannot be written; a continuation in place replaces a finished run's results only
+with --overwrite and leaves its directory one consistent run whatever happens; a restart into another
+directory indexes only the snapshots it holds."""
+
+import json
+import re
+import shutil
+
+import h5py
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from psph.errors import UsageError
+from psph.io.checkpoint import latest_checkpoint, read_checkpoint
+from psph.io.history import read_history
+from tests.conftest import periodic_scene
+from tests.helpers import run_psph
+from tests.io.test_checkpoint import same_history
+
+# cases/taylor_green.toml cut short: 100 particles, 14 steps to t = 0.05 (a history row each), snapshots at 0,
+# 0.025 and the end, checkpoints at steps 5 and 10 (10 kept)
+SCENE = """
+name = "tg"
+[domain]
+dimension = 2
+lower = [0.0, 0.0]
+upper = [1.0, 1.0]
+periodic = [true, true]
+dx = 0.1
+h_over_dx = 2.0
+kernel = "wendland_c6"
+[initial]
+velocity = "taylor_green"
+[physics]
+scheme = "delta_ale"
+reynolds = 100.0
+sound_speed = 10.0
+[shifting]
+method = "none"
+[time]
+t_end = 0.05
+[output]
+every = 0.025
+checkpoint_every = 5
+"""
+CHECKPOINT = "checkpoint_000010.h5"
+
+
+@pytest.fixture(scope="module")
+def scene_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("scene") / "tg.toml"
+    path.write_text(SCENE)
+    return path
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory, scene_file):
+    """A finished coarse Taylor-Green run (never modified: tests copy it)."""
+    out = tmp_path_factory.mktemp("finished") / "run"
+    done = run_psph("run", scene_file, "--out", out, "--quiet")
+    assert done.returncode == 0, done.stderr
+    assert sorted(p.name for p in out.glob("*.h5")) == [CHECKPOINT] + [f"snapshot_00000{k}.h5" for k in range(3)]
+    return out
+
+
+def copy_run(finished, where):
+    shutil.copytree(finished, where)
+    return where
+
+
+def contents(directory) -> dict:
+    return {p.name: p.read_bytes() for p in sorted(directory.iterdir()) if p.is_file()}
+
+
+def one_line_error(done, code=2) -> str:
+    assert done.returncode == code, done.stdout + done.stderr
+    assert "Traceback" not in done.stderr + done.stdout
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("psph: error: "), done.stderr
+    return lines[0]
+
+
+def edit_checkpoint(source, target, edit):
+    shutil.copy(source, target)
+    with h5py.File(target, "r+") as f:
+        edit(f)
+    return target
+
+
+def set_dataset(f, name, value):
+    del f[name]
+    f[name] = value
+
+
+def edit_state(edit):
+    def change(f):
+        state = json.loads(bytes(f["state"][()]).decode())
+        edit(state)
+        set_dataset(f, "state", np.frombuffer(json.dumps(state).encode(), dtype=np.uint8))
+    return change
+
+
+def xdmf_files(directory) -> list:
+    return sorted(set(re.findall(r"(snapshot_\d+\.h5):", (directory / "psph.xdmf").read_text())))
+
+
+# ------------------------------------------------------------------ A, D: what a checkpoint must hold
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_a_checkpoint_holding_a_nan_position_is_refused_on_every_rank(finished, tmp_path, ranks):
+    """A NaN position would stall the neighbour search for ever: refused before any work, on every rank
+    (here the row is rank 1's of two)."""
+    def nan_position(f):
+        pos = f["particles/position"][()]
+        pos[-1, 0] = np.nan
+        f["particles/position"][...] = pos
+
+    bad = edit_checkpoint(finished / CHECKPOINT, tmp_path / "nan.h5", nan_position)
+    done = run_psph("run", "--restart", bad, "--out", tmp_path / "out", ranks=ranks, timeout=120)
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    line = done.stderr.splitlines()[0]  # mpiexec adds its own lines about the exit code
+    assert line == (f"psph: error: cannot restart from {str(bad)!r}: particles/position holds a non-finite value "
+                    "(nan in row 99)")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_checkpoint_holding_an_infinite_value_in_any_field_is_refused(finished, tmp_path):
+    def inf_density(f):
+        rho = f["particles/density"][()]
+        rho[3] = np.inf
+        f["particles/density"][...] = rho
+
+    bad = edit_checkpoint(finished / CHECKPOINT, tmp_path / "inf.h5", inf_density)
+    with pytest.raises(UsageError, match=r"particles/density holds a non-finite value \(inf in row 3\)"):
+        read_checkpoint(MPI.COMM_SELF, bad)
+
+
+@pytest.mark.parametrize("edit,words", [
+    (edit_state(lambda s: s.pop("history")), "its state lacks 'history'"),
+    (edit_state(lambda s: s["driver"].pop("totals")), "its state's 'driver' lacks 'totals'"),
+    (edit_state(lambda s: s.update(time="soon")), "its state's 'time' is not a finite number"),
+    (lambda f: set_dataset(f, "particles/position", f["particles/position"][:-3]),
+     "particles/position has shape (97, 2), expected (100, 2)"),
+    (lambda f: set_dataset(f, "particles/velocity", f["particles/velocity"][:, :1]),
+     "particles/velocity has shape (100, 1), expected (100, 2)"),
+    (lambda f: set_dataset(f, "particles/gid", f["particles/gid"][()].astype(np.float64)),
+     "particles/gid holds float64, expected int64"),
+    (lambda f: f["particles"].pop("mass"), "it has no dataset particles/mass"),
+])
+def test_an_inconsistent_checkpoint_is_one_line_naming_what_is_wrong(finished, tmp_path, edit, words):
+    bad = edit_checkpoint(finished / CHECKPOINT, tmp_path / "bad.h5", edit)
+    with pytest.raises(UsageError) as err:
+        read_checkpoint(MPI.COMM_SELF, bad)
+    assert str(err.value) == f"cannot restart from {str(bad)!r}: {words}"
+
+
+def test_restart_errors_from_the_command_line_are_one_line(finished, tmp_path):
+    bad = edit_checkpoint(finished / CHECKPOINT, tmp_path / "bad.h5", edit_state(lambda s: s.pop("history")))
+    assert "its state lacks 'history'" in one_line_error(run_psph("run", "--restart", bad, "--out", tmp_path / "o"))
+    bad = edit_checkpoint(finished / CHECKPOINT, tmp_path / "bad_scene.h5",
+                          edit_state(lambda s: s["scene"]["domain"].update(dx=-1.0)))
+    line = one_line_error(run_psph("run", "--restart", bad, "--out", tmp_path / "o"))
+    assert line == f"psph: error: cannot restart from {str(bad)!r}: its scene: domain.dx: must be > 0.0, got -1.0"
+    line = one_line_error(run_psph("run", "--restart", finished, "--out", tmp_path / "o"))  # HDF5's text: 2 lines
+    assert line == (f"psph: error: cannot restart from {str(finished)!r}: a directory, not a checkpoint file (its "
+                    f"latest checkpoint is {finished / CHECKPOINT})")
+    assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------ B: an end time the run has passed
+@pytest.mark.parametrize("t_end", ["0.01", "0.03650918843318125"])
+def test_a_restart_ending_before_its_checkpoint_is_refused_and_touches_nothing(finished, tmp_path, t_end):
+    run = copy_run(finished, tmp_path / "run")
+    before = contents(run)
+    line = one_line_error(run_psph("run", "--restart", run / CHECKPOINT, "--set", f"time.t_end={t_end}"))
+    assert line == (f"psph: error: time.t_end: {float(t_end):g} is not after the checkpoint's time 0.0365092 "
+                    "(step 10): nothing to continue")
+    assert contents(run) == before
+
+
+# ------------------------------------------------------------------ C: a checkpoint is a result
+def test_a_new_run_does_not_remove_a_checkpoint_in_its_directory(finished, scene_file, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    shutil.copy(finished / CHECKPOINT, out / "checkpoint_000012.h5")
+    line = one_line_error(run_psph("run", scene_file, "--out", out))
+    assert "already holds results" in line and "--overwrite" in line
+    assert contents(out) == {"checkpoint_000012.h5": (finished / CHECKPOINT).read_bytes()}
+
+
+def test_a_run_replaces_only_its_own_checkpoints(tmp_path):
+    """A checkpoint put into the directory while the run goes (not the run's, nor one it continues) stays;
+    the run's own earlier checkpoints go once a newer one is complete."""
+    from psph.drivers.fluid import FluidDriver
+
+    scene = periodic_scene(n=10, initial={"velocity": "taylor_green"}, time={"t_end": 0.05},
+                           physics={"scheme": "delta_ale", "reynolds": 100.0, "sound_speed": 10.0},
+                           shifting={"method": "none"}, output={"checkpoint_every": 5})
+    (tmp_path / "checkpoint_000007.h5").write_text("someone else's")
+    FluidDriver(scene, MPI.COMM_SELF, tmp_path).run()
+    assert sorted(p.name for p in tmp_path.glob("checkpoint_*")) == ["checkpoint_000007.h5", CHECKPOINT]
+    assert (tmp_path / "checkpoint_000007.h5").read_text() == "someone else's"
+
+
+# ------------------------------------------------------------------ E: a restart into another directory
+def test_a_restart_into_another_directory_indexes_only_its_own_snapshots(finished, tmp_path):
+    """The XDMF of the new directory lists the snapshots it holds (from the checkpoint on): ParaView opens it."""
+    out = tmp_path / "elsewhere"
+    done = run_psph("run", "--restart", finished / CHECKPOINT, "--out", out, "--quiet")
+    assert done.returncode == 0, done.stderr
+    assert xdmf_files(out) == ["snapshot_000002.h5"] == sorted(p.name for p in out.glob("snapshot_*"))
+    assert f"the earlier ones are in {finished}" in (out / "psph.log").read_text()
+    assert xdmf_files(finished) == [f"snapshot_00000{k}.h5" for k in range(3)]
+    from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as sddp
+    from vtkmodules.vtkIOXdmf2 import vtkXdmfReader
+
+    reader = vtkXdmfReader()
+    reader.SetFileName(str(out / "psph.xdmf"))
+    reader.Update()
+    assert list(reader.GetOutputInformation(0).Get(sddp.TIME_STEPS())) == [0.05]
+    assert reader.GetOutputDataObject(0).GetNumberOfPoints() == 100
+
+
+# ------------------------------------------------------------------ F: continuing in place
+def test_continuing_a_finished_run_in_place_needs_overwrite(finished, tmp_path):
+    run = copy_run(finished, tmp_path / "run")
+    before = contents(run)
+    line = one_line_error(run_psph("run", "--restart", run / CHECKPOINT, "--set", "time.t_end=0.1"))
+    assert line == (f"psph: error: output directory {str(run)!r} holds results past the checkpoint's t = 0.0365092 "
+                    "(step 10): summary.json; continuing there replaces them: pass --overwrite to do so, or "
+                    "choose another --out")
+    assert contents(run) == before
+
+
+def test_a_failed_continuation_in_place_leaves_one_consistent_run(finished, tmp_path):
+    """Continued with --overwrite and failing at once (a skin too thin for the step: exit 3): the directory
+    holds the run up to the failure, no summary of the old end, an XDMF listing exactly its snapshots."""
+    run = copy_run(finished, tmp_path / "run")
+    done = run_psph("run", "--restart", run / CHECKPOINT, "--set", "neighbours.skin=0.001", "--overwrite")
+    assert done.returncode == 3 and "neighbours.skin" in done.stderr, done.stderr
+    assert not (run / "summary.json").exists()
+    snapshots = sorted(p.name for p in run.glob("snapshot_*"))
+    assert xdmf_files(run) == snapshots == [f"snapshot_00000{k}.h5" for k in range(3)]
+    with h5py.File(run / "snapshot_000002.h5") as f:  # the failure's state, at the checkpoint's time
+        assert f.attrs["step"] == 10 and "grad_c" in f["particles"]
+    assert [r["step"] for r in read_history(run / "history.csv")] == list(range(11))
+    assert "removed what" in (run / "psph.log").read_text()
+
+
+def test_an_interrupted_run_continues_in_place_without_overwrite(finished, tmp_path):
+    """No summary: the run did not finish (killed), its snapshots past the checkpoint are written again and
+    the continuation equals the run never interrupted."""
+    run = copy_run(finished, tmp_path / "run")
+    (run / "summary.json").unlink()
+    done = run_psph("run", "--restart", run / CHECKPOINT, "--quiet")
+    assert done.returncode == 0, done.stderr
+    same_history(run, finished)
+    assert xdmf_files(run) == xdmf_files(finished)
+    for name in ("snapshot_000002.h5",):
+        with h5py.File(run / name) as a, h5py.File(finished / name) as b:
+            assert np.array_equal(a["particles/position"][()], b["particles/position"][()])
+    assert latest_checkpoint(run).name == CHECKPOINT
+
+
+# ------------------------------------------------------------------ G: the log
+@pytest.mark.parametrize("log,reason", [("/dev/full", "No space left on device"),
+                                        ("{tmp}/nonexistent/dir/x.log", "No such file or directory")])
+def test_a_log_that_cannot_be_written_is_refused_before_any_work(finished, scene_file, tmp_path, log, reason):
+    log = log.format(tmp=tmp_path)
+    line = one_line_error(run_psph("run", scene_file, "--out", tmp_path / "out", "--log", log))
+    assert line == f"psph: error: --log {log!r}: {reason}"
+    assert not (tmp_path / "out").exists()
+    run = copy_run(finished, tmp_path / "run")  # --overwrite removes nothing then
+    before = contents(run)
+    one_line_error(run_psph("run", scene_file, "--out", run, "--log", log, "--overwrite"))
+    assert contents(run) == before
