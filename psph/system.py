@@ -163,7 +163,8 @@ class ParticleSystem:
         if len(out):
             k = out[0]
             what = (f"{counts[1]} particle(s) with a non-finite position" if broken[k] else
-                    f"{counts[0]} particle(s) left the domain")
+                    f"{counts[0] - counts[1]} particle(s) left the domain"
+                    + (f" and {counts[1]} have a non-finite position" if counts[1] else ""))
             error = NumericalError(what, gid=int(self.particles.owned("gid")[k]), position=pos[k], **self.where)
         raise_if_any(self.comm, error)
 

@@ -191,3 +191,28 @@ def test_a_bad_iips_option_keeps_the_results_overwrite_would_replace(tmp_path):
     res = run_psph(*base, "--overwrite", "-iips_pc_type", "nonexistent")
     assert res.returncode == 2 and "Unable to find requested PC type nonexistent" in res.stderr, res.stderr
     assert sorted(p.name for p in out.iterdir()) == before and (out / "summary.json").exists()
+
+
+def test_a_checkpoint_older_than_wall_adhesion_keeps_the_walls_it_ran_with():
+    """A checkpoint's scene lists every key of its day: one written before physics.wall_adhesion has none,
+    and the key's default (false) would change the walls mid-run. Where the key applies it reads true."""
+    from psph.cli import _keep_old_walls
+    from psph.scene.load import read_table, scene_from_table
+    from psph.scene.validate import to_table
+
+    for case, expected in (("dam_break.toml", True), ("taylor_green.toml", False)):
+        table = to_table(scene_from_table(read_table(CASES / case)))
+        del table["physics"]["wall_adhesion"]
+        _keep_old_walls(table)
+        assert scene_from_table(table).physics.wall_adhesion is expected
+    table = to_table(scene_from_table(read_table(CASES / "dam_break.toml")))  # a new checkpoint: as it is
+    _keep_old_walls(table)
+    assert scene_from_table(table).physics.wall_adhesion is False
+
+
+def test_a_log_inside_a_new_output_directory(tmp_path):
+    out = tmp_path / "new"
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", out, "--log", out / "my.log", "--quiet",
+                   "--set", "domain.dx=0.1")
+    assert res.returncode == 0, res.stderr
+    assert "running scene" in (out / "my.log").read_text() and (out / "summary.json").exists()

@@ -153,9 +153,11 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
     tensile_switch: per particle, 1 where p_j - p_i replaces p_j + p_i in its pressure force when p_i < 0
     (eq. 3; 0 in the free-surface region and where the switch is off).
     no_pull: per particle, 1 where the wall may not pull the particle (the free-surface region without
-    physics.wall_adhesion): where eq. 8-9 extended to the wall, p_i - s_i rho_i (g - a_j) . n, is negative,
-    the fluid would need the wall to pull it to stay in contact, and the solid neighbour's pressure is
-    taken as max(p_j, 0). A resting contact keeps eq. 8-9 (the wall's pressure is positive there).
+    physics.wall_adhesion): where eq. 8-9 carried to i's closest wall node x_i + s_i n_i (n_i points into
+    the solid), p_i + s_i rho_i (g - a_j) . n_i, is negative, the fluid would need the wall to pull it to
+    stay in contact, and the solid neighbour's pressure is taken as max(p_j, 0). A resting contact keeps
+    eq. 8-9 (the wall's pressure is positive there). i's own p_i still enters the pair (p_i + p_j), as in
+    the fluid's pairs: a particle in tension is still drawn to its neighbours, solid ones included.
     force: (n_bodies, 2, 2) pressure and viscous force of the fluid on each body; torque: (n_bodies, 2), about
     centers, each pair's force applied at the solid particle's wall node x_j - s_j n_j; particle_force: (n_owned,
     2), each fluid row's pressure force on the solids (zero for the other rows), for the wall's load along it.
@@ -215,7 +217,8 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
             # pressure (eq. 8-9)
             b0, b1 = g0 - accel[j, 0], g1 - accel[j, 1]  # eq. 9's f_j - a_j
             p_j = p_i + rho_i * (b0 * (pos[j, 0] - xi0) + b1 * (pos[j, 1] - xi1))
-            if pull_free and p_j < 0.0 and p_i - si * rho_i * (b0 * n0 + b1 * n1) < 0.0:
+            # eq. 8-9 carried to i's closest wall node x_i + s_i n_i (the normals point into the solid)
+            if pull_free and p_j < 0.0 and p_i + si * rho_i * (b0 * ni0 + b1 * ni1) < 0.0:
                 p_j = 0.0  # the wall would pull: no contact pressure below zero
             # shifting velocity: du . n = 0 on the wall
             dn = di0 * n0 + di1 * n1

@@ -160,6 +160,30 @@ def test_a_drop_under_the_roof_falls_unless_the_walls_adhere(tmp_path, adhesion)
         assert y.max() < 2.975 - 0.3 and -1.15 < vy.mean() < -0.9, (y.max(), vy.mean())  # free fall: vy = -1
 
 
+@pytest.mark.parametrize("adhesion", [False, True])
+def test_at_rest_under_the_roof_the_top_row_feels_no_pull_unless_the_walls_adhere(tmp_path, adhesion):
+    """The same block at t = 0, p = 0 everywhere: eq. 8-9 carried to the roof gives a wall pressure of
+    -rho g s_i < 0 above the top row (the normals point into the solid: the wall node is x_i + s_i n_i),
+    so without adhesion its solid neighbours' pressures are 0 and, with p_i = 0, the roof exerts no pressure
+    force on it at all; with adhesion the extension's negative pressures pull it up. (With the node taken
+    at x_i - s_i n_i the wall pressure read +rho g s_i and the roof pulled here too.)"""
+    from psph.drivers.fluid import FluidDriver
+
+    sets = HANGING + [f"physics.wall_adhesion={str(adhesion).lower()}"]
+    driver = FluidDriver(load_scene(CASES / "dam_break.toml", sets), MPI.COMM_SELF, tmp_path, log=lambda m: None)
+    system, scheme = driver.system, driver.scheme
+    scheme.detect_surface(system)
+    scheme.rhs(system, 0.0, 1e-4)
+    p = system.particles
+    top = (p.owned("kind") == Kind.FLUID) & (p.owned("position")[:, 1] > 2.95)
+    assert np.count_nonzero(top) == 4 and np.all(p.owned("pressure")[top] == 0.0)
+    force_on_roof = scheme.walls.particle_force[top]  # the rows' pressure force on the solids
+    if adhesion:
+        assert np.all(force_on_roof[:, 1] < -1e-3)  # the roof pulled down by the fluid: the fluid pulled up
+    else:
+        assert np.abs(force_on_roof).max() == 0.0
+
+
 @pytest.mark.parametrize("model", ["clone", "ghost"])
 def test_the_tanks_free_surface_is_its_top_only(tmp_path, model):
     """The hydrostatic tank's free-surface detection (dx = 0.05), which the tensile switch (on here) and the
