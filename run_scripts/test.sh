@@ -12,11 +12,25 @@ py="$PSPH_PYTHON"
 echo "== serial tests (MPI tests included, on 1 rank; two workers)"
 "$py" -m pytest --with-mpi -n 2 "$@"
 
-for n in 2 3; do
-    echo "== MPI tests on $n ranks"
+mpi_tests() {
     # rank 0 reports; the other ranks' failures still print (tests/conftest.py aborts all ranks on a failure)
-    timeout 1800 mpiexec -n "$n" --oversubscribe bash -c \
+    timeout 900 mpiexec -n "$1" --oversubscribe bash -c \
         'if [ "${OMPI_COMM_WORLD_RANK:-0}" = 0 ]; then exec "$0" "$@"; else exec "$0" "$@" >/dev/null; fi' \
         "$py" -m pytest --with-mpi -m mpi -q -p no:cacheprovider
+}
+
+for n in 2 3; do
+    echo "== MPI tests on $n ranks"
+    status=0
+    mpi_tests "$n" || status=$?
+    # A 3-rank run hung twice in seven on 2026-11-28 (ranks waiting in different collectives; cause not
+    # found, README "Known issues"): a run that times out (exit 124) is run again once, saying so. A failing
+    # test fails at once, as before.
+    if [ "$status" = 124 ]; then
+        echo "== MPI tests on $n ranks timed out after 900 s: running them once more"
+        mpi_tests "$n"
+    elif [ "$status" != 0 ]; then
+        exit "$status"
+    fi
 done
 echo "== all tests passed"
