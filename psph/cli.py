@@ -160,7 +160,8 @@ def _scene_and_restart(args, comm):
         sets.append(f"output.checkpoint_minutes={args.checkpoint_minutes}")
     restart = None
     if args.restart:
-        from psph.io.checkpoint import read_checkpoint
+        from psph.io.checkpoint import check_positions, read_checkpoint
+        from psph.simulation import make_domain
 
         if args.scene:
             raise UsageError("give a scene or --restart CHECKPOINT, not both (the checkpoint holds its scene)")
@@ -173,6 +174,7 @@ def _scene_and_restart(args, comm):
             saved = scene_from_table(restart[0]["scene"])
         except SceneError as err:
             raise UsageError(f"cannot restart from {args.restart!r}: its scene: {err}") from None
+        check_positions(comm, args.restart, restart[1], make_domain(saved))
         if driver_for(saved) is StaticDriver:
             raise UsageError(f"cannot restart from {args.restart!r}: its scene is a static run (physics.scheme = "
                              "'none'), which writes no checkpoints")
@@ -221,7 +223,7 @@ def _start_log(path, line: str) -> None:
 def cmd_run(args, petsc_options, comm) -> int:
     from psph.drivers import driver_for
     from psph.io.checkpoint import results_after
-    from psph.io.files import clear_results, holds_results
+    from psph.io.files import holds_results
     from psph.simulation import check_resources
     from psph.solvers.petsc import initialize
 
@@ -247,35 +249,17 @@ def cmd_run(args, petsc_options, comm) -> int:
     if scene.shifting.method == "iips" or scene.iips.pre_newton > 0:
         from psph.shifting.iips import ImplicitShifting
 
-        ImplicitShifting(scene.iips, comm).destroy()  # a bad -iips_ option stops the run before --overwrite clears
+        shifting = ImplicitShifting(scene.iips, comm)  # a bad -iips_ option stops the run before --overwrite clears
+        try:
+            shifting.trial(scene.domain.dimension)
+        finally:
+            shifting.destroy()
     log_path = os.path.abspath(args.log) if args.log else os.path.join(out, "psph.log")
     first = (f"psph: running scene {scene.name!r} on {comm.size} rank(s)"
              + (f", continuing {args.restart}" if restart else "") + f" ({' '.join(sys.argv[1:]) or 'run'})")
-    failure = None
-    if comm.rank == 0:
-        try:  # a log the user named is checked first: refused, it leaves everything else untouched
-            if args.log:
-                if os.path.commonpath([os.path.abspath(out), os.path.dirname(log_path)]) == os.path.abspath(out):
-                    os.makedirs(os.path.dirname(log_path), exist_ok=True)  # a log inside the new --out
-                _start_log(log_path, first)
-        except OSError as err:
-            failure = f"--log {args.log!r}: {err.strerror or err}"
-        try:
-            if failure is None:
-                if args.overwrite and not continuing:
-                    clear_results(out, keep=[log_path] if args.log else [])
-                os.makedirs(out, exist_ok=True)
-        except OSError as err:  # every rank stops with it, none waits for rank 0
-            failure = f"output directory {out!r}: {err.strerror or err}"
-        try:
-            if failure is None:
-                for path in later:  # before the log line that tells of it
-                    os.unlink(path)
-                if not args.log:
-                    _start_log(log_path, first)
-        except OSError as err:
-            failure = f"{err.filename or log_path!r}: {err.strerror or err}"
-    failure = comm.bcast(failure, root=0)
+    # every rank stops with rank 0's failure, none waits for rank 0
+    failure = comm.bcast(_prepare_output(args, out, log_path, first, continuing, later) if comm.rank == 0 else None,
+                         root=0)
     if failure:
         raise UsageError(failure)
     _LOG["path"] = log_path
@@ -301,6 +285,35 @@ def cmd_run(args, petsc_options, comm) -> int:
         f"{summary['wall_time_s']:.2f} s; results in {out}")
     _warn_unused_options(comm)
     return 0
+
+
+def _prepare_output(args, out, log_path, first, continuing, later):
+    """Rank 0, before a run: start the log (a log the user named first: refused, it leaves everything else
+    untouched), clear the directory (--overwrite) or remove what an in-place continuation replaces (`later`).
+    Returns what failed, in one line, or None."""
+    from psph.io.files import clear_results
+
+    try:
+        if args.log:
+            if os.path.commonpath([os.path.abspath(out), os.path.dirname(log_path)]) == os.path.abspath(out):
+                os.makedirs(os.path.dirname(log_path), exist_ok=True)  # a log inside the new --out
+            _start_log(log_path, first)
+    except OSError as err:
+        return f"--log {args.log!r}: {err.strerror or err}"
+    try:
+        if args.overwrite and not continuing:
+            clear_results(out, keep=[log_path] if args.log else [])
+        os.makedirs(out, exist_ok=True)
+    except OSError as err:
+        return f"output directory {out!r}: {err.strerror or err}"
+    try:
+        for path in later:  # before the log line that tells of it
+            os.unlink(path)
+        if not args.log:
+            _start_log(log_path, first)
+    except OSError as err:
+        return f"{err.filename or log_path!r}: {err.strerror or err}"
+    return None
 
 
 # PETSc options read only when PETSc finalises, after psph's check

@@ -38,7 +38,9 @@ class NumericalError(PsphError):
         if gid is not None:
             where.append(f"particle gid {gid}")
         if position is not None:
-            where.append("at (" + ", ".join(f"{v:.6g}" for v in position) + ")")
+            finite = all(abs(float(v)) < float("inf") for v in position)  # NaN fails the comparison too
+            where.append(("at (" if finite else "at a non-finite position (") + ", ".join(f"{v:.6g}" for v in position)
+                         + ")")
         super().__init__(message + (" [" + ", ".join(where) + "]" if where else ""))
 
 

@@ -165,7 +165,8 @@ class ParticleSystem:
             what = (f"{counts[1]} particle(s) with a non-finite position" if broken[k] else
                     f"{counts[0] - counts[1]} particle(s) left the domain"
                     + (f" and {counts[1]} have a non-finite position" if counts[1] else ""))
-            error = NumericalError(what, gid=int(self.particles.owned("gid")[k]), position=pos[k], **self.where)
+            place = None if broken[k] else pos[k]  # a non-finite position is no place
+            error = NumericalError(what, gid=int(self.particles.owned("gid")[k]), position=place, **self.where)
         raise_if_any(self.comm, error)
 
     def separate_coincident(self, tolerance: float, offset: float) -> int:

@@ -23,9 +23,9 @@ for n in 2 3; do
     echo "== MPI tests on $n ranks"
     status=0
     mpi_tests "$n" || status=$?
-    # A 3-rank run hung twice in seven on 2026-11-28 (ranks waiting in different collectives; cause not
-    # found, README "Known issues"): a run that times out (exit 124) is run again once, saying so. A failing
-    # test fails at once, as before.
+    # A 3-rank run hung about once in three under load until PETSc's duplicate communicators were kept alive
+    # (psph.solvers.petsc.petsc_comm; README "Known issues": too rare to prove gone): a run that times out
+    # (exit 124) is run again once, saying so. A failing test fails at once, as before.
     if [ "$status" = 124 ]; then
         echo "== MPI tests on $n ranks timed out after 900 s: running them once more"
         mpi_tests "$n"

@@ -180,17 +180,37 @@ def test_petsc_options_that_nothing_read_are_named_in_a_warning(tmp_path):
     assert res.returncode == 0 and "nothing read: -iips_pc_type hypre" in res.stderr, res.stderr
 
 
-def test_a_bad_iips_option_keeps_the_results_overwrite_would_replace(tmp_path):
+@pytest.mark.parametrize("ranks, options, message", [
+    (1, ["-iips_pc_type", "nonexistent"], "Unable to find requested PC type nonexistent"),
+    (1, ["-iips_mat_type", "baij", "-iips_pc_type", "gamg"], "No method creategraph for Mat of type seqbaij"),
+    (2, ["-iips_mat_type", "baij", "-iips_pc_type", "gamg"], "No method creategraph for Mat of type mpibaij")])
+def test_a_bad_iips_option_keeps_the_results_overwrite_would_replace(tmp_path, ranks, options, message):
     """--overwrite cleared the directory before the solver read its options: a misspelt preconditioner
-    lost the previous run. The -iips_ options are now checked first."""
+    lost the previous run. The -iips_ options are now checked first, and the solver solves a small test
+    system: GAMG, which accepts a BAIJ matrix and fails only at its first solve, is refused there."""
     out = tmp_path / "out"
     base = ["run", CASES / "static_perturbed.toml", "--out", out, "--quiet", "--set", "domain.dx=0.1", "--set",
             "shifting.method=iips"]
-    assert run_psph(*base).returncode == 0
+    assert run_psph(*base, ranks=ranks).returncode == 0
     before = sorted(p.name for p in out.iterdir())
-    res = run_psph(*base, "--overwrite", "-iips_pc_type", "nonexistent")
-    assert res.returncode == 2 and "Unable to find requested PC type nonexistent" in res.stderr, res.stderr
+    res = run_psph(*base, "--overwrite", *options, ranks=ranks)
+    assert res.returncode == 2 and message in res.stderr, res.stderr
+    assert "Traceback" not in res.stderr
     assert sorted(p.name for p in out.iterdir()) == before and (out / "summary.json").exists()
+
+
+def test_the_trial_solve_prints_nothing(tmp_path):
+    """The trial solve runs without the options that make a solve print: -iips_ksp_view and
+    -iips_ksp_converged_reason print once per Newton iteration of the run, on a Python (matrix-free) matrix."""
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path, "--set", "domain.dx=0.1", "--set",
+                   "shifting.method=iips", "-iips_ksp_view", "-iips_ksp_converged_reason", "-iips_ksp_monitor")
+    assert res.returncode == 0, res.stderr
+    newton = json.loads((tmp_path / "summary.json").read_text())["steps"]
+    assert newton > 0
+    assert res.stdout.count("Linear iips_ solve converged") == newton
+    assert res.stdout.count("KSP Object: (iips_)") == newton
+    assert res.stdout.count("type: python") == newton and "seqaij" not in res.stdout
+    assert res.stdout.count(" 0 KSP Residual norm") == newton
 
 
 def test_a_checkpoint_older_than_wall_adhesion_keeps_the_walls_it_ran_with():

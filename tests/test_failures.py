@@ -84,5 +84,14 @@ def test_a_non_finite_position_stops_before_the_neighbour_search(tmp_path):
     system = build_system(load_scene(CASES / "taylor_green.toml", ["domain.dx=0.1"]), MPI.COMM_SELF)
     system.particles.owned("position")[3] = np.nan
     system.where = {"step": 7, "time": 0.5}
-    with pytest.raises(NumericalError, match=r"1 particle\(s\) with a non-finite position \[step 7, t = 0.5"):
+    with pytest.raises(NumericalError, match=r"1 particle\(s\) with a non-finite position \[step 7, t = 0.5, "
+                                             r"particle gid \d+\]$"):  # no "at (nan, nan)"
         system.rebuild()
+
+
+def test_a_failure_names_its_place_and_says_when_that_is_not_finite():
+    from psph.errors import NumericalError
+
+    assert str(NumericalError("NaN density", step=3, gid=5, position=[0.25, 1.0])) == \
+        "NaN density [step 3, particle gid 5, at (0.25, 1)]"
+    assert str(NumericalError("NaN density", position=[np.nan, 1.0])).endswith("at a non-finite position (nan, 1)]")

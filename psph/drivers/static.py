@@ -1,7 +1,8 @@
 """physics.scheme = "none": a static particle distribution, measured and, with a shifting method,
 improved iteration by iteration (thesis 8.3.1, Algorithm 1).
 
-history.csv gets one row per iteration (iteration 0 is the initial state) with L2/Linf(grad C),
+history.csv gets one row per iteration (iteration 0 is the initial state; its time column is the iteration,
+as a snapshot's time is) with L2/Linf(grad C),
 L2(d f/dx), the linear iterations and the cumulative shifting time; snapshots hold the initial and the
 final state; summary.json the final diagnostics and the Cartesian-lattice reference value of L2(d f/dx)
 at the same resolution (the dashed lines of thesis figs 8.5-8.6).
@@ -44,8 +45,8 @@ class StaticDriver:
         elapsed = {"shifting_time_s": 0.0, "linear_iterations": 0}
         sim.history.append({"time": 0.0, "iteration": 0, **report, "L2_dfdx_cartesian": reference,
                             "ksp_iterations": 0, "linear_iterations": 0, "shifting_time_s": 0.0})
-        # a snapshot's time is its iteration: ParaView steps through them (two at time 0 read as one time step,
-        # whose data it cannot show)
+        # a snapshot's time, and a history row's, is its iteration: ParaView steps through them (two at time 0
+        # read as one time step, whose data it cannot show), and the history's time axis matches theirs
         sim.snapshots.write(system.particles, step=0, time=0.0, extra={"grad_c": grad_c(system)})
         sim.log(f"iteration 0: L2(grad C) = {report['L2_grad_c']:.4e}, L2(df/dx) = {report['L2_dfdx']:.4e} "
                 f"(Cartesian {reference:.4e})")
@@ -57,8 +58,8 @@ class StaticDriver:
             elapsed["shifting_time_s"] += info["newton_time_s"]
             elapsed["linear_iterations"] += info["ksp_iterations"]
             report = distribution_report(system, wavelength)
-            sim.history.append({"time": 0.0, "iteration": info["newton"], **report, "L2_dfdx_cartesian": reference,
-                                "ksp_iterations": info["ksp_iterations"], **elapsed})
+            sim.history.append({"time": float(info["newton"]), "iteration": info["newton"], **report,
+                                "L2_dfdx_cartesian": reference, "ksp_iterations": info["ksp_iterations"], **elapsed})
             sim.log(f"iteration {info['newton']}: L2(grad C) = {report['L2_grad_c']:.4e}, "
                     f"L2(df/dx) = {report['L2_dfdx']:.4e}, KSP iterations {info['ksp_iterations']}")
             stopped.append(sim.stop_requested())

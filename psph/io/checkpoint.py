@@ -183,6 +183,21 @@ def read_checkpoint(comm, path) -> tuple:
     return result
 
 
+def check_positions(comm, path, particles, domain) -> None:
+    """Refuse a checkpoint whose particles lie outside its scene's `domain` along a closed axis (a damaged
+    or edited file: a run writes its checkpoints after the escape check), naming the count and the first such
+    particle, as a UsageError on every rank. Collective."""
+    pos = particles.owned("position")
+    out = np.flatnonzero(domain.outside(pos))
+    first = (int(particles.owned("gid")[out[0]]), tuple(float(v) for v in pos[out[0]])) if len(out) else None
+    found = [f for f in comm.allgather(first) if f is not None]
+    if found:
+        count = int(comm.allreduce(len(out)))
+        gid, at = found[0]
+        raise UsageError(f"cannot restart from {str(path)!r}: {count} particle(s) outside the scene's domain "
+                         f"(gid {gid} at (" + ", ".join(f"{v:.6g}" for v in at) + "))")
+
+
 def latest_checkpoint(out_dir):
     """The newest complete checkpoint in `out_dir` (temporary files never count), or None."""
     found = _checkpoints(out_dir)

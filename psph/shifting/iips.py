@@ -42,6 +42,7 @@ from psph.particles import FieldSpec
 from psph.profiling import phase
 from psph.shifting.base import ShiftReport, measure
 from psph.shifting.iips_operator import iips_operator
+from psph.solvers.aij import chain_matrix
 from psph.solvers.linear import LinearSolver
 from psph.solvers.petsc import destroy_at_exit, petsc
 
@@ -52,6 +53,8 @@ BEST_FIELD = FieldSpec("iips_best_shift", ("d",))
 GUESS_FIELD = FieldSpec("iips_first_step", ("d",))
 # the last Newton step (iips.backtrack halves it back; a field, so that it follows the particles)
 STEP_FIELD = FieldSpec("iips_step", ("d",))
+# block rows per rank of the trial system (trial)
+TRIAL_ROWS = 4
 # particles closer than COINCIDENT h count as coincident and are first nudged NUDGE h apart
 COINCIDENT = 1e-6
 NUDGE = 1e-3
@@ -200,6 +203,17 @@ class ImplicitShifting:
             for obj in (self.rhs, self.dx, self.residual):
                 obj.destroy()
             self._structure_of = None
+
+    def trial(self, dim) -> None:
+        """Solve once with this -iips_ solver on a small test system in `dim` dimensions (solvers.aij.chain_matrix,
+        of the -iips_mat_type the assembled operator would have; the matrix-free operator's preconditioners need
+        only a diagonal, which any type gives), so that a solver PETSc refuses only at a first solve stops a run
+        before it touches its output (LinearSolver.trial). Collective."""
+        matrix = chain_matrix(self.solver.comm, TRIAL_ROWS, dim, self.solver.prefix)
+        try:
+            self.solver.trial(matrix.mat)
+        finally:
+            matrix.destroy()
 
     def destroy(self) -> None:
         """Free the PETSc operator, vectors and solver now. Collective."""

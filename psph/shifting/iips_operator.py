@@ -26,7 +26,7 @@ from psph.errors import PsphError, UsageError
 from psph.parallel.comm import allreduce_sum
 from psph.solvers.aij import FixedPatternMatrix
 from psph.solvers.linear import petsc_errors
-from psph.solvers.petsc import petsc
+from psph.solvers.petsc import petsc, petsc_comm
 
 # preconditioners that need only the operator's product and diagonal
 MATRIX_FREE_PCS = ("jacobi", "none")
@@ -109,13 +109,13 @@ class MatrixFreeOperator:
         with petsc_errors("creating the matrix-free IIPS operator"):
             self.ghost = PETSc.Vec().createWithArray(self.x[n_free:].ravel(), comm=PETSc.COMM_SELF)
             if system.comm.size > 1:
-                layout = PETSc.Vec().createMPI((n_free * d, n_total * d), bsize=d, comm=system.comm)
+                layout = PETSc.Vec().createMPI((n_free * d, n_total * d), bsize=d, comm=petsc_comm(system.comm))
                 index = PETSc.IS().createBlock(d, ghost_rows.astype(PETSc.IntType), comm=PETSc.COMM_SELF)
                 self.scatter = PETSc.Scatter().create(layout, index, self.ghost, None)
                 index.destroy()
                 layout.destroy()
             self.mat = PETSc.Mat().createPython(((n_free * d, n_total * d), (n_free * d, n_total * d)),
-                                                context=_PythonMatrix(self), comm=system.comm)
+                                                context=_PythonMatrix(self), comm=petsc_comm(system.comm))
             self.mat.setOptionsPrefix(self.prefix)
             self.mat.setUp()
 

@@ -20,8 +20,8 @@ import numpy as np
 
 from psph.compute.csr import block_codes, block_pattern, split_csr, split_positions
 from psph.errors import PsphError
-from psph.parallel.comm import exclusive_scan
-from psph.solvers.petsc import petsc
+from psph.parallel.comm import allreduce_sum, exclusive_scan
+from psph.solvers.petsc import petsc, petsc_comm
 
 _lib = {}
 _ptr = ctypes.c_void_p
@@ -109,7 +109,7 @@ def _aij_on_arrays(comm, indptr, indices, n_global):
     if comm.size == 1:
         arrays = (np.asarray(indptr, dtype=PETSc.IntType), np.asarray(indices, dtype=PETSc.IntType),
                   np.zeros(len(indices)))
-        return PETSc.Mat().createAIJWithArrays((n_local, n_local), arrays, comm=comm), arrays
+        return PETSc.Mat().createAIJWithArrays((n_local, n_local), arrays, comm=petsc_comm(comm)), arrays
     from mpi4py import MPI
 
     start = exclusive_scan(comm, n_local)
@@ -118,8 +118,8 @@ def _aij_on_arrays(comm, indptr, indices, n_global):
     arrays += (np.zeros(len(dj)), np.zeros(len(oj)))
     di, dj, oi, oj, da, oa = arrays
     lib = _petsc_library()
-    handle = _ptr()
-    _check(lib.MatCreateMPIAIJWithSplitArrays(_ptr(MPI._handleof(comm)), n_local, n_local, n_global, n_global,
+    handle, mpi_comm = _ptr(), _ptr(MPI._handleof(petsc_comm(comm)))
+    _check(lib.MatCreateMPIAIJWithSplitArrays(mpi_comm, n_local, n_local, n_global, n_global,
                                               di.ctypes.data, dj.ctypes.data, da.ctypes.data, oi.ctypes.data,
                                               oj.ctypes.data, oa.ctypes.data, ctypes.byref(handle)),
            "MatCreateMPIAIJWithSplitArrays")
@@ -136,8 +136,8 @@ def _baij(comm, bptr, bcols, bsize, n_global):
     sizes = ((n_local, n_global), (n_local, n_global))
     bptr, bcols = (np.asarray(a, dtype=PETSc.IntType) for a in (bptr, bcols))
     if comm.size > 1:
-        return PETSc.Mat().createBAIJ(sizes, bsize, csr=(bptr, bcols), comm=comm)
-    mat = PETSc.Mat().createBAIJ(sizes, bsize, nnz=np.diff(bptr), comm=comm)
+        return PETSc.Mat().createBAIJ(sizes, bsize, csr=(bptr, bcols), comm=petsc_comm(comm))
+    mat = PETSc.Mat().createBAIJ(sizes, bsize, nnz=np.diff(bptr), comm=petsc_comm(comm))
     _check(_petsc_library().MatSeqBAIJSetColumnIndices(mat.handle, bcols.ctypes.data), "MatSeqBAIJSetColumnIndices")
     mat.assemble()
     return mat
@@ -148,7 +148,7 @@ def _wrap(comm, handle):
     a C handle directly; a PC hands back the operator it was given as a Mat."""
     PETSc = petsc()
     lib = _petsc_library()
-    pc = PETSc.PC().create(comm=comm)
+    pc = PETSc.PC().create(comm=petsc_comm(comm))
     _check(lib.PCSetOperators(_ptr(pc.handle), handle, handle), "PCSetOperators")
     mat, _ = pc.getOperators()
     pc.destroy()
@@ -183,7 +183,7 @@ class FixedPatternMatrix:
             mat, self.arrays = _aij_on_arrays(comm, indptr, indices, n_global)
             mat.setBlockSize(bsize)
         else:
-            mat = PETSc.Mat().create(comm=comm)
+            mat = PETSc.Mat().create(comm=petsc_comm(comm))
             mat.setSizes(((n_local, n_global), (n_local, n_global)), bsize=bsize)
         mat.setOptionsPrefix(prefix)
         if family is None:
@@ -282,3 +282,33 @@ class FixedPatternMatrix:
                 for handle, data in pointers:
                     _check(restore(handle, ctypes.byref(data)), restore_name)
         self.mat.assemble()
+
+
+def chain_matrix(comm, rows_per_rank, bsize, prefix) -> FixedPatternMatrix:
+    """A small well-posed test matrix: `rows_per_rank` block rows on every rank, each coupled to the block
+    rows before and after it (a chain over the ranks), diagonal blocks 4 I and off-diagonal blocks -I
+    (symmetric, strictly diagonally dominant), of the type `-<prefix>mat_type` gives (aij by default).
+    Collective."""
+    first = int(exclusive_scan(comm, rows_per_rank))
+    n_blocks = int(allreduce_sum(comm, rows_per_rank))
+    indptr, indices, values = [0], [], []
+    for g in range(first, first + rows_per_rank):
+        blocks = [s for s in (g - 1, g, g + 1) if 0 <= s < n_blocks]
+        for a in range(bsize):  # row-oriented: row a of the block row, then block s, then column b
+            for s in blocks:
+                for b in range(bsize):
+                    indices.append(s * bsize + b)
+                    values.append((4.0 if s == g else -1.0) if a == b else 0.0)
+            indptr.append(len(indices))
+    indptr, indices, values = np.array(indptr), np.array(indices), np.array(values)
+    matrix = FixedPatternMatrix(comm, indptr, indices, np.arange(len(values)), n_blocks * bsize, bsize, prefix)
+
+    def fill(where, diag, off):
+        diag[:] = 0.0
+        off[:] = 0.0
+        local = where >= 0
+        np.add.at(diag, where[local], values[local])
+        np.add.at(off, -1 - where[~local], values[~local])
+
+    matrix.set_values(fill)
+    return matrix

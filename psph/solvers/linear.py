@@ -14,7 +14,7 @@ from mpi4py import MPI
 
 from psph.errors import PsphError, SolverError, UsageError
 from psph.profiling import phase
-from psph.solvers.petsc import petsc
+from psph.solvers.petsc import petsc, petsc_comm
 
 # PETSc's error codes an option can cause (petscerror.h): PETSC_ERR_SUP, _ARG_WRONG, _ARG_OUTOFRANGE,
 # _ARG_INCOMP, _USER (hypre's unknown option values), _ARG_UNKNOWN_TYPE: raised by collective set-up calls
@@ -47,6 +47,26 @@ def petsc_errors(what: str):
         raise err from None
 
 
+# options that make a solve print, or raise where it would return a diverged reason (KSPSolve reads them); a
+# trial solve is done without them
+OUTPUT_OPTIONS = re.compile(r"(ksp|pc|mat)_(view|monitor|converged_reason|error_if_not_converged)")
+
+
+@contextmanager
+def _without_output_options(prefix):
+    """Take the options of prefix `prefix` that make a solve print or raise (OUTPUT_OPTIONS) out of the
+    database while the body runs, and put them back after it."""
+    options = petsc().Options()
+    held = {k: v for k, v in options.getAll().items() if k.startswith(prefix) and OUTPUT_OPTIONS.match(k[len(prefix):])}
+    for key in held:
+        options.delValue(key)
+    try:
+        yield
+    finally:
+        for key, value in held.items():
+            options.setValue(key, value)
+
+
 def reason_name(reason: int) -> str:
     table = petsc().KSP.ConvergedReason
     for name in dir(table):
@@ -73,7 +93,7 @@ class LinearSolver:
         PETSc = petsc()
         d = settings or self.defaults
         with petsc_errors(f"setting up the -{self.prefix} solver"):
-            ksp = PETSc.KSP().create(comm=self.comm)
+            ksp = PETSc.KSP().create(comm=petsc_comm(self.comm))
             ksp.setOptionsPrefix(self.prefix)
             ksp.setType(d["ksp_type"])
             ksp.getPC().setType(d["pc_type"])
@@ -116,6 +136,29 @@ class LinearSolver:
             error.collective = True  # reason and norm are global: every rank raises it
             raise error
         return its
+
+    def trial(self, mat) -> None:
+        """Solve `mat` x = 1 once with this solver's types and options, quietly (no monitor, view or converged-
+        reason output), so that what PETSc refuses only at a first solve (GAMG on a BAIJ matrix, a Krylov
+        method that breaks down with its preconditioner) is found before a run touches its output. A failure
+        is bad input: a UsageError naming the solver's options. For a solver about to be dropped: its KSP is
+        made anew without those options (PETSc takes its viewers and monitors from the options when a KSP is set
+        up from them). Collective."""
+        b, x = mat.createVecs()
+        b.set(1.0)
+        x.set(0.0)
+        try:
+            with _without_output_options(self.prefix):
+                self.ksp.destroy()
+                self.ksp = self._create()
+                self.set_operator(mat)
+                self.solve(b, x)
+        except SolverError as err:
+            raise UsageError(f"the -{self.prefix} solver ({self.describe()}) fails on a small well-posed test "
+                             f"system: {err}; check the command-line PETSc options") from None
+        finally:
+            b.destroy()
+            x.destroy()
 
     def describe(self) -> str:
         pc = self.ksp.getPC()

@@ -13,6 +13,8 @@ _state = {"argv": None}
 # destroy is collective)
 _live = weakref.WeakValueDictionary()
 _registered = itertools.count()
+# an empty vector on every communicator of several ranks that PETSc objects were made on (petsc_comm)
+_anchors = {}
 
 
 def _find_debian_petsc4py() -> None:
@@ -87,6 +89,28 @@ def petsc():
     from petsc4py import PETSc
 
     return PETSc
+
+
+def petsc_comm(comm):
+    """`comm`, for creating a PETSc object on it: the first call for a communicator of several ranks also
+    creates an empty PETSc vector on it that lives until exit, which keeps PETSc's own duplicate of the
+    communicator alive. Collective on first use (call it where the object is created).
+
+    PETSc duplicates a communicator (MPI_Comm_dup, collective) for the first object made on it, and frees the
+    duplicate with the last object. Whether the last object has gone can differ between ranks: a Python
+    wrapper of a PETSc object caught in a reference cycle lives until the cyclic collector runs, which it
+    does at different moments on different ranks. The next object made on the communicator then calls
+    MPI_Comm_dup on some ranks only, and the ranks wait in different collectives (tests/parallel/
+    test_petsc_comm.py; README "Known issues": the 3-rank test runs that hung). Kept alive, the duplicate is
+    made once, when every rank makes the first object."""
+    if comm.size > 1:
+        from mpi4py import MPI
+
+        key = MPI._handleof(comm)  # psph never frees a communicator, so no handle is reused
+        if key not in _anchors:
+            _anchors[key] = petsc().Vec().createMPI((0, None), comm=comm)
+            destroy_at_exit(_anchors[key])
+    return comm
 
 
 def is_initialized() -> bool:

@@ -20,6 +20,7 @@ def test_static_iips_run_writes_one_row_per_newton_iteration(tmp_path):
     assert res.returncode == 0, res.stderr
     rows = read_history(out / "history.csv")
     assert [r["iteration"] for r in rows] == [0, 1, 2, 3, 4, 5]
+    assert [r["time"] for r in rows] == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]  # the snapshots' time axis
     assert rows[-1]["L2_grad_c"] < 1e-2 * rows[0]["L2_grad_c"]
     assert all(r["ksp_iterations"] > 0 for r in rows[1:])
     summary = json.loads((out / "summary.json").read_text())

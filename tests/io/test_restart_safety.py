@@ -276,3 +276,30 @@ def test_a_log_that_cannot_be_written_is_refused_before_any_work(finished, scene
     before = contents(run)
     one_line_error(run_psph("run", scene_file, "--out", run, "--log", log, "--overwrite"))
     assert contents(run) == before
+
+
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_a_checkpoint_with_a_particle_outside_its_domain_is_refused(finished, tmp_path, ranks):
+    """A finite position far outside the box (an edited or damaged file) was taken, and the restart stopped
+    at its first rebuild as a numerical failure (exit 3). It is bad input, refused before any work: here the
+    scene's x axis made closed (in the file's own scene) and one particle moved to x = 7."""
+    def far_particle(f):
+        def close_x(state):
+            state["scene"]["domain"]["periodic"] = [False, True]
+            state["scene"]["initial"]["velocity"] = "zero"  # Taylor-Green needs both axes periodic
+
+        edit_state(close_x)(f)
+        pos = f["particles/position"][()]
+        pos[-1, 0] = 7.0
+        f["particles/position"][...] = pos
+        gid = int(f["particles/gid"][-1])
+        f.attrs["test_gid"] = gid
+
+    bad = edit_checkpoint(finished / CHECKPOINT, tmp_path / "far.h5", far_particle)
+    with h5py.File(bad) as f:
+        gid, y = int(f.attrs["test_gid"]), float(f["particles/position"][-1, 1])
+    done = run_psph("run", "--restart", bad, "--out", tmp_path / "out", ranks=ranks, timeout=120)
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert done.stderr.splitlines()[0] == (f"psph: error: cannot restart from {str(bad)!r}: 1 particle(s) outside "
+                                           f"the scene's domain (gid {gid} at (7, {y:.6g}))")
+    assert not (tmp_path / "out").exists()
