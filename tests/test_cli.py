@@ -178,6 +178,10 @@ def test_petsc_options_that_nothing_read_are_named_in_a_warning(tmp_path):
     res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "b", "--quiet", "--set",
                    "domain.dx=0.1", "-iips_pc_type", "hypre")  # no IIPS in this scene
     assert res.returncode == 0 and "nothing read: -iips_pc_type hypre" in res.stderr, res.stderr
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "c", "--quiet", "--set",
+                   "domain.dx=0.1", "--set", "shifting.method=iips", "--set", "iips.operator=matrix_free",
+                   "-iips_mat_type", "aij")  # the matrix-free operator reads no matrix type, nor does the trial
+    assert res.returncode == 0 and "nothing read: -iips_mat_type aij" in res.stderr, res.stderr
 
 
 @pytest.mark.parametrize("ranks, options, message", [
@@ -199,6 +203,21 @@ def test_a_bad_iips_option_keeps_the_results_overwrite_would_replace(tmp_path, r
     assert sorted(p.name for p in out.iterdir()) == before and (out / "summary.json").exists()
 
 
+ONE_D = ["--set", "domain.dimension=1", "--set", "domain.lower=[0.0]", "--set", "domain.upper=[1.0]", "--set",
+         "domain.periodic=[true]"]
+
+
+@pytest.mark.parametrize("options", [
+    ["-iips_mat_type", "sell"],  # no trial: PETSc 3.18's SELL mangles the trial's small matrix
+    ONE_D + ["-iips_mat_type", "baij", "-iips_pc_type", "gamg"],  # BAIJ of block size 1 is AIJ (a traceback)
+    ["-iips_pc_type", "hypre"]])
+def test_the_trial_solve_refuses_no_solver_that_works(tmp_path, options):
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path, "--quiet", "--set", "domain.dx=0.1",
+                   "--set", "shifting.method=iips", "--set", "iips.max_newton=2", *options)
+    assert res.returncode == 0, res.stderr
+    assert json.loads((tmp_path / "summary.json").read_text())["steps"] == 2
+
+
 def test_the_trial_solve_prints_nothing(tmp_path):
     """The trial solve runs without the options that make a solve print: -iips_ksp_view and
     -iips_ksp_converged_reason print once per Newton iteration of the run, on a Python (matrix-free) matrix."""
@@ -211,6 +230,13 @@ def test_the_trial_solve_prints_nothing(tmp_path):
     assert res.stdout.count("KSP Object: (iips_)") == newton
     assert res.stdout.count("type: python") == newton and "seqaij" not in res.stdout
     assert res.stdout.count(" 0 KSP Residual norm") == newton
+    # an inner solver's view and the convergence rate: the trial's 4 block rows (8 rows in 2-D) never show
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "b", "--set", "domain.dx=0.1",
+                   "--set", "shifting.method=iips", "--set", "iips.max_newton=2", "-iips_pc_type", "bjacobi",
+                   "-iips_sub_ksp_view", "-iips_ksp_converged_rate")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.count("Linear iips_ solve converged") == 2 and "rows=8," not in res.stdout
+    assert "rows=200," in res.stdout  # the run's own sub-solver
 
 
 def test_a_checkpoint_older_than_wall_adhesion_keeps_the_walls_it_ran_with():

@@ -41,8 +41,8 @@ from psph.parallel.comm import allreduce_max, allreduce_sum
 from psph.particles import FieldSpec
 from psph.profiling import phase
 from psph.shifting.base import ShiftReport, measure
-from psph.shifting.iips_operator import iips_operator
-from psph.solvers.aij import chain_matrix
+from psph.shifting.iips_operator import AssembledOperator, iips_operator
+from psph.solvers.aij import chain_matrix, family_of
 from psph.solvers.linear import LinearSolver
 from psph.solvers.petsc import destroy_at_exit, petsc
 
@@ -208,8 +208,14 @@ class ImplicitShifting:
         """Solve once with this -iips_ solver on a small test system in `dim` dimensions (solvers.aij.chain_matrix,
         of the -iips_mat_type the assembled operator would have; the matrix-free operator's preconditioners need
         only a diagonal, which any type gives), so that a solver PETSc refuses only at a first solve stops a run
-        before it touches its output (LinearSolver.trial). Collective."""
-        matrix = chain_matrix(self.solver.comm, TRIAL_ROWS, dim, self.solver.prefix)
+        before it touches its output (LinearSolver.trial). The matrix-free operator's trial matrix is AIJ (it
+        reads no -iips_mat_type, which the run does not read either); an assembled operator of a type other
+        than AIJ or BAIJ (-iips_mat_type sell, ...) gets no trial: PETSc 3.18's SELL mangles so small a matrix.
+        Collective."""
+        assembled = isinstance(self.operator, AssembledOperator)
+        if assembled and family_of(self.solver.prefix) is None:
+            return
+        matrix = chain_matrix(self.solver.comm, TRIAL_ROWS, dim, self.solver.prefix if assembled else "psph_trial_")
         try:
             self.solver.trial(matrix.mat)
         finally:

@@ -173,10 +173,10 @@ class FixedPatternMatrix:
         PETSc = petsc()
         n_local = len(indptr) - 1
         self.arrays = ()
-        requested = PETSc.Options().getString(f"{prefix}mat_type", "aij")
-        family = {"aij": "aij", "seqaij": "aij", "mpiaij": "aij", "baij": "baij", "seqbaij": "baij",
-                  "mpibaij": "baij"}.get(requested)
-        if family == "baij" and bsize > 1:
+        family = family_of(prefix)
+        if family == "baij" and bsize == 1:  # blocks of one value: AIJ in all but name (1-D)
+            family = "aij"
+        if family == "baij":
             bptr, bcols = block_pattern(indptr, indices, bsize)
             mat = _baij(comm, bptr, bcols, bsize, n_global)
         elif family == "aij":
@@ -282,6 +282,14 @@ class FixedPatternMatrix:
                 for handle, data in pointers:
                     _check(restore(handle, ctypes.byref(data)), restore_name)
         self.mat.assemble()
+
+
+def family_of(prefix) -> str:
+    """"aij" or "baij", the matrix families FixedPatternMatrix writes in place, for `-<prefix>mat_type`
+    (aij when not given); None for another type."""
+    requested = petsc().Options().getString(f"{prefix}mat_type", "aij")
+    return {"aij": "aij", "seqaij": "aij", "mpiaij": "aij", "baij": "baij", "seqbaij": "baij",
+            "mpibaij": "baij"}.get(requested)
 
 
 def chain_matrix(comm, rows_per_rank, bsize, prefix) -> FixedPatternMatrix:

@@ -47,9 +47,10 @@ def petsc_errors(what: str):
         raise err from None
 
 
-# options that make a solve print, or raise where it would return a diverged reason (KSPSolve reads them); a
-# trial solve is done without them
-OUTPUT_OPTIONS = re.compile(r"(ksp|pc|mat)_(view|monitor|converged_reason|error_if_not_converged)")
+# options that make a solve print, or raise where it would return a diverged reason, at any level (the inner
+# solvers' -iips_sub_ksp_view, -iips_mg_levels_ksp_monitor, ...); a trial solve is done without them
+OUTPUT_OPTIONS = re.compile(r"view|monitor|converged_reason|converged_rate|compute_eigenvalues|"
+                            r"compute_singularvalues|print_statistics|error_if_not_converged")
 
 
 @contextmanager
@@ -57,7 +58,7 @@ def _without_output_options(prefix):
     """Take the options of prefix `prefix` that make a solve print or raise (OUTPUT_OPTIONS) out of the
     database while the body runs, and put them back after it."""
     options = petsc().Options()
-    held = {k: v for k, v in options.getAll().items() if k.startswith(prefix) and OUTPUT_OPTIONS.match(k[len(prefix):])}
+    held = {k: v for k, v in options.getAll().items() if k.startswith(prefix) and OUTPUT_OPTIONS.search(k)}
     for key in held:
         options.delValue(key)
     try:
@@ -153,9 +154,14 @@ class LinearSolver:
                 self.ksp = self._create()
                 self.set_operator(mat)
                 self.solve(b, x)
-        except SolverError as err:
-            raise UsageError(f"the -{self.prefix} solver ({self.describe()}) fails on a small well-posed test "
-                             f"system: {err}; check the command-line PETSc options") from None
+        except PsphError as err:  # on a well-posed system any failure is the options'
+            if isinstance(err, UsageError):
+                raise
+            advice = "" if str(err).endswith("PETSc options") else "; check the command-line PETSc options"
+            usage = UsageError(f"the -{self.prefix} solver ({self.describe()}) fails on a small well-posed test "
+                               f"system: {err}{advice}")
+            usage.collective = getattr(err, "collective", False)  # a PETSc error may be some ranks' only
+            raise usage from None
         finally:
             b.destroy()
             x.destroy()
