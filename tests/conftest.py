@@ -37,6 +37,21 @@ def gather_by_gid(comm, gid, values):
     return gids[order], vals[order]
 
 
+@pytest.fixture(autouse=True)
+def collect_garbage_together():
+    """Under mpiexec, after every test, collect the garbage it left in reference cycles (petsc4py wrappers
+    among it: an exception path leaves them) on every rank at the same point. Left to the collector, each
+    rank frees them at its own moment, and PETSc's communicator pools (hypre's, MUMPS') then differ between
+    the ranks (psph.solvers.petsc.petsc_comm, README "Known issues")."""
+    yield
+    from mpi4py import MPI
+
+    if MPI.COMM_WORLD.size > 1:
+        import gc
+
+        gc.collect()
+
+
 def pytest_runtest_logreport(report):
     """Under mpiexec, a failure on one rank would leave the others waiting in a collective: print the
     failure and abort every rank instead (the run fails loudly rather than hanging)."""
