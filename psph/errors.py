@@ -1,6 +1,11 @@
 """Typed errors. Each carries a one-line message meant for the user (the CLI prints it, no traceback)."""
 
 
+def point(position) -> str:
+    """A position as a message names it: (0.25, 1)."""
+    return "(" + ", ".join(f"{float(v):.6g}" for v in position) + ")"
+
+
 class PsphError(Exception):
     """Base class: an error psph diagnoses and reports in one line."""
 
@@ -39,8 +44,7 @@ class NumericalError(PsphError):
             where.append(f"particle gid {gid}")
         if position is not None:
             finite = all(abs(float(v)) < float("inf") for v in position)  # NaN fails the comparison too
-            where.append(("at (" if finite else "at a non-finite position (") + ", ".join(f"{v:.6g}" for v in position)
-                         + ")")
+            where.append(("at " if finite else "at a non-finite position ") + point(position))
         super().__init__(message + (" [" + ", ".join(where) + "]" if where else ""))
 
 

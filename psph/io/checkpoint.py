@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from psph.errors import UsageError
+from psph.errors import UsageError, point
 from psph.io.files import jsonable, replace_atomically
 from psph.io.snapshots import SNAPSHOT_NAME, h5py, write_particle_file
 from psph.parallel.comm import allreduce_sum, exclusive_scan
@@ -189,13 +189,13 @@ def check_positions(comm, path, particles, domain) -> None:
     particle, as a UsageError on every rank. Collective."""
     pos = particles.owned("position")
     out = np.flatnonzero(domain.outside(pos))
-    first = (int(particles.owned("gid")[out[0]]), tuple(float(v) for v in pos[out[0]])) if len(out) else None
-    found = [f for f in comm.allgather(first) if f is not None]
-    if found:
-        count = int(comm.allreduce(len(out)))
-        gid, at = found[0]
+    first = (int(particles.owned("gid")[out[0]]), point(pos[out[0]])) if len(out) else None
+    found = comm.allgather((len(out), first))
+    count = sum(n for n, _ in found)
+    if count:
+        gid, at = next(f for _, f in found if f is not None)
         raise UsageError(f"cannot restart from {str(path)!r}: {count} particle(s) outside the scene's domain "
-                         f"(gid {gid} at (" + ", ".join(f"{v:.6g}" for v in at) + "))")
+                         f"(gid {gid} at {at})")
 
 
 def latest_checkpoint(out_dir):
