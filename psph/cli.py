@@ -13,7 +13,7 @@ import sys
 import traceback
 
 from psph import stop
-from psph.errors import PsphError, SceneError, UsageError
+from psph.errors import PsphError, SceneError, UsageError, is_collective
 
 
 class _Parser(argparse.ArgumentParser):
@@ -275,7 +275,8 @@ def cmd_run(args, petsc_options, comm) -> int:
     kwargs = {"restart": restart} if restart else {}  # static runs write no checkpoints
     stop.install(comm)
     try:
-        summary = driver_for(scene)(scene, comm, out, log=log, progress=not args.quiet, **kwargs).run()
+        with driver_for(scene)(scene, comm, out, log=log, progress=not args.quiet, **kwargs) as driver:
+            summary = driver.run()
         late = stop.requested(comm)
     finally:
         stop.uninstall()
@@ -365,9 +366,7 @@ def main(argv=None) -> int:
         args = _parser().parse_args(ours)
         return COMMANDS[args.command](args, petsc_options, comm)
     except PsphError as err:
-        # scene and usage errors are found on every rank, unless the error says otherwise
-        collective = getattr(err, "collective", isinstance(err, (SceneError, UsageError)))
-        if comm.size == 1 or collective:
+        if comm.size == 1 or is_collective(err):
             if comm.rank == 0:
                 line = f"psph: {err}" if isinstance(err, stop.Stopped) else f"psph: error: {err}"
                 print(line, file=sys.stderr, flush=True)

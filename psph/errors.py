@@ -56,6 +56,12 @@ class SolverError(NumericalError):
         super().__init__(f"{solver} linear solve diverged: {reason} after {iterations} iterations", **where)
 
 
+def is_collective(err) -> bool:
+    """Whether every rank raises `err` at the same point: a PsphError that says so (`collective`), or by
+    default a scene or usage error (found in what every rank reads). Any other error may be one rank's."""
+    return isinstance(err, PsphError) and getattr(err, "collective", isinstance(err, (SceneError, UsageError)))
+
+
 def rebuild_error(cls, message: str) -> PsphError:
     """An instance of `cls` carrying `message` as is (used to re-raise another rank's error)."""
     err = cls.__new__(cls)

@@ -78,6 +78,14 @@ class Simulation:
             if self.comm.rank == 0:
                 self.replaced_checkpoints = checkpoints_up_to(self.out_dir, state["step"])
 
+    def close(self) -> None:
+        """Free the communicators of the simulation and its system (its output stays). Collective; the PETSc
+        objects made on them must have been destroyed first (the drivers' close)."""
+        from psph.solvers.petsc import release_comm
+
+        self.system.close()
+        release_comm(self.comm)
+
     # ------------------------------------------------------------ checkpoints
     def checkpoint_due(self, step, last_wall) -> bool:
         """Every output.checkpoint_every steps, or output.checkpoint_minutes of wall time (rank 0's clock

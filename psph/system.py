@@ -57,6 +57,13 @@ class ParticleSystem:
         self.where = {}  # the driver's step and time, for the reports of check_escaped
         self.rebuild(rebalance=decomposition is None)
 
+    def close(self) -> None:
+        """Free this system's communicator (the particles stay readable). Collective; the PETSc objects made
+        on it must have been destroyed first."""
+        from psph.solvers.petsc import release_comm
+
+        release_comm(self.comm)
+
     # ----------------------------------------------------------------- layout
     @property
     def n_owned(self) -> int:

@@ -41,14 +41,15 @@ def main():
         with tempfile.TemporaryDirectory() as out:
             out = comm.bcast(out, root=0)
             scene = load_scene(CASES / f"{case}.toml", sets + ["time.t_end=1.0"])  # only for its time step
-            driver = FluidDriver(scene, comm, out)
-            dt, _ = driver.time_step()
+            with FluidDriver(scene, comm, out) as driver:
+                dt, _ = driver.time_step()
             short = load_scene(CASES / f"{case}.toml", sets + [f"time.t_end={10 * dt}"])
-            FluidDriver(short, comm, out).run()  # warm-up
+            with FluidDriver(short, comm, out) as warm_up:
+                warm_up.run()
             profiling.reset()
             timed = load_scene(CASES / f"{case}.toml", sets + [f"time.t_end={args.steps * dt}"])
-            run = FluidDriver(timed, comm, out)
-            run.run()
+            with FluidDriver(timed, comm, out) as run:
+                run.run()
             totals = profiling.totals()
             walls, step = totals.get("walls", (0.0, 0))[0], totals["fluid_step"][0]
             share = comm.allreduce(walls / step, op=MPI.MAX)

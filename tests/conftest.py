@@ -52,6 +52,13 @@ def collect_garbage_together():
         gc.collect()
 
 
+def pytest_collection_modifyitems(items):
+    """The tests marked `long` first: pytest-xdist hands the first tests out to its workers in turn, so that
+    each starts on long ones and the short ones fill in after (one long test last kept a worker busy for
+    minutes after the other had finished)."""
+    items.sort(key=lambda item: item.get_closest_marker("long") is None)
+
+
 def pytest_runtest_logreport(report):
     """Under mpiexec, a failure on one rank would leave the others waiting in a collective: print the
     failure and abort every rank instead (the run fails loudly rather than hanging)."""

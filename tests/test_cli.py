@@ -218,6 +218,16 @@ def test_the_trial_solve_refuses_no_solver_that_works(tmp_path, options):
     assert json.loads((tmp_path / "summary.json").read_text())["steps"] == 2
 
 
+def test_the_trial_solve_leaves_the_iteration_cap_to_the_run(tmp_path):
+    """A small -iips_ksp_max_it with iips.on_failure = "reject" is a choice (cap the solves, undo the calls
+    they fail), not a solver that does not work: the trial lets it pass, and the run rejects its call."""
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path, "--set", "domain.dx=0.1", "--set",
+                   "shifting.method=iips", "--set", "iips.on_failure=reject", "-iips_ksp_max_it", "1")
+    assert res.returncode == 0, res.stderr
+    assert "IIPS call rejected: iips linear solve diverged: DIVERGED_MAX_IT after 1 iterations" in res.stdout
+    assert json.loads((tmp_path / "summary.json").read_text())["steps"] == 0
+
+
 def test_the_trial_solve_prints_nothing(tmp_path):
     """The trial solve runs without the options that make a solve print: -iips_ksp_view and
     -iips_ksp_converged_reason print once per Newton iteration of the run, on a Python (matrix-free) matrix."""

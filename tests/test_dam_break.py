@@ -59,6 +59,7 @@ def test_the_surge_runs_behind_ritter_and_keeps_its_mass(tmp_path):
     assert rows[0]["potential_energy"] == pytest.approx(expected, rel=1e-12)
 
 
+@pytest.mark.long
 def test_the_film_on_the_right_wall_is_not_shifted_through_it(tmp_path):
     """H/dx = 10 to t sqrt(g/H) = 5.5: the run-up's film on the right wall stays in the tank, no particle
     is mirrored back (history column wall_reflections), and at the history's rows none is within half a

@@ -23,6 +23,7 @@ from psph.boundaries.free_surface import make_free_surface
 from psph.boundaries.open import describe_open, make_open_boundaries
 from psph.compute.sums import nearest_distance
 from psph.diagnostics import fluid_mask, grad_c, interpolate_fluid, norms
+from psph.drivers.base import Driver
 from psph.errors import NumericalError
 from psph.initial import reset_initial_fields
 from psph.io.history import start_series
@@ -177,7 +178,7 @@ class DamBreakReference:
 REFERENCES = {"taylor_green": TaylorGreenReference, "elliptical_drop": EllipticalDropReference}
 
 
-class FluidDriver:
+class FluidDriver(Driver):
     @staticmethod
     def describe(scene) -> list:
         scheme = make_scheme(scene)
@@ -489,6 +490,9 @@ class FluidDriver:
         raise_if_any(self.sim.comm, error)
 
     # ------------------------------------------------------------------ run
+    def shifting_methods(self) -> tuple:
+        return (self.iips,) if self.iips is not None else ()
+
     def run(self) -> dict:
         sim, scene, system = self.sim, self.scene, self.system
         t_end = scene.time.t_end

@@ -13,6 +13,7 @@ import time
 
 from psph.analytic import taylor_green
 from psph.diagnostics import distribution_report, grad_c
+from psph.drivers.base import Driver
 from psph.profiling import phase
 from psph.shifting import make_shifting
 from psph.shifting.iips import pre_procedure
@@ -20,7 +21,7 @@ from psph.simulation import Simulation
 from psph.stop import checkpoint_message
 
 
-class KinematicDriver:
+class KinematicDriver(Driver):
     @staticmethod
     def describe(scene) -> list:
         p, t = scene.physics, scene.time
@@ -73,6 +74,9 @@ class KinematicDriver:
         return self.sim.checkpoint(step, t, {"step": step, "time": t, "totals": totals, "next_output": next_output,
                                              "report": report, "pre": self.pre,
                                              "shifting": shifting() if shifting else None})
+
+    def shifting_methods(self) -> tuple:
+        return (self.shifting,)
 
     def run(self) -> dict:
         sim, scene = self.sim, self.scene

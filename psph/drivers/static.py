@@ -9,11 +9,12 @@ at the same resolution (the dashed lines of thesis figs 8.5-8.6).
 """
 
 from psph.diagnostics import distribution_report, grad_c
+from psph.drivers.base import Driver
 from psph.shifting import make_shifting
 from psph.simulation import Simulation, build_system, unperturbed
 
 
-class StaticDriver:
+class StaticDriver(Driver):
     @staticmethod
     def describe(scene) -> list:
         d = scene.diagnostics
@@ -33,7 +34,12 @@ class StaticDriver:
         """L2(d f/dx) on the unperturbed lattice of the same scene. Collective."""
         scene = self.scene
         system = build_system(unperturbed(scene), self.sim.comm)
-        return distribution_report(system, scene.diagnostics.test_wavelength)["L2_dfdx"]
+        value = distribution_report(system, scene.diagnostics.test_wavelength)["L2_dfdx"]
+        system.close()
+        return value
+
+    def shifting_methods(self) -> tuple:
+        return (self.shifting,)
 
     def run(self) -> dict:
         sim, scene = self.sim, self.scene

@@ -31,14 +31,21 @@ def measure(system, volume="volume", mask=None):
     return grad, l2, linf
 
 
-class NoShifting:
-    """shifting.method = "none": particles are never moved by a shifting law."""
-
-    name = "none"
-
+class Shifting:
+    """What every shifting method has: a static pre-procedure (prepare; returns Linf(grad C) after it, or
+    None) and destroy (free its PETSc objects now; collective). Neither does anything here."""
 
     def prepare(self, system, on_iteration=None):
         return None
+
+    def destroy(self) -> None:
+        pass
+
+
+class NoShifting(Shifting):
+    """shifting.method = "none": particles are never moved by a shifting law."""
+
+    name = "none"
 
     def correct(self, system, on_iteration=None, iterations=None, **where) -> ShiftReport:
         _, l2, linf = measure(system)

@@ -18,21 +18,17 @@ import numpy as np
 
 from psph.errors import NumericalError
 from psph.particles import Kind
-from psph.shifting.base import ShiftReport, measure
+from psph.shifting.base import Shifting, ShiftReport, measure
 
 GROWTH = 4.0
 
 
-class ExplicitIterativeShifting:
+class ExplicitIterativeShifting(Shifting):
     name = "explicit_iterative"
 
     def __init__(self, spec):
         self.spec = spec
         self.iterations = 0
-
-
-    def prepare(self, system, on_iteration=None):
-        return None
 
     def correct(self, system, on_iteration=None, iterations=None, **where) -> ShiftReport:
         n = self.spec.iterations_per_step if iterations is None else iterations

@@ -40,7 +40,7 @@ from psph.errors import NumericalError, SolverError
 from psph.parallel.comm import allreduce_max, allreduce_sum
 from psph.particles import FieldSpec
 from psph.profiling import phase
-from psph.shifting.base import ShiftReport, measure
+from psph.shifting.base import Shifting, ShiftReport, measure
 from psph.shifting.iips_operator import AssembledOperator, iips_operator
 from psph.solvers.aij import chain_matrix, family_of
 from psph.solvers.linear import LinearSolver
@@ -62,7 +62,7 @@ NUDGE = 1e-3
 DIVERGENCE_FLOOR = 1e-6
 
 
-class ImplicitShifting:
+class ImplicitShifting(Shifting):
     name = "iips"
 
     def __init__(self, spec, comm, volume="volume", surface=None):
@@ -378,6 +378,7 @@ def pre_procedure(spec, comm, system, iips=None, surface=None):
     if iips is not None:
         return iips.prepare(system), iips.pre_iterations
     temporary = ImplicitShifting(spec, comm, surface=surface)
-    linf = temporary.prepare(system)
-    temporary.destroy()
-    return linf, temporary.pre_iterations
+    try:
+        return temporary.prepare(system), temporary.pre_iterations
+    finally:
+        temporary.destroy()

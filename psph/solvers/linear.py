@@ -24,6 +24,8 @@ OPTION_ERRORS = (56, 62, 63, 75, 83, 86)
 # some ranks may open
 FILE_ERRORS = (65, 66, 67)
 TRACE = re.compile(r"\w+\(\) at ")
+# iterations a trial solve may take whatever the options' max_it (LinearSolver.trial)
+TRIAL_MAX_IT = 1000
 
 
 @contextmanager
@@ -93,14 +95,18 @@ class LinearSolver:
         """A KSP with `settings` (the code defaults unless given), then the options database's (which win)."""
         PETSc = petsc()
         d = settings or self.defaults
-        with petsc_errors(f"setting up the -{self.prefix} solver"):
-            ksp = PETSc.KSP().create(comm=petsc_comm(self.comm))
-            ksp.setOptionsPrefix(self.prefix)
-            ksp.setType(d["ksp_type"])
-            ksp.getPC().setType(d["pc_type"])
-            ksp.setTolerances(rtol=d["rtol"], atol=d["atol"], max_it=d["max_it"])
-            ksp.setInitialGuessNonzero(d["initial_guess_nonzero"])
-            ksp.setFromOptions()
+        ksp = PETSc.KSP().create(comm=petsc_comm(self.comm))
+        try:
+            with petsc_errors(f"setting up the -{self.prefix} solver"):
+                ksp.setOptionsPrefix(self.prefix)
+                ksp.setType(d["ksp_type"])
+                ksp.getPC().setType(d["pc_type"])
+                ksp.setTolerances(rtol=d["rtol"], atol=d["atol"], max_it=d["max_it"])
+                ksp.setInitialGuessNonzero(d["initial_guess_nonzero"])
+                ksp.setFromOptions()
+        except PsphError:  # now, not when the error's traceback is collected (petsc.petsc_comm)
+            ksp.destroy()
+            raise
         return ksp
 
     def set_operator(self, mat) -> None:
@@ -141,10 +147,11 @@ class LinearSolver:
     def trial(self, mat) -> None:
         """Solve `mat` x = 1 once with this solver's types and options, quietly (no monitor, view or converged-
         reason output), so that what PETSc refuses only at a first solve (GAMG on a BAIJ matrix, a Krylov
-        method that breaks down with its preconditioner) is found before a run touches its output. A failure
-        is bad input: a UsageError naming the solver's options. For a solver about to be dropped: its KSP is
-        made anew without those options (PETSc takes its viewers and monitors from the options when a KSP is set
-        up from them). Collective."""
+        method that breaks down with its preconditioner) is found before a run touches its output. The trial
+        may take TRIAL_MAX_IT iterations: a small -{prefix}ksp_max_it is a choice (iips.on_failure = "reject"
+        undoes the calls it fails), not an error. A failure is bad input: a UsageError naming the solver's
+        options. For a solver about to be dropped: its KSP is made anew without those options (PETSc takes its
+        viewers and monitors from the options when a KSP is set up from them). Collective."""
         b, x = mat.createVecs()
         b.set(1.0)
         x.set(0.0)
@@ -152,6 +159,8 @@ class LinearSolver:
             with _without_output_options(self.prefix):
                 self.ksp.destroy()
                 self.ksp = self._create()
+                max_it = self.ksp.getTolerances()[3]
+                self.ksp.setTolerances(max_it=max(max_it, TRIAL_MAX_IT))
                 self.set_operator(mat)
                 self.solve(b, x)
         except PsphError as err:  # on a well-posed system any failure is the options'
@@ -169,4 +178,4 @@ class LinearSolver:
     def describe(self) -> str:
         pc = self.ksp.getPC()
         rtol, atol, _, max_it = self.ksp.getTolerances()
-        return f"KSP {self.ksp.getType()} + PC {pc.getType()}, rtol {rtol:g}, max_it {max_it} (prefix -{self.prefix})"
+        return f"KSP {self.ksp.getType()} + PC {pc.getType()}, rtol {rtol:g}, max_it {max_it}"

@@ -106,11 +106,23 @@ def petsc_comm(comm):
     if comm.size > 1:
         from mpi4py import MPI
 
-        key = MPI._handleof(comm)  # psph never frees a communicator, so no handle is reused
+        key = MPI._handleof(comm)  # psph frees its communicators by release_comm, which drops the key
         if key not in _anchors:
             _anchors[key] = petsc().Vec().createMPI((0, None), comm=comm)
             destroy_at_exit(_anchors[key])
     return comm
+
+
+def release_comm(comm) -> None:
+    """Free `comm`, a communicator psph duplicated for itself, with its petsc_comm vector, if it has one (so
+    that a handle MPI reuses for a later communicator finds no stale vector). Collective; every other PETSc
+    object made on `comm` must have been destroyed by then (a driver's close)."""
+    from mpi4py import MPI
+
+    anchor = _anchors.pop(MPI._handleof(comm), None)
+    if anchor is not None:
+        anchor.destroy()
+    comm.Free()
 
 
 def is_initialized() -> bool:

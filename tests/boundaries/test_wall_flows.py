@@ -49,6 +49,7 @@ def couette_error(out):
     return np.abs(u[:, 0] - couette_startup(y, t, U=1.0, H=1.0, nu=0.1)).max(), np.abs(u[:, 1]).max()
 
 
+@pytest.mark.long
 def test_couette_startup_follows_the_analytic_transient(tmp_path):
     """Re = 10 at t = 1 (dx = H/20). The remaining error is the square lattice's anisotropy of the pi_ij
     viscous operator (tests/compute/test_sums.py: 9% on a parabola at h/dx = 2): the shear diffuses with
@@ -103,6 +104,7 @@ def test_couette_with_iips_next_to_the_walls(tmp_path):
     assert rows[-1]["max_volume_variation"] < 0.05
 
 
+@pytest.mark.long
 def test_cavity_with_iips_nfts_keeps_its_volume(tmp_path):
     """Clone walls with delta+ leak volume through the du terms (-2 sum V du . grad C, above all in the lid's
     corners: eps_V = 0.38% at t = 2.4, L/dx = 25, README). IIPS + NFTS, the cavity scene's own shifting, has
@@ -120,6 +122,7 @@ def test_cavity_with_iips_nfts_keeps_its_volume(tmp_path):
 
 
 @pytest.mark.parametrize("model", ["clone", "ghost"])
+@pytest.mark.long
 def test_hydrostatic_tank_stays_at_rest(tmp_path, model):
     """Water at rest under gravity stays at rest: the spurious velocity after t sqrt(g/H) = 3 is below
     1e-3 sqrt(gH) at dx = H/20, mass is conserved to round-off, and the bottom pressure is rho g H; with
@@ -211,6 +214,7 @@ def test_the_tanks_free_surface_is_its_top_only(tmp_path, model):
 
 
 @pytest.mark.parametrize("model", ["clone", "ghost"])
+@pytest.mark.long
 def test_lid_driven_cavity_conserves_mass_and_turns(tmp_path, model):
     """A short Re = 100 cavity run: mass to round-off; the lid drags the top layer forward and the fluid
     returns below (the primary vortex forms); with clone particles (and the scene's IIPS + NFTS) and with
@@ -252,6 +256,7 @@ def test_cavity_extremes_run_or_stop_clearly(tmp_path, sets, outcome):
         assert res.returncode == 3 and len(lines) == 1 and "[step " in lines[0], res.stderr
 
 
+@pytest.mark.long
 def test_body_force_is_archimedes_buoyancy(tmp_path):
     """A block held in water at rest feels its displaced weight: cl_pressure = 2 rho g A / (rho0 U^2 D)
     = 0.6, no drag, and a negligible viscous part (time average over t = 0.2-1)."""

@@ -95,6 +95,7 @@ def test_failure_stops_with_step_and_saves_state(tmp_path):
         assert "grad_c" in f["particles"] and f.attrs["step"] >= 1
 
 
+@pytest.mark.long
 def test_relaxed_start_keeps_procedure_b_from_stalling(tmp_path):
     """The frozen Taylor-Green field strains a lattice into a distribution IIPS cannot level: Procedure B stalls
     from t = 0.055 on (dx = 0.025). The pre-procedure on a perturbed lattice (a relaxed start that is not

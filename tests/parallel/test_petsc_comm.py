@@ -6,6 +6,8 @@ import signal
 import subprocess
 import sys
 
+import pytest
+
 from tests.helpers import ROOT, mpi_environment
 
 # a KSP remade on a communicator while one rank still holds a wrapper of the old one's PC, as a wrapper caught
@@ -44,6 +46,7 @@ def run(anchored, timeout):
     return job.returncode, out + err
 
 
+@pytest.mark.long
 def test_a_petsc_object_left_on_one_rank_does_not_hang_the_next_one():
     """The 3-rank test run hung about once in three under load (README, Known issues, before the fix): two
     ranks in a collective, the third in MPI_Comm_dup. Here the same mechanism on 2 ranks completes, and
