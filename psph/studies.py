@@ -32,19 +32,40 @@ class NotRun(Exception):
     """run_scene(..., only_finished=True) found no finished run of its command."""
 
 
+# what the study's own command line adds to every run it makes (parse_args)
+_EVERY_RUN = {"sets": [], "petsc": []}
+
+
+def parse_args(parser, argv=None):
+    """The study's arguments by `parser`, plus what every study takes: `--set KEY=VALUE` (repeatable; as
+    `args.set`) and PETSc options (`-iips_pc_type hypre`, ...; as `args.petsc`). run_scene gives both to every
+    run after the study's own overrides, as `psph run` takes them."""
+    from psph.cli import split_petsc_options
+
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a scene override for every run, after the study's own (as psph run --set)")
+    parser.epilog = "PETSc options (e.g. -iips_pc_type hypre) are passed to every run."
+    ours, petsc = split_petsc_options(sys.argv[1:] if argv is None else list(argv))
+    args = parser.parse_args(ours)
+    args.petsc = petsc
+    _EVERY_RUN.update(sets=list(args.set), petsc=petsc)
+    return args
+
+
 def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, only_finished=False) -> Run:
     """`psph run scene --out out --set ... [PETSc options]` on `ranks` MPI ranks; raises on failure.
 
     With reuse (default: the PSPH_STUDY_REUSE environment variable is set), a directory holding a
     complete run of exactly this command is read instead of run again (to resume or extend a study), and
     one that psph stopped with a numerical diagnosis (exit code 3) raises that diagnosis again.
-    only_finished: reuse, and raise NotRun instead of running (a study's table from the runs it has)."""
+    only_finished: reuse, and raise NotRun instead of running (a study's table from the runs it has).
+    The study's command line's --set and PETSc options (parse_args) follow `sets` and `petsc`."""
     cmd = [sys.executable, "-m", "psph", "run", str(scene), "--out", str(out), "--overwrite"]
-    for s in sets:
+    for s in [*sets, *_EVERY_RUN["sets"]]:
         cmd += ["--set", s]
     if quiet:
         cmd.append("--quiet")
-    cmd += list(petsc)
+    cmd += [*petsc, *_EVERY_RUN["petsc"]]
     if ranks > 1:
         cmd = ["mpiexec", "-n", str(ranks), "--oversubscribe"] + cmd
     out = Path(out)

@@ -34,6 +34,7 @@ from psph.studies import (  # noqa: E402
     Run,
     command_line,
     last_snapshot,
+    parse_args,
     run_scene,
     shepard_sample,
     shifting_label,
@@ -79,9 +80,7 @@ def main():
     parser.add_argument("--h-over-dx", type=float, help="h/dx (default: the scene's, 2)")
     parser.add_argument("--walls", nargs="+", default=["clone"], choices=["clone", "ghost"])
     parser.add_argument("--ghost-resolutions", type=int, nargs="+", help="L/dx of the ghost runs (default: all)")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="scene override for every run (e.g. physics.viscosity=morris)")
-    args = parser.parse_args()
+    args = parse_args(parser)
     for walls in args.walls:  # every wall model's scene is checked before the first run starts
         try:
             load_scene(CAVITY, [*CAVITY_WALLS[walls], *args.set])
@@ -101,8 +100,8 @@ def main():
                 ratio = args.h_over_dx or load_scene(CAVITY).domain.h_over_dx
                 sets = [f"domain.dx={dx}", f"domain.h_over_dx={ratio}", f"physics.reynolds={re}",
                         f"time.t_end={args.t_end}", f"output.every={args.t_end}", "output.history_every=50",
-                        *CAVITY_WALLS[walls], *args.set]
-                scene = load_scene(CAVITY, sets)
+                        *CAVITY_WALLS[walls]]
+                scene = load_scene(CAVITY, [*sets, *args.set])  # run_scene adds --set to the runs
                 shifting = shifting_label(scene)
                 try:
                     run = run_scene(CAVITY, args.out / name, sets=sets, ranks=args.ranks)

@@ -42,6 +42,7 @@ from psph.studies import (
     CASES,
     DAM_BREAK_PROBES,
     command_line,
+    parse_args,
     plot_histories,
     release_pressure_errors,
     run_scene,
@@ -146,7 +147,7 @@ def main():
                         help="c0 / sqrt(g H) of the initial-pressure runs")
     parser.add_argument("--impact-resolutions", type=int, nargs="*", default=[80],
                         help=f"H/dx of runs to t = {IMPACT_END:g} only (the surge and the first impact)")
-    args = parser.parse_args()
+    args = parse_args(parser)
     note = "Command: " + command_line()
     print(write_table(args.out / "initial_pressure",
                       ["H/dx", "c0 / sqrt(gH)", "RMS error", "max error", "largest swing", "wall s"],

@@ -44,7 +44,17 @@ from pathlib import Path
 import numpy as np
 
 from psph.particles import Kind
-from psph.studies import CASES, Run, command_line, last_snapshot, run_scene, spot_noise, stop_message, write_table
+from psph.studies import (
+    CASES,
+    Run,
+    command_line,
+    last_snapshot,
+    parse_args,
+    run_scene,
+    spot_noise,
+    stop_message,
+    write_table,
+)
 
 H, B, L = 1.0, 2.0, 5.367  # cases/dam_break.toml (rho0 = g = 1)
 LAYER = B * H / L  # depth of the flat layer the column ends as
@@ -118,7 +128,7 @@ def main():
     parser.add_argument("--resolutions", type=int, nargs="+", default=[20], help="H/dx")
     parser.add_argument("--schemes", nargs="+", choices=list(SCHEMES), default=list(SCHEMES))
     parser.add_argument("--jobs", type=int, default=2, help="runs at a time (one rank each)")
-    args = parser.parse_args()
+    args = parse_args(parser)
     cases = [(scheme, n) for n in args.resolutions for scheme in args.schemes]
 
     def run(case):

@@ -41,6 +41,7 @@ from psph.studies import (  # noqa: E402
     command_line,
     dominant_frequency,
     last_snapshot,
+    parse_args,
     plot_histories,
     run_scene,
     write_histories,
@@ -133,7 +134,7 @@ def main():
                         help="tabulate finished runs and, for the others, what they have written so far")
     parser.add_argument("--rerun", action="store_true",
                         help="run every resolution again, over what its directory holds")
-    args = parser.parse_args()
+    args = parse_args(parser)
     args.out.mkdir(parents=True, exist_ok=True)
     runs, table, partial = {}, [], []
     for n in args.resolutions:

@@ -25,7 +25,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 from psph.initial import elliptical_drop  # noqa: E402
 from psph.particles import Kind  # noqa: E402
 from psph.scene.load import load_scene  # noqa: E402
-from psph.studies import CASES, command_line, last_snapshot, plot_histories, run_scene, write_table  # noqa: E402
+from psph.studies import CASES, command_line, last_snapshot, parse_args, plot_histories, run_scene, write_table  # noqa: E402
 
 SCENE = CASES / "elliptical_drop.toml"
 SWEEP_ITERATIONS = 3000
@@ -126,7 +126,7 @@ def main():
     parser.add_argument("--resolutions", type=int, nargs="+", default=[20, 40, 80], help="R/dx")
     parser.add_argument("--alphas", type=float, nargs="+", default=[0.002, 0.005, 0.01, 0.05])
     parser.add_argument("--alpha-resolution", type=int, default=40, help="R/dx of the alpha sweep")
-    args = parser.parse_args()
+    args = parse_args(parser)
     rows, runs = flow_runs(args)
     note = "Command: " + command_line()
     print(write_table(args.out / "drop", [

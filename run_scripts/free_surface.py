@@ -26,7 +26,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from psph.compute.free_surface import REGION, SURFACE  # noqa: E402
 from psph.particles import Kind  # noqa: E402
-from psph.studies import CASES, NotRun, command_line, last_snapshot, plot_histories, run_scene, write_table  # noqa: E402
+from psph.studies import CASES, NotRun, command_line, last_snapshot, parse_args, plot_histories, run_scene, write_table  # noqa: E402
 
 IIPS = ["shifting.method=iips", "iips.procedure=A", "iips.threshold=0.02", "iips.update=nfts"]
 METHODS = {"none": ["shifting.method=none"], "delta_plus": ["shifting.method=delta_plus"], "iips": IIPS}
@@ -110,7 +110,7 @@ def main():
     parser.add_argument("--tank-resolutions", type=int, nargs="*", default=[20, 40], help="H/dx")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
     parser.add_argument("--no-run", action="store_true", help="tables and plots from the finished runs only")
-    args = parser.parse_args()
+    args = parse_args(parser)
     note = "Command: " + command_line()
     if args.drop_resolutions:
         rows, runs = sweep(args, "elliptical_drop.toml", "drop_{method}_r{n}", args.drop_resolutions, 10, drop_row)

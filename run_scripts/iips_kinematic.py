@@ -21,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from psph.studies import CASES, rate, run_scene, write_table  # noqa: E402
+from psph.studies import CASES, parse_args, rate, run_scene, write_table  # noqa: E402
 
 SCENE = CASES / "kinematic_tgv.toml"
 PROCEDURES = {  # name: (directory tag, scene overrides)
@@ -49,7 +49,7 @@ def main():
     parser.add_argument("--t-end", type=float, default=0.2)
     parser.add_argument("--resolutions", type=float, nargs="+", default=[0.05, 0.025, 0.0125])
     parser.add_argument("--ratios", type=float, nargs="+", default=[2.0, 1.6, 1.3])
-    args = parser.parse_args()
+    args = parse_args(parser)
     runs = {}
     for ratio in args.ratios:
         for dx in args.resolutions:

@@ -18,7 +18,16 @@ from pathlib import Path
 
 import numpy as np
 
-from psph.studies import command_line, fmt, iips_pair_defects, last_snapshot, run_scene, stop_message, write_table
+from psph.studies import (
+    command_line,
+    fmt,
+    iips_pair_defects,
+    last_snapshot,
+    parse_args,
+    run_scene,
+    stop_message,
+    write_table,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -31,7 +40,7 @@ def main():
     parser.add_argument("--every", type=float, default=0.005, help="snapshot interval")
     parser.add_argument("--ranks", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("results/iips_pair_defects"))
-    args = parser.parse_args()
+    args = parse_args(parser)
     run_dir = args.out / "run"
     sets = [f"domain.dx={args.dx}", f"domain.h_over_dx={args.h_over_dx}", "iips.update=none",
             f"time.t_end={args.t_end}", f"output.every={args.every}"]

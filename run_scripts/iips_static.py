@@ -18,7 +18,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from psph.studies import CASES, first_iteration, rate, run_scene, write_table  # noqa: E402
+from psph.studies import CASES, first_iteration, parse_args, rate, run_scene, write_table  # noqa: E402
 
 SCENE = CASES / "static_perturbed.toml"
 
@@ -90,7 +90,7 @@ def main():
     parser.add_argument("--out", type=Path, default=Path("results/iips_static"))
     parser.add_argument("--ranks", type=int, default=1)
     parser.add_argument("--quick", action="store_true", help="coarse resolutions only (a smoke run)")
-    args = parser.parse_args()
+    args = parse_args(parser)
     args.out.mkdir(parents=True, exist_ok=True)
     res = [0.05, 0.025] if args.quick else [0.05, 0.025, 0.0125]
     print(histories(args.out, args.ranks, res, [0.10, 0.25], 10))

@@ -21,7 +21,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from psph.studies import CASES, run_scene, stop_message, write_table  # noqa: E402
+from psph.studies import CASES, parse_args, run_scene, stop_message, write_table  # noqa: E402
 
 
 def pareto(points):
@@ -116,7 +116,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/iips_tradeoff"))
     parser.add_argument("--ranks", type=int, default=1)
-    args = parser.parse_args()
+    args = parse_args(parser)
     run_scene(CASES / "static_perturbed.toml", args.out / "warmup", sets=["shifting.method=iips", "iips.max_newton=1"])
     static_table, static_rows, static_points = static_sweep(args.out, args.ranks)
     kin_table, kin_rows, kin_points = kinematic_sweep(args.out, args.ranks)

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from psph.studies import CASES, run_scene, write_table
+from psph.studies import CASES, parse_args, run_scene, write_table
 
 SCENE = CASES / "static_perturbed.toml"
 COMMON = ["domain.dx=0.0125", "initial.sigma_over_dx=0.1", "diagnostics.stop_at_cartesian=1.05"]
@@ -61,7 +61,7 @@ def main():
     parser.add_argument("--ranks", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--repeats", type=int, default=5, help="IIPS runs per setting (their median time)")
     parser.add_argument("--wavelengths", type=float, nargs="+", default=[0.125, 0.25, 0.5])
-    args = parser.parse_args()
+    args = parse_args(parser)
     for operator in ("matrix_free", "assembled"):
         run_scene(SCENE, args.out / "warmup", sets=["shifting.method=iips", "iips.max_newton=1",
                                                      f"iips.operator={operator}"])

@@ -32,7 +32,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from psph.analytic import impinging_jet_wall  # noqa: E402
-from psph.studies import CASES, NotRun, command_line, plot_histories, run_scene, write_table  # noqa: E402
+from psph.studies import CASES, NotRun, command_line, parse_args, plot_histories, run_scene, write_table  # noqa: E402
 
 IIPS = ["shifting.method=iips", "iips.procedure=A", "iips.threshold=0.02", "iips.update=mls2"]
 METHODS = {"none": ["shifting.method=none"], "delta_plus": ["shifting.method=delta_plus"],
@@ -73,7 +73,7 @@ def main():
     parser.add_argument("--t-end", type=float, default=10.0)
     parser.add_argument("--average-from", type=float, default=5.0)
     parser.add_argument("--no-run", action="store_true", help="tables and plots from the finished runs only")
-    args = parser.parse_args()
+    args = parse_args(parser)
     rows, profiles, curves = [], [], []
     for n in args.resolutions:
         for method in args.methods:

@@ -20,7 +20,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from psph.studies import CASES, command_line, run_scene, stop_message, write_histories, write_table  # noqa: E402
+from psph.studies import CASES, command_line, parse_args, run_scene, stop_message, write_histories, write_table  # noqa: E402
 
 METHODS = {
     "explicit P_S=10": ["shifting.method=neuhauser", "shifting.neuhauser_ps=10", "iips.update=none"],
@@ -35,10 +35,8 @@ def main():
     parser.add_argument("--dx", type=float, default=0.05)
     parser.add_argument("--t-end", type=float, default=5.0)
     parser.add_argument("--ranks", type=int, nargs="+", default=[1])
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="scene override for every run (e.g. physics.max_density_variation=0.2)")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
-    args = parser.parse_args()
+    args = parse_args(parser)
     table, runs = [], {}
     for ranks in args.ranks:
         for name in args.methods:
@@ -47,7 +45,7 @@ def main():
             try:
                 run = run_scene(CASES / "moving_square.toml", args.out / f"{tag}_dx{args.dx}_n{ranks}",
                                 sets=[f"domain.dx={args.dx}", f"time.t_end={args.t_end}", "output.every=1.0",
-                                      "output.history_every=10", *sets, *args.set], ranks=ranks)
+                                      "output.history_every=10", *sets], ranks=ranks)
             except RuntimeError as err:
                 print(f"{name} on {ranks} rank(s): stopped: {stop_message(err)}", flush=True)
                 table.append([name, ranks, "stopped", "-", "-", "-", "-", "-"])

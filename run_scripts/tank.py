@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from psph.particles import Kind
-from psph.studies import CASES, command_line, last_snapshot, plot_histories, run_scene, write_table
+from psph.studies import CASES, command_line, last_snapshot, parse_args, plot_histories, run_scene, write_table
 
 TANKS = {"box": "hydrostatic_tank.toml", "trapezoid": "trapezoidal_tank.toml"}
 
@@ -45,7 +45,7 @@ def main():
     parser.add_argument("--resolutions", type=int, nargs="+", default=[20, 40], help="H/dx of the box")
     parser.add_argument("--trapezoid-resolutions", type=int, nargs="+", default=[25, 50], help="H/dx (seed 002)")
     parser.add_argument("--walls", nargs="+", default=["clone", "ghost"], choices=["clone", "ghost"])
-    args = parser.parse_args()
+    args = parse_args(parser)
     rows, histories = [], {}
     for tank in args.tanks:
         for walls in args.walls if tank == "box" else ["clone"]:

@@ -9,8 +9,18 @@ source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 cd "$PSPH_ROOT"
 py="$PSPH_PYTHON"
 
+# On a fresh checkout every test process compiled the numba kernels it met before another had cached them
+# (CI: 18 instead of 10 minutes for the serial part); compiled once here, two processes sharing the work,
+# they are loaded from numba's cache after (seconds when already cached)
+echo "== numba kernels: compiling once (cached for every test process)"
+"$py" -m psph.compute.warmup 1 &
+first=$!
+"$py" -m psph.compute.warmup 2 3
+wait "$first"
+
 echo "== serial tests (MPI tests included, on 1 rank; two workers)"
-"$py" -m pytest --with-mpi -n 2 "$@"
+# one test at a time to each worker, the tests marked `long` first (tests/conftest.py): they share the long ones
+"$py" -m pytest --with-mpi -n 2 --maxschedchunk 1 "$@"
 
 mpi_tests() {
     # rank 0 reports; the other ranks' failures still print (tests/conftest.py aborts all ranks on a failure)

@@ -19,7 +19,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from psph.studies import CASES, NotRun, rate, run_scene, stop_message, write_table  # noqa: E402
+from psph.studies import CASES, NotRun, parse_args, rate, run_scene, stop_message, write_table  # noqa: E402
 
 METHODS = {  # label: scene overrides
     "no shifting": ["shifting.method=none", "iips.update=none"],
@@ -41,11 +41,9 @@ def main():
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
     parser.add_argument("--procedure", choices=["A", "B"],
                         help="IIPS procedure (thesis Algorithms 2-3; default: the scene's, B)")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="scene override for every run (e.g. physics.sound_speed=20)")
     parser.add_argument("--no-run", action="store_true",
                         help="run nothing: tabulate the finished runs in --out ('-' for the others)")
-    args = parser.parse_args()
+    args = parse_args(parser)
     runs = {}
     for dx in args.resolutions:
         for label in args.methods:
@@ -54,7 +52,7 @@ def main():
                 run = run_scene(CASES / "taylor_green.toml", args.out / f"{tag}_dx{dx}", ranks=args.ranks,
                                 sets=METHODS[label] + [f"domain.dx={dx}", f"time.t_end={args.t_end}",
                                                        "output.every=0", "output.history_every=50"]
-                                + ([f"iips.procedure={args.procedure}"] if args.procedure else []) + args.set,
+                                + ([f"iips.procedure={args.procedure}"] if args.procedure else []),
                                 only_finished=args.no_run)
             except NotRun:
                 print(f"{label} dx={dx}: not run", flush=True)

@@ -53,9 +53,10 @@ def collect_garbage_together():
 
 
 def pytest_collection_modifyitems(items):
-    """The tests marked `long` first: pytest-xdist hands the first tests out to its workers in turn, so that
-    each starts on long ones and the short ones fill in after (one long test last kept a worker busy for
-    minutes after the other had finished)."""
+    """The tests marked `long` first. With tests handed out one at a time (run_scripts/test.sh:
+    --maxschedchunk 1; by default pytest-xdist gives each worker a block of consecutive tests), each worker
+    starts on long ones and the short ones fill in after: a long test late in the order kept one worker busy
+    for minutes after the other had finished."""
     items.sort(key=lambda item: item.get_closest_marker("long") is None)
 
 

@@ -187,7 +187,9 @@ def test_petsc_options_that_nothing_read_are_named_in_a_warning(tmp_path):
 @pytest.mark.parametrize("ranks, options, message", [
     (1, ["-iips_pc_type", "nonexistent"], "Unable to find requested PC type nonexistent"),
     (1, ["-iips_mat_type", "baij", "-iips_pc_type", "gamg"], "No method creategraph for Mat of type seqbaij"),
-    (2, ["-iips_mat_type", "baij", "-iips_pc_type", "gamg"], "No method creategraph for Mat of type mpibaij")])
+    (2, ["-iips_mat_type", "baij", "-iips_pc_type", "gamg"], "No method creategraph for Mat of type mpibaij"),
+    # with iips.on_failure = "stop" a capped solve would stop the run (test below for "reject")
+    (1, ["-iips_ksp_max_it", "1"], "max_it 1) fails on a small well-posed test system: iips linear solve diverged")])
 def test_a_bad_iips_option_keeps_the_results_overwrite_would_replace(tmp_path, ranks, options, message):
     """--overwrite cleared the directory before the solver read its options: a misspelt preconditioner
     lost the previous run. The -iips_ options are now checked first, and the solver solves a small test

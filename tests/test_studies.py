@@ -13,6 +13,31 @@ from psph.scene.load import load_scene
 SETS = ["domain.dx=0.1", "time.t_end=0.02", "shifting.method=none", "iips.update=none", "output.every=0"]
 
 
+@pytest.fixture(autouse=True)
+def no_study_overrides(monkeypatch):
+    """What a study's command line adds to every run (studies.parse_args) stays within its test."""
+    monkeypatch.setattr(studies, "_EVERY_RUN", {"sets": [], "petsc": []})
+
+
+def test_a_studys_set_and_petsc_options_reach_every_run(tmp_path):
+    """Every study takes --set KEY=VALUE and PETSc options, as psph run does, and gives them to every run after
+    its own overrides (which they win over)."""
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--ranks", type=int, default=1)
+    args = studies.parse_args(parser, ["--set", "domain.dx=0.2", "-iips_ksp_type", "gmres", "--ranks", "1",
+                                       "--set", "iips.max_newton=2", "-iips_ksp_monitor"])
+    assert args.set == ["domain.dx=0.2", "iips.max_newton=2"] and args.ranks == 1
+    assert args.petsc == ["-iips_ksp_type", "gmres", "-iips_ksp_monitor"]
+    run = studies.run_scene(studies.CASES / "static_perturbed.toml", tmp_path / "run",
+                            sets=["domain.dx=0.1", "shifting.method=iips"])
+    assert run.summary["n_particles"] == 25 and run.summary["steps"] == 2  # dx = 0.2 won
+    command = (tmp_path / "run" / "study_command.json").read_text()
+    assert '"-iips_ksp_type", "gmres", "-iips_ksp_monitor"' in command
+    assert "nothing read" not in (tmp_path / "run" / "psph.log").read_text()  # the run read them
+
+
 def test_a_resumed_study_reads_back_complete_and_stopped_runs(tmp_path, monkeypatch):
     scene = studies.CASES / "taylor_green.toml"
     done = studies.run_scene(scene, tmp_path / "done", sets=SETS, reuse=True)
@@ -111,7 +136,10 @@ def test_the_cavity_study_samples_with_the_kernel_of_its_runs(tmp_path, monkeypa
     assert seen["sets"][1] == f"domain.h_over_dx={1.5 if '--h-over-dx' in argv else 2.0}"
     # the wall model is an override of the scene's box, not a scene copy written into the results; the clone
     # walls keep the scene's IIPS + NFTS, the ghost walls (seed 001's) shift with delta+
-    scene = load_scene(studies.CAVITY, seen["sets"])
+    # a --set of the study's command line follows every run's own overrides (run_scene adds it)
+    every = [value for key, value in zip(argv, argv[1:]) if key == "--set"]
+    assert studies._EVERY_RUN["sets"] == every
+    scene = load_scene(studies.CAVITY, [*seen["sets"], *every])
     assert scene.bodies[0].model == ("ghost" if "ghost" in argv else "clone")
     assert studies.shifting_label(scene) == ("delta_plus" if "ghost" in argv else "iips + nfts")
     assert not list(tmp_path.glob("*.toml"))

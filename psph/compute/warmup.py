@@ -86,3 +86,10 @@ def warm_up(dim: int, kernel_name: str) -> None:
                         np.zeros(n, dtype=np.int8), np.zeros((bodies, 2)), scalar.copy(), vector.copy(),
                         np.zeros((bodies, 2, 2)), np.zeros((bodies, 2)), np.zeros((n, 2)))
         walls.off_walls(np.zeros((1, 2, 2)), np.zeros(1, dtype=np.int64), vector.copy())
+
+
+if __name__ == "__main__":  # python -m psph.compute.warmup DIM ...: compile (or load) the kernels, e.g. before tests
+    import sys
+
+    for dim in sys.argv[1:] or ["1", "2", "3"]:
+        warm_up(int(dim), "wendland_c6")  # the kernel is a value inside the arguments: one compile serves all

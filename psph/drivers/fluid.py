@@ -216,6 +216,11 @@ class FluidDriver(Driver):
         self.sim = Simulation(scene, comm, out_dir, specs=self.scheme.field_specs(),
                               halo_fields=self.scheme.halo_fields(), log=log, restart=restart, progress=progress)
         self.system = self.sim.system
+        with self.closing_on_failure():
+            self._build(scene, comm, restart)
+
+    def _build(self, scene, comm, restart) -> None:
+        """The set-up on the Simulation: packing, pre-procedure, initial fields, boundaries, IIPS, diagnostics."""
         self.resumed = restart[0]["driver"] if restart else None
         self.pre, self.packing = None, None
         if restart is None and scene.packing.iterations > 0:
@@ -490,9 +495,6 @@ class FluidDriver(Driver):
         raise_if_any(self.sim.comm, error)
 
     # ------------------------------------------------------------------ run
-    def shifting_methods(self) -> tuple:
-        return (self.iips,) if self.iips is not None else ()
-
     def run(self) -> dict:
         sim, scene, system = self.sim, self.scene, self.system
         t_end = scene.time.t_end

@@ -35,10 +35,11 @@ class KinematicDriver(Driver):
         """restart: io.checkpoint.read_checkpoint's (state, particles, decomposition), to continue a run."""
         self.scene = scene
         self.sim = Simulation(scene, comm, out_dir, log=log, progress=progress, restart=restart)
-        self.shifting = make_shifting(scene, self.sim.comm)
-        self.resumed = restart[0]["driver"] if restart else None
-        if self.resumed and self.resumed["shifting"] is not None:
-            self.shifting.restore(self.resumed["shifting"])
+        with self.closing_on_failure():
+            self.shifting = make_shifting(scene, self.sim.comm)
+            self.resumed = restart[0]["driver"] if restart else None
+            if self.resumed and self.resumed["shifting"] is not None:
+                self.shifting.restore(self.resumed["shifting"])
         d, p = scene.domain, scene.physics
         self.dt = scene.time.cfl * d.dx / p.sound_speed
         self.n_steps = math.ceil(scene.time.t_end / self.dt - 1e-9)
@@ -74,9 +75,6 @@ class KinematicDriver(Driver):
         return self.sim.checkpoint(step, t, {"step": step, "time": t, "totals": totals, "next_output": next_output,
                                              "report": report, "pre": self.pre,
                                              "shifting": shifting() if shifting else None})
-
-    def shifting_methods(self) -> tuple:
-        return (self.shifting,)
 
     def run(self) -> dict:
         sim, scene = self.sim, self.scene

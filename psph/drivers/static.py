@@ -28,7 +28,8 @@ class StaticDriver(Driver):
     def __init__(self, scene, comm, out_dir, log=None, progress=False):  # progress: one line per iteration
         self.scene = scene
         self.sim = Simulation(scene, comm, out_dir, log=log)
-        self.shifting = make_shifting(scene, self.sim.comm)
+        with self.closing_on_failure():
+            self.shifting = make_shifting(scene, self.sim.comm)
 
     def cartesian_reference(self) -> float:
         """L2(d f/dx) on the unperturbed lattice of the same scene. Collective."""
@@ -37,9 +38,6 @@ class StaticDriver(Driver):
         value = distribution_report(system, scene.diagnostics.test_wavelength)["L2_dfdx"]
         system.close()
         return value
-
-    def shifting_methods(self) -> tuple:
-        return (self.shifting,)
 
     def run(self) -> dict:
         sim, scene = self.sim, self.scene

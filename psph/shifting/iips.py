@@ -208,16 +208,17 @@ class ImplicitShifting(Shifting):
         """Solve once with this -iips_ solver on a small test system in `dim` dimensions (solvers.aij.chain_matrix,
         of the -iips_mat_type the assembled operator would have; the matrix-free operator's preconditioners need
         only a diagonal, which any type gives), so that a solver PETSc refuses only at a first solve stops a run
-        before it touches its output (LinearSolver.trial). The matrix-free operator's trial matrix is AIJ (it
-        reads no -iips_mat_type, which the run does not read either); an assembled operator of a type other
-        than AIJ or BAIJ (-iips_mat_type sell, ...) gets no trial: PETSc 3.18's SELL mangles so small a matrix.
-        Collective."""
+        before it touches its output (LinearSolver.trial; a -iips_ksp_max_it too small for the test system is
+        refused unless iips.on_failure = "reject" undoes the calls it fails). The matrix-free operator's trial
+        matrix is AIJ (it reads no -iips_mat_type, which the run does not read either); an assembled operator of a
+        type other than AIJ or BAIJ (-iips_mat_type sell, ...) gets no trial: PETSc 3.18's SELL mangles so small a
+        matrix. Collective."""
         assembled = isinstance(self.operator, AssembledOperator)
         if assembled and family_of(self.solver.prefix) is None:
             return
         matrix = chain_matrix(self.solver.comm, TRIAL_ROWS, dim, self.solver.prefix if assembled else "psph_trial_")
         try:
-            self.solver.trial(matrix.mat)
+            self.solver.trial(matrix.mat, capped=self.spec.on_failure == "reject")
         finally:
             matrix.destroy()
 
@@ -225,7 +226,7 @@ class ImplicitShifting(Shifting):
         """Free the PETSc operator, vectors and solver now. Collective."""
         self._free_vectors()
         self.operator.destroy()
-        self.solver.ksp.destroy()
+        self.solver.destroy()
 
     def correct(self, system, on_iteration=None, iterations=None, **where) -> ShiftReport:
         """One IIPS call (per time step, or a whole static run): Procedure A or B.

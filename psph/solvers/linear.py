@@ -95,7 +95,8 @@ class LinearSolver:
         """A KSP with `settings` (the code defaults unless given), then the options database's (which win)."""
         PETSc = petsc()
         d = settings or self.defaults
-        ksp = PETSc.KSP().create(comm=petsc_comm(self.comm))
+        with petsc_errors(f"setting up the -{self.prefix} solver"):
+            ksp = PETSc.KSP().create(comm=petsc_comm(self.comm))
         try:
             with petsc_errors(f"setting up the -{self.prefix} solver"):
                 ksp.setOptionsPrefix(self.prefix)
@@ -144,36 +145,45 @@ class LinearSolver:
             raise error
         return its
 
-    def trial(self, mat) -> None:
+    def trial(self, mat, capped=False) -> None:
         """Solve `mat` x = 1 once with this solver's types and options, quietly (no monitor, view or converged-
         reason output), so that what PETSc refuses only at a first solve (GAMG on a BAIJ matrix, a Krylov
-        method that breaks down with its preconditioner) is found before a run touches its output. The trial
-        may take TRIAL_MAX_IT iterations: a small -{prefix}ksp_max_it is a choice (iips.on_failure = "reject"
-        undoes the calls it fails), not an error. A failure is bad input: a UsageError naming the solver's
+        method that breaks down with its preconditioner) is found before a run touches its output. capped: the
+        run tolerates a solve that reaches its max_it (iips.on_failure = "reject" undoes the call), so a small
+        -{prefix}ksp_max_it is a choice, and the trial may take TRIAL_MAX_IT iterations; otherwise a max_it too
+        small for the test system is refused. A failure is bad input: a UsageError naming the solver's
         options. For a solver about to be dropped: its KSP is made anew without those options (PETSc takes its
         viewers and monitors from the options when a KSP is set up from them). Collective."""
         b, x = mat.createVecs()
         b.set(1.0)
         x.set(0.0)
+        described = f"prefix -{self.prefix}"
         try:
             with _without_output_options(self.prefix):
                 self.ksp.destroy()
+                self.ksp = None  # (describe must not touch a destroyed KSP: PETSc would crash)
                 self.ksp = self._create()
-                max_it = self.ksp.getTolerances()[3]
-                self.ksp.setTolerances(max_it=max(max_it, TRIAL_MAX_IT))
+                described = self.describe()  # the options' max_it, before the trial's
+                if capped:
+                    self.ksp.setTolerances(max_it=max(self.ksp.getTolerances()[3], TRIAL_MAX_IT))
                 self.set_operator(mat)
                 self.solve(b, x)
         except PsphError as err:  # on a well-posed system any failure is the options'
             if isinstance(err, UsageError):
                 raise
             advice = "" if str(err).endswith("PETSc options") else "; check the command-line PETSc options"
-            usage = UsageError(f"the -{self.prefix} solver ({self.describe()}) fails on a small well-posed test "
+            usage = UsageError(f"the -{self.prefix} solver ({described}) fails on a small well-posed test "
                                f"system: {err}{advice}")
             usage.collective = getattr(err, "collective", False)  # a PETSc error may be some ranks' only
             raise usage from None
         finally:
             b.destroy()
             x.destroy()
+
+    def destroy(self) -> None:
+        """Free the KSP now (a trial whose set-up failed may have left none). Collective."""
+        if self.ksp is not None:
+            self.ksp.destroy()
 
     def describe(self) -> str:
         pc = self.ksp.getPC()

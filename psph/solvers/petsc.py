@@ -92,9 +92,9 @@ def petsc():
 
 
 def petsc_comm(comm):
-    """`comm`, for creating a PETSc object on it: the first call for a communicator of several ranks also
-    creates an empty PETSc vector on it that lives until exit, which keeps PETSc's own duplicate of the
-    communicator alive. Collective on first use (call it where the object is created).
+    """`comm`, for creating a PETSc object on it: the first call for a communicator of several ranks also creates an
+    empty PETSc vector on it that lives until release_comm frees the communicator, or exit, which keeps PETSc's own
+    duplicate of the communicator alive. Collective on first use (call it where the object is created).
 
     PETSc duplicates a communicator (MPI_Comm_dup, collective) for the first object made on it, and frees the
     duplicate with the last object. Whether the last object has gone can differ between ranks: a Python
@@ -119,6 +119,8 @@ def release_comm(comm) -> None:
     object made on `comm` must have been destroyed by then (a driver's close)."""
     from mpi4py import MPI
 
+    if comm == MPI.COMM_NULL:  # freed already
+        return
     anchor = _anchors.pop(MPI._handleof(comm), None)
     if anchor is not None:
         anchor.destroy()
