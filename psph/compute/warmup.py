@@ -88,8 +88,22 @@ def warm_up(dim: int, kernel_name: str) -> None:
         walls.off_walls(np.zeros((1, 2, 2)), np.zeros(1, dtype=np.int64), vector.copy())
 
 
-if __name__ == "__main__":  # python -m psph.compute.warmup DIM ...: compile (or load) the kernels, e.g. before tests
+def warm_up_more(dim: int) -> None:
+    """Kernels of less common paths that a run does not load ahead (the corrected grad C of the explicit
+    shifting laws, Neuhauser's correction): compiled once before the test suite (run_scripts/test.sh), whose
+    processes would otherwise each compile them at once."""
+    n = 3 ** dim
+    pos = np.ascontiguousarray(np.stack(np.meshgrid(*[np.arange(3.0)] * dim, indexing="ij"), -1).reshape(n, dim))
+    vol, field, vector = np.ones(n), np.zeros(n), np.zeros((n, dim))
+    kp = make_kernel("wendland_c6", dim, 1.0).params
+    ptr, idx = neighbours.build_neighbour_lists(pos, n, 2.0)
+    shift_velocity.corrected_grad_c(pos, vol, ptr, idx, kp, 0.2, 4.0, 1.0, vector)
+    shift_velocity.neuhauser_acceleration(pos, vol, vector.copy(), field, ptr, idx, kp, 10.0, 0.1, vector)
+
+
+if __name__ == "__main__":  # python -m psph.compute.warmup DIM ...: compile (or load) the kernels before tests
     import sys
 
     for dim in sys.argv[1:] or ["1", "2", "3"]:
         warm_up(int(dim), "wendland_c6")  # the kernel is a value inside the arguments: one compile serves all
+        warm_up_more(int(dim))
