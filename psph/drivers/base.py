@@ -41,7 +41,7 @@ class Driver:
             return
         try:
             self.close()
-        except Exception as failure:  # noqa: BLE001
+        except Exception as failure:
             print(f"psph: warning: freeing the run's solvers after the error failed: {failure}", file=sys.stderr,
                   flush=True)
 

@@ -24,7 +24,7 @@ OPTION_ERRORS = (56, 62, 63, 75, 83, 86)
 # some ranks may open
 FILE_ERRORS = (65, 66, 67)
 TRACE = re.compile(r"\w+\(\) at ")
-# iterations a trial solve may take whatever the options' max_it (LinearSolver.trial)
+# iterations a trial solve may take where the run tolerates capped solves (LinearSolver.trial: capped)
 TRIAL_MAX_IT = 1000
 
 
