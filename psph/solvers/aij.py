@@ -299,16 +299,17 @@ def chain_matrix(comm, rows_per_rank, bsize, prefix) -> FixedPatternMatrix:
     Collective."""
     first = int(exclusive_scan(comm, rows_per_rank))
     n_blocks = int(allreduce_sum(comm, rows_per_rank))
-    indptr, indices, values = [0], [], []
-    for g in range(first, first + rows_per_rank):
-        blocks = [s for s in (g - 1, g, g + 1) if 0 <= s < n_blocks]
-        for a in range(bsize):  # row-oriented: row a of the block row, then block s, then column b
-            for s in blocks:
-                for b in range(bsize):
-                    indices.append(s * bsize + b)
-                    values.append((4.0 if s == g else -1.0) if a == b else 0.0)
-            indptr.append(len(indices))
-    indptr, indices, values = np.array(indptr), np.array(indices), np.array(values)
+    # entries in row order: block row g, its row a, then block column s (g - 1, g, g + 1 where they exist), then
+    # its column b
+    g = np.arange(first, first + rows_per_rank)[:, None, None, None]
+    s = g + np.array([-1, 0, 1])[None, None, :, None]
+    a = np.arange(bsize)[None, :, None, None]
+    b = np.arange(bsize)[None, None, None, :]
+    shape = (rows_per_rank, bsize, 3, bsize)
+    keep = np.broadcast_to((s >= 0) & (s < n_blocks), shape)
+    indices = np.broadcast_to(s * bsize + b, shape)[keep]
+    values = np.broadcast_to(np.where(a == b, np.where(s == g, 4.0, -1.0), 0.0), shape)[keep]
+    indptr = np.concatenate([[0], np.cumsum(keep.sum(axis=(2, 3)).ravel())])
     matrix = FixedPatternMatrix(comm, indptr, indices, np.arange(len(values)), n_blocks * bsize, bsize, prefix)
 
     def fill(where, diag, off):
