@@ -97,44 +97,44 @@ def rates(drv, t, dt):
 
 def budget(scene, t0, t1, out_dir):
     """Integrated parts (fractions of the initial volume) per region over t0..t1, and eps_V at both ends."""
-    drv = FluidDriver(scene, MPI.COMM_WORLD, out_dir)
-    system = drv.system
-    p = system.particles
-    v0 = drv.initial_volume
-    table = np.zeros((len(PARTS) + 1, len(REGIONS)))
-    update_after = drv.update.after
+    with FluidDriver(scene, MPI.COMM_WORLD, out_dir) as drv:  # its solvers and communicators freed after
+        system = drv.system
+        p = system.particles
+        v0 = drv.initial_volume
+        table = np.zeros((len(PARTS) + 1, len(REGIONS)))
+        update_after = drv.update.after
 
-    p.add_field(FieldSpec("volume_before_update"))  # travels with its particle through rebuilds
+        p.add_field(FieldSpec("volume_before_update"))  # travels with its particle through rebuilds
 
-    def measured_update(system, scheme):  # the IIPS field update's part, once eps_V(t0) is taken
-        p.owned("volume_before_update")[:] = p.owned("volume")
-        update_after(system, scheme)
-        if eps:
+        def measured_update(system, scheme):  # the IIPS field update's part, once eps_V(t0) is taken
+            p.owned("volume_before_update")[:] = p.owned("volume")
+            update_after(system, scheme)
+            if eps:
+                mask = fluid_mask(system)
+                masks = regions(p.owned("position")[mask], system.kernel.support)
+                change = (p.owned("volume") - p.owned("volume_before_update"))[mask]
+                table[UPDATE] += [change[k].sum() / v0 for k in masks]
+
+        drv.update.after = measured_update
+        state = {"step": 0, "time": 0.0}
+        totals = drv.new_totals()
+        eps = []
+        while state["time"] < t1 * (1.0 - 1e-12):
+            dt, vmax = drv.time_step()
+            drv.first_dt = drv.first_dt or dt
+            dt = min(dt, t1 - state["time"])
+            drv.advance(state, dt, vmax, totals)
             mask = fluid_mask(system)
-            masks = regions(p.owned("position")[mask], system.kernel.support)
-            change = (p.owned("volume") - p.owned("volume_before_update"))[mask]
-            table[UPDATE] += [change[k].sum() / v0 for k in masks]
-
-    drv.update.after = measured_update
-    state = {"step": 0, "time": 0.0}
-    totals = {k: 0 for k in ("iips_time_s", "iips_newton", "iips_linear", "iips_calls", "iips_failures")}
-    eps = []
-    while state["time"] < t1 * (1.0 - 1e-12):
-        dt, vmax = drv.time_step()
-        drv.first_dt = drv.first_dt or dt
-        dt = min(dt, t1 - state["time"])
-        drv.advance(state, dt, vmax, totals)
-        mask = fluid_mask(system)
-        if state["time"] < t0:
-            continue
-        if not eps:
-            eps.append(total_volume(system) / v0 - 1.0)
-        if state["time"] < t1 * (1.0 - 1e-12):
-            masks = regions(p.owned("position")[mask], system.kernel.support)
-            for a, r in zip((0, 1, 2, 3, CHECK), rates(drv, state["time"], dt)):
-                table[a] += [dt * r[k].sum() / v0 for k in masks]
-    eps.append(total_volume(system) / v0 - 1.0)
-    return allreduce_sum(system.comm, table), eps
+            if state["time"] < t0:
+                continue
+            if not eps:
+                eps.append(total_volume(system) / v0 - 1.0)
+            if state["time"] < t1 * (1.0 - 1e-12):
+                masks = regions(p.owned("position")[mask], system.kernel.support)
+                for a, r in zip((0, 1, 2, 3, CHECK), rates(drv, state["time"], dt)):
+                    table[a] += [dt * r[k].sum() / v0 for k in masks]
+        eps.append(total_volume(system) / v0 - 1.0)
+        return allreduce_sum(system.comm, table), eps
 
 
 def total_volume(system):

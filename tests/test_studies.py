@@ -1,6 +1,7 @@
 """The study harness of run_scripts/ (psph.studies.run_scene): a resumed study reads back the runs it
 already made, complete or stopped by a diagnosis, instead of running them again."""
 
+import csv
 import subprocess
 from pathlib import Path
 
@@ -243,3 +244,16 @@ def test_the_long_dam_break_study_tables_finished_and_stopped_runs(tmp_path, mon
         cells = rows[scheme].strip("| ").split(" | ")
         assert int(cells[2]) > 50 and all(np.isfinite(float(c)) for c in cells[3:])
     assert (tmp_path / "long.png").stat().st_size > 10_000
+
+
+def test_the_volume_budget_adds_up_to_the_measured_volume_change(tmp_path, monkeypatch):
+    """run_scripts/volume_budget.py end to end (clone walls, dx = 0.1, t = 0.1..0.2): its parts, one evaluation per
+    step, add up to the change of the total volume it measures (4% apart here: a left Riemann sum)."""
+    study = study_module("volume_budget")
+    monkeypatch.setattr("sys.argv", ["volume_budget.py", "--walls", "clone", "--dx", "0.1", "--t0", "0.1", "--t1",
+                                     "0.2", "--out", str(tmp_path)])
+    study.main()
+    with open(tmp_path / "budget.csv", newline="") as f:
+        rows = {row[1]: row for row in csv.reader(f)}
+    parts, measured = float(rows["sum of the parts"][-1]), float(rows["eps_V(0.2) - eps_V(0.1)"][-1])
+    assert measured != 0.0 and parts == pytest.approx(measured, rel=0.15)

@@ -84,47 +84,30 @@ def nfts_increments(pos, vol, rho, vel, step, kind, normal, ptr, idx, kp, d_vol,
 
 
 @njit(cache=True)
-def _monomials(x, h, order, d, out):
-    """(1, x/h, [quadratic terms]) for one displacement x."""
-    out[0] = 1.0
-    k = 1
-    for a in range(d):
-        out[k] = x[a] / h
-        k += 1
-    if order == 2:
-        for a in range(d):
-            for b in range(a, d):
-                out[k] = x[a] * x[b] / (h * h)
-                k += 1
-    return k
-
-
-@njit(cache=True)
-def _solve_first(a, b, out_row, pivot_tol):
-    """Row 0 of a^-1 b for a symmetric positive semi-definite a (Gaussian elimination without pivoting,
-    which suffices for such matrices). Returns False if a pivot falls below pivot_tol x a[0, 0]."""
-    m = a.shape[0]
-    nf = b.shape[1]
+def _first_column_of_inverse(a, m, g, pivot_tol):
+    """g = a^-1 e_0, which for a symmetric a is also row 0 of a^-1, for the m x m symmetric positive semi-definite
+    a held in its upper triangle (overwritten). Gaussian elimination without pivoting, which suffices for such
+    matrices, on the upper triangle only (each trailing block stays symmetric). Returns False if a pivot falls
+    below pivot_tol x a[0, 0]."""
     scale = a[0, 0]
+    for r in range(m):
+        g[r] = 0.0
+    g[0] = 1.0
     for c in range(m):
         piv = a[c, c]
         if piv <= pivot_tol * scale:
             return False
         for r in range(c + 1, m):
-            f = a[r, c] / piv
+            f = a[c, r] / piv  # a[r, c], by symmetry
             if f != 0.0:
-                for q in range(c, m):
+                for q in range(r, m):
                     a[r, q] -= f * a[c, q]
-                for q in range(nf):
-                    b[r, q] -= f * b[c, q]
-    for q in range(nf):  # back substitution, keeping only the first unknown
-        x = np.empty(m)
-        for r in range(m - 1, -1, -1):
-            s = b[r, q]
-            for c in range(r + 1, m):
-                s -= a[r, c] * x[c]
-            x[r] = s / a[r, r]
-        out_row[q] = x[0]
+                g[r] -= f * g[c]
+    for r in range(m - 1, -1, -1):
+        s = g[r]
+        for c in range(r + 1, m):
+            s -= a[r, c] * g[c]
+        g[r] = s / a[r, r]
     return True
 
 
@@ -132,43 +115,72 @@ def _solve_first(a, b, out_row, pivot_tol):
 def mls_interpolate(new_pos, old_pos, old_vol, old_fields, ptr, idx, kp, order, out):
     """MLS reconstruction (order 1 or 2) of the columns of old_fields at new_pos (rows of ptr/idx index
     old particles). Falls back to first order, then to the Shepard average, where the moment matrix is
-    singular (too few neighbours)."""
+    singular (too few neighbours); NaN where no old particle is within the support.
+
+    With the moment matrix M = sum_j w_j P_j P_j^T (w_j = W_ij V_j) the fit is phi_i = e_0^T M^-1 sum_j w_j
+    P_j phi_j = sum_j w_j (g . P_j) phi_j, g = M^-1 e_0 (M is symmetric): one solve per particle, whatever the
+    number of fields, and M's upper triangle only."""
     d = new_pos.shape[1]
     h = kp[1]
     nf = old_fields.shape[1]
     size = 1 + d + (d * (d + 1) // 2 if order == 2 else 0)
-    mono = np.empty(size)
+    most = 0
+    for i in range(ptr.size - 1):
+        most = max(most, ptr[i + 1] - ptr[i])
+    weight = np.empty(most)  # w_j of the neighbours within the support, their P_j and their numbers
+    mono = np.empty((most, size))
+    near = np.empty(most, dtype=np.int64)
+    a = np.empty((size, size))
+    g = np.empty(size)
     xij = np.empty(d)
     for i in range(ptr.size - 1):
+        n = 0
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            r2 = 0.0
+            for c in range(d):
+                xij[c] = new_pos[i, c] - old_pos[j, c]
+                r2 += xij[c] * xij[c]
+            w = kernel_w(np.sqrt(r2), kp) * old_vol[j]
+            if w == 0.0:
+                continue
+            weight[n] = w
+            near[n] = j
+            # P_j = (1, x/h, [x_a x_b / h^2, a <= b]): a lower order's monomials are the first ones
+            mono[n, 0] = 1.0
+            for c in range(d):
+                mono[n, 1 + c] = xij[c] / h
+            if order == 2:
+                u = 1 + d
+                for c in range(d):
+                    for e in range(c, d):
+                        mono[n, u] = mono[n, 1 + c] * mono[n, 1 + e]
+                        u += 1
+            n += 1
+        for f in range(nf):
+            out[i, f] = np.nan
         for ord_try in range(order, -1, -1):
             m = 1 + d + (d * (d + 1) // 2 if ord_try == 2 else 0) if ord_try > 0 else 1
-            a = np.zeros((m, m))
-            b = np.zeros((m, nf))
-            for k in range(ptr[i], ptr[i + 1]):
-                j = idx[k]
-                r2 = 0.0
-                for c in range(d):
-                    xij[c] = new_pos[i, c] - old_pos[j, c]
-                    r2 += xij[c] * xij[c]
-                w = kernel_w(np.sqrt(r2), kp) * old_vol[j]
-                if w == 0.0:
-                    continue
-                if ord_try == 0:
-                    mono[0] = 1.0
-                else:
-                    _monomials(xij, h, ord_try, d, mono)
+            for p in range(m):
+                for q in range(p, m):
+                    a[p, q] = 0.0
+            for t in range(n):
                 for p in range(m):
-                    for q in range(m):
-                        a[p, q] += w * mono[p] * mono[q]
-                    for f in range(nf):
-                        b[p, f] += w * mono[p] * old_fields[j, f]
-            if a[0, 0] <= 0.0:
+                    wp = weight[t] * mono[t, p]
+                    for q in range(p, m):
+                        a[p, q] += wp * mono[t, q]
+            if a[0, 0] <= 0.0:  # no neighbour: NaN
+                break
+            if not _first_column_of_inverse(a, m, g, 1e-10):
+                continue
+            for f in range(nf):
+                out[i, f] = 0.0
+            for t in range(n):
+                c = 0.0
+                for p in range(m):
+                    c += g[p] * mono[t, p]
+                c *= weight[t]
+                j = near[t]
                 for f in range(nf):
-                    out[i, f] = np.nan
-                break
-            if ord_try == 0:
-                for f in range(nf):
-                    out[i, f] = b[0, f] / a[0, 0]
-                break
-            if _solve_first(a, b, out[i], 1e-10):
-                break
+                    out[i, f] += c * old_fields[j, f]
+            break

@@ -46,48 +46,52 @@ KERNEL_NAMES = tuple(_NORMALISATION)
 # the support).
 # The Wendland leaves clip 1 - q at zero instead of branching on q >= 1: the loops over neighbour lists then
 # carry no unpredictable branch (a skin pair costs a few flops and adds exactly zero).
-@njit(cache=True, inline="always")
+# LLVM inlines these leaves into every sum (the same machine code, checked with inspect_asm); numba's own
+# inline="always" on them, applied to each of the four kernels at every call site, made the first compilation
+# 2.5 times longer (227 against 90 s for the 2-D kernels, psph.compute.warmup). kernel_w, kernel_f and
+# kernel_b keep it: without it some callers kept a call to them in their pair loops.
+@njit(cache=True)
 def _clip(t):
     """max(t, 0), NaN kept (a NaN distance must not turn into a zero weight)."""
     return 0.0 if t < 0.0 else t
 
 
 # ---------------------------------------------------------------- Wendland C2
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _c2_w(q):
     t = _clip(1.0 - q)
     t2 = t * t
     return t2 * t2 * (4.0 * q + 1.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _c2_fq(q):  # f'(q)/q = -20 (1-q)^3
     t = _clip(1.0 - q)
     return -20.0 * t * t * t
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _c2_bq(q):  # (f''(q) - f'(q)/q) / q^2 = 60 (1-q)^2 / q  (q > 0)
     t = _clip(1.0 - q)
     return 60.0 * t * t / q
 
 
 # ---------------------------------------------------------------- Wendland C4
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _c4_w(q):
     t = _clip(1.0 - q)
     t2 = t * t
     return t2 * t2 * t2 * (35.0 * q * q + 18.0 * q + 3.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _c4_fq(q):  # f'(q)/q = -56 (1-q)^5 (5q + 1)
     t = _clip(1.0 - q)
     t2 = t * t
     return -56.0 * t2 * t2 * t * (5.0 * q + 1.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _c4_bq(q):  # (f''(q) - f'(q)/q) / q^2 = 1680 (1-q)^4
     t = _clip(1.0 - q)
     t2 = t * t
@@ -95,7 +99,7 @@ def _c4_bq(q):  # (f''(q) - f'(q)/q) / q^2 = 1680 (1-q)^4
 
 
 # ---------------------------------------------------------------- Wendland C6
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _c6_w(q):
     t = _clip(1.0 - q)
     t2 = t * t
@@ -103,7 +107,7 @@ def _c6_w(q):
     return t4 * t4 * (((32.0 * q + 25.0) * q + 8.0) * q + 1.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _c6_fq(q):  # f'(q)/q = -22 (1-q)^7 (16q^2 + 7q + 1)
     t = _clip(1.0 - q)
     t2 = t * t
@@ -111,7 +115,7 @@ def _c6_fq(q):  # f'(q)/q = -22 (1-q)^7 (16q^2 + 7q + 1)
     return -22.0 * t4 * t2 * t * ((16.0 * q + 7.0) * q + 1.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _c6_bq(q):  # (f''(q) - f'(q)/q) / q^2 = 528 (1-q)^6 (6q + 1)
     t = _clip(1.0 - q)
     t2 = t * t
@@ -119,7 +123,7 @@ def _c6_bq(q):  # (f''(q) - f'(q)/q) / q^2 = 528 (1-q)^6 (6q + 1)
 
 
 # ---------------------------------------------------------------- cubic spline (q = r / h)
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _cubic_w(q):
     if q >= 2.0:
         return 0.0
@@ -129,7 +133,7 @@ def _cubic_w(q):
     return 0.25 * t * t * t
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _cubic_fq(q):  # 3/4 (3q - 4) for q < 1; -3/4 (2 - q)^2 / q for 1 <= q < 2
     if q >= 2.0:
         return 0.0
@@ -139,7 +143,7 @@ def _cubic_fq(q):  # 3/4 (3q - 4) for q < 1; -3/4 (2 - q)^2 / q for 1 <= q < 2
     return -0.75 * t * t / q
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _cubic_bq(q):  # (f''(q) - f'(q)/q) / q^2 = 9 / (4q) for q < 1; 3/4 (4 - q^2) / q^3 for 1 <= q < 2  (q > 0)
     if q >= 2.0:
         return 0.0

@@ -1,9 +1,9 @@
 """Load every hot compute kernel before a run's timed work.
 
-numba compiles (first run on a machine: seconds) or loads from its on-disk cache (later runs: 2-3 ms) each
-kernel on its first call. Calling them once on a tiny particle cloud at start-up keeps that cost out of the
-time loops (it stays in the run's total wall time); a one-iteration IIPS call takes 20-40 ms
-(tests/compute/test_warmup.py checks that a run of each kind loads nothing more).
+numba compiles (first run on a machine: about a minute per dimension, on one core) or loads from its on-disk
+cache (later runs: 2-3 ms) each kernel on its first call. Calling them once on a tiny particle cloud at
+start-up keeps that cost out of the time loops (it stays in the run's total wall time); a one-iteration IIPS
+call takes 20-40 ms (tests/compute/test_warmup.py checks that a run of each kind loads nothing more).
 """
 
 import numpy as np

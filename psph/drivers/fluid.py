@@ -306,6 +306,12 @@ class FluidDriver(Driver):
             "iips": self.iips.checkpoint_state() if self.iips is not None else None,
             "open": self.open.checkpoint_state()})
 
+    @staticmethod
+    def new_totals() -> dict:
+        """The run's counters and times at its start, which advance and run add to (history and summary)."""
+        return {"iips_time_s": 0.0, "iips_newton": 0, "iips_linear": 0, "iips_calls": 0, "iips_failures": 0,
+                "retries": 0, "steps_redone": 0, "wall_reflections": 0, "step_time_s": 0.0}
+
     def advance(self, state, dt, vmax, totals) -> None:
         """One time step of size dt from state (step, time): integrate, shift, check. Collective."""
         sim, system = self.sim, self.system
@@ -500,8 +506,7 @@ class FluidDriver(Driver):
         t_end = scene.time.t_end
         every = scene.output.every
         next_output = every if every > 0 else math.inf
-        totals = {"iips_time_s": 0.0, "iips_newton": 0, "iips_linear": 0, "iips_calls": 0, "iips_failures": 0,
-                  "retries": 0, "steps_redone": 0, "wall_reflections": 0, "step_time_s": 0.0}
+        totals = self.new_totals()
         state = {"step": 0, "time": 0.0}
         if self.resumed:
             state = {"step": self.resumed["step"], "time": self.resumed["time"]}

@@ -105,6 +105,50 @@ def test_mls_reproduces_polynomials(order, degree):
         assert not np.allclose(out[inner, 0], new[inner, 0] ** 2, atol=1e-6)
 
 
+def mls_by_least_squares(new, pos, vol, fields, k, order):
+    """The MLS fit of thesis eq. 9.8-9.9 by numpy: solve sum_j W_ij V_j P_j P_j^T a = sum_j W_ij V_j P_j phi_j."""
+    h = k.h
+    out = np.full((len(new), fields.shape[1]), np.nan)
+    for i, x in enumerate(new):
+        xij = x - pos
+        w = k.value(np.linalg.norm(xij, axis=1)) * vol
+        terms = [np.ones(len(pos)), xij[:, 0] / h, xij[:, 1] / h]
+        if order == 2:
+            terms += [xij[:, 0] ** 2 / h**2, xij[:, 0] * xij[:, 1] / h**2, xij[:, 1] ** 2 / h**2]
+        p = np.stack(terms, axis=1)
+        out[i] = np.linalg.solve((p * w[:, None]).T @ p, (p * w[:, None]).T @ fields)[0]
+    return out
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_mls_equals_the_least_squares_fit_of_every_field(order):
+    """One solve per particle for all fields (the first column of the inverse moment matrix) gives the fit of
+    each field on its own."""
+    pos, vol, _, _, k = cloud(jitter=0.25)
+    new = pos + np.random.default_rng(5).normal(0, 0.1 / 14, pos.shape)
+    fields = np.random.default_rng(6).normal(size=(len(pos), 3))
+    ptr, idx = build_cross_lists(new, pos, k.support)
+    out = np.zeros((len(new), 3))
+    mls_interpolate(new, pos, vol, fields, ptr, idx, k.params, order, out)
+    assert np.allclose(out, mls_by_least_squares(new, pos, vol, fields, k, order), rtol=1e-9, atol=1e-12)
+
+
+def test_mls_falls_back_to_the_shepard_average_and_to_nan():
+    """Old particles on a line make every moment matrix above order 0 singular: the Shepard average is taken;
+    a new particle with no old one in reach gets NaN (which the field update reports)."""
+    k = make_kernel("wendland_c6", 2, 0.1)
+    pos = np.stack([np.linspace(-0.15, 0.15, 7), np.zeros(7)], axis=1)
+    vol, phi = np.full(7, 0.01), np.linspace(1.0, 2.0, 7)[:, None] ** 2
+    new = np.array([[0.01, 0.02], [5.0, 5.0]])
+    ptr, idx = build_cross_lists(new, pos, k.support)
+    for order in (1, 2):
+        out = np.zeros((2, 1))
+        mls_interpolate(new, pos, vol, phi.copy(), ptr, idx, k.params, order, out)
+        w = k.value(np.linalg.norm(new[0] - pos, axis=1)) * vol
+        assert out[0, 0] == pytest.approx((w @ phi[:, 0]) / w.sum(), rel=1e-12)
+        assert np.isnan(out[1, 0])
+
+
 def test_cross_lists_match_brute_force():
     rng = np.random.default_rng(4)
     data, query = rng.uniform(0, 1, (300, 2)), rng.uniform(0, 1, (200, 2))
