@@ -7,8 +7,9 @@ Prints, per lattice, the pair evaluations per second per core of psph's sum (sor
 CSR Verlet lists) counted two ways: pairs inside the kernel support (useful work, ~48 per particle) and
 pairs in the list (support + skin), and, for comparison, a naive numba cell-list loop that searches the
 cells at every evaluation; and the building of the neighbour lists themselves (compute.neighbours, owned
-rows over owned and halo particles, list radius = support + skin), in list pairs written per second. Times
-are the best of several repetitions of at least 0.3 s each.
+rows over owned and halo particles, list radius = support + skin), in list pairs written per second; and
+the MLS-II field update (compute.field_update, 4 fields) in microseconds per particle. Times are the best of
+several repetitions of at least 0.3 s each.
 """
 
 import argparse
@@ -19,7 +20,8 @@ from mpi4py import MPI
 from numba import njit
 
 from psph.compute import sums
-from psph.compute.neighbours import build_neighbour_lists
+from psph.compute.field_update import mls_interpolate
+from psph.compute.neighbours import build_cross_lists, build_neighbour_lists
 from psph.compute.smoothing import kernel_f
 from psph.scene.load import scene_from_table
 from psph.simulation import build_system
@@ -89,7 +91,7 @@ def main():
     if comm.rank == 0:
         print(f"grad C pair throughput, {comm.size} rank(s), Wendland C6, h = 2 dx, 2-D periodic lattice")
         print(f"{'particles':>10} {'nbrs/ptcl':>9} {'useful Mpairs/s/core':>21} {'list Mpairs/s/core':>19} "
-              f"{'naive Mpairs/s/core':>20} {'list build ms':>13} {'build Mpairs/s':>14}")
+              f"{'naive Mpairs/s/core':>20} {'list build ms':>13} {'build Mpairs/s':>14} {'MLS-II us/ptcl':>14}")
     for n in args.sizes:
         system = build_system(lattice_scene(n), comm)
         p, k = system.particles, system.kernel
@@ -103,7 +105,14 @@ def main():
         # the naive loop also sums halo rows; count only owned rows' pairs for a fair rate
         assert np.allclose(naive_out[: p.n_owned], out, atol=1e-9 * np.abs(out).max() + 1e-12)
         t_build = best_time(lambda: build_neighbour_lists(pos, p.n_owned, system.list_radius))  # noqa: B023
+        # the MLS-II field update of 2 + d fields at positions moved by 0.1 dx (shifting.field_update)
+        moved = pos[: p.n_owned] + 0.1 / n
+        near_ptr, near_idx = build_cross_lists(moved, pos, k.support)
+        fields, fitted = np.ones((p.n_local, 4)), np.zeros((p.n_owned, 4))
+        t_mls = best_time(lambda: mls_interpolate(moved, pos, vol, fields, near_ptr, near_idx, k.params, 2,  # noqa: B023
+                                                  fitted))  # noqa: B023
         rates = np.array([useful / t, len(idx) / t, useful / t_naive, len(idx) / t_build]) / 1e6
+        t_mls = comm.allreduce(t_mls / p.n_owned, op=MPI.MAX)
         worst = np.empty(4)
         comm.Allreduce(rates, worst, op=MPI.MIN)
         total = comm.allreduce(useful)
@@ -111,7 +120,7 @@ def main():
         if comm.rank == 0:
             label = "min over ranks" if comm.size > 1 else ""
             print(f"{n * n:>10} {total / (n * n):>9.1f} {worst[0]:>21.1f} {worst[1]:>19.1f} {worst[2]:>20.1f} "
-                  f"{1e3 * t_build:>13.2f} {worst[3]:>14.1f} {label}")
+                  f"{1e3 * t_build:>13.2f} {worst[3]:>14.1f} {1e6 * t_mls:>14.2f} {label}")
 
 
 if __name__ == "__main__":
