@@ -12,11 +12,16 @@ from psph.compute import csr, fluid, free_surface, iips, neighbours, random, rie
 from psph.compute.smoothing import make_kernel
 
 
+def _lattice(dim: int, spacing: float) -> np.ndarray:
+    """The 3^dim points of a tiny lattice, C-contiguous as the particles' positions are."""
+    grid = np.stack(np.meshgrid(*[np.arange(3.0)] * dim, indexing="ij"), axis=-1).reshape(3 ** dim, dim)
+    return np.ascontiguousarray(grid * spacing)
+
+
 def warm_up(dim: int, kernel_name: str) -> None:
     """Call the hot kernels once with the argument types a run of dimension `dim` uses."""
     n = 3 ** dim
-    grid = np.stack(np.meshgrid(*[np.arange(3.0)] * dim, indexing="ij"), axis=-1).reshape(n, dim)
-    pos = np.ascontiguousarray(grid * 0.5)
+    pos = _lattice(dim, 0.5)
     vol = np.full(n, 0.25 ** dim)
     gid = np.arange(n, dtype=np.int64)
     kernel = make_kernel(kernel_name, dim, 0.5)
@@ -93,7 +98,7 @@ def warm_up_more(dim: int) -> None:
     shifting laws, Neuhauser's correction): compiled once before the test suite (run_scripts/test.sh), whose
     processes would otherwise each compile them at once."""
     n = 3 ** dim
-    pos = np.ascontiguousarray(np.stack(np.meshgrid(*[np.arange(3.0)] * dim, indexing="ij"), -1).reshape(n, dim))
+    pos = _lattice(dim, 1.0)
     vol, field, vector = np.ones(n), np.zeros(n), np.zeros((n, dim))
     kp = make_kernel("wendland_c6", dim, 1.0).params
     ptr, idx = neighbours.build_neighbour_lists(pos, n, 2.0)
