@@ -2,6 +2,7 @@
 
     .venv/bin/python run_scripts/volume_budget.py [--walls clone ghost] [--dx 0.04] [--t0 2] [--t1 6]
         [--set physics.reynolds=1000 --set shifting.method=iips --set iips.update=nfts] [--out DIR]
+        [PETSc options, e.g. -iips_ksp_rtol 1e-3]
 
 Both wall models run with delta+ shifting (seed 001's; the cavity scene's own is IIPS + NFTS) unless --set
 says otherwise. With V_i = m_i / rho_i (seed 001 eq. 13), dV_i/dt = V_i (dm_i/dt / m_i - drho_i/dt / rho_i).
@@ -18,6 +19,7 @@ results/volume_budget/budget.{md,csv}.
 """
 
 import argparse
+import sys
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
@@ -31,7 +33,8 @@ from psph.errors import PsphError
 from psph.parallel.comm import allreduce_sum
 from psph.particles import FieldSpec
 from psph.scene.load import load_scene
-from psph.studies import CAVITY, CAVITY_DELTA_PLUS, CAVITY_WALLS, command_line, write_table
+from psph.solvers.petsc import initialize
+from psph.studies import CAVITY, CAVITY_DELTA_PLUS, CAVITY_WALLS, command_line, parse_args, write_table
 
 PARTS = ("fluid pairs, u", "fluid pairs, du", "walls, u", "walls, du", "IIPS field update")
 REGIONS = ("top-left corner", "top-right corner", "lid", "other walls", "interior")
@@ -148,10 +151,10 @@ def main():
     parser.add_argument("--dx", type=float, default=0.04)
     parser.add_argument("--t0", type=float, default=2.0)
     parser.add_argument("--t1", type=float, default=6.0)
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="scene override for every run, e.g. physics.reynolds=1000")
     parser.add_argument("--out", type=Path, default=Path("results/volume_budget"))
-    args = parser.parse_args()
+    args = parse_args(parser)  # --set KEY=VALUE for every run (e.g. physics.reynolds=1000), and PETSc options
+    if args.petsc:  # before the first PETSc object (a process that has made one keeps its options)
+        initialize(args.petsc)
     args.out.mkdir(parents=True, exist_ok=True)
     scenes = {}
     for walls in args.walls:  # every scene is checked before the first run starts
@@ -162,7 +165,10 @@ def main():
             parser.error(f"{walls} walls: {err}")
     rows = []
     for walls, scene in scenes.items():
-        table, eps = budget(scene, args.t0, args.t1, args.out / f"run_{walls}")
+        try:
+            table, eps = budget(scene, args.t0, args.t1, args.out / f"run_{walls}")
+        except PsphError as err:  # a bad PETSc option, a numerical failure: one line, the earlier runs' files kept
+            sys.exit(f"volume_budget.py: {walls} walls: {err}")
         for name, values in zip(PARTS + ("-2 V du.grad C",), table):
             rows.append([walls, name, *values, values.sum()])
         rows.append([walls, "sum of the parts", *table[:-1].sum(axis=0), table[:-1].sum()])

@@ -3,6 +3,7 @@ already made, complete or stopped by a diagnosis, instead of running them again.
 
 import csv
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -257,3 +258,13 @@ def test_the_volume_budget_adds_up_to_the_measured_volume_change(tmp_path, monke
         rows = {row[1]: row for row in csv.reader(f)}
     parts, measured = float(rows["sum of the parts"][-1]), float(rows["eps_V(0.2) - eps_V(0.1)"][-1])
     assert measured != 0.0 and parts == pytest.approx(measured, rel=0.15)
+
+
+def test_the_volume_budget_takes_petsc_options_and_reports_a_bad_one_in_a_line(tmp_path):
+    script = studies.CASES.parent / "run_scripts" / "volume_budget.py"
+    res = subprocess.run([sys.executable, str(script), "--walls", "clone", "--dx", "0.1", "--t0", "0.1", "--t1", "0.2",
+                          "--out", str(tmp_path), "--set", "shifting.method=iips", "-iips_pc_type", "nonexistent"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 1
+    assert res.stderr.strip().splitlines() == [res.stderr.strip()]
+    assert "clone walls" in res.stderr and "Unable to find requested PC type nonexistent" in res.stderr
