@@ -342,7 +342,8 @@ class FluidDriver(Driver):
                 report = self.iips.correct(system, step=step, time=t)
                 # no update where the particles stayed in place: a rejected call, or a stalled one whose
                 # best iterate was its start (on_stall = "best")
-                if report.iterations and not report.rejected and self.iips.max_shift(system) > 0.0:
+                moved = self.iips.max_shift(system) if report.iterations and not report.rejected else 0.0
+                if moved > 0.0:
                     self.update.after(system, self.scheme)
                     self.open.extrapolate(system)  # the outflow buffer from the shifted fluid
             totals["iips_time_s"] += time.perf_counter() - t0
@@ -351,7 +352,9 @@ class FluidDriver(Driver):
             totals["iips_calls"] += int(report.iterations > 0)
             if report.failed:
                 totals["iips_failures"] += 1
-                sim.log(f"step {step}, t = {t:.4g}: {report.message}")
+                # how far the kept iterate moved a particle: a stalled call's can be several dx (README, jet)
+                largest = f"; largest displacement {moved / self.scene.domain.dx:.2g} dx" if moved > 0.0 else ""
+                sim.log(f"step {step}, t = {t:.4g}: {report.message}{largest}")
         system.check_escaped()
         self.check(step, t, dt)
 

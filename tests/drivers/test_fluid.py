@@ -235,6 +235,31 @@ def test_a_rejected_iips_call_leaves_particles_and_fields_as_without_iips(tmp_pa
         assert np.allclose(runs["rejected"][key], runs["none"][key], rtol=0, atol=1e-12), key
 
 
+def test_a_kept_stalled_call_logs_how_far_it_moved_a_particle(tmp_path):
+    """A stalled call kept at its best iterate (on_stall = "best") is logged with the largest displacement
+    of that iterate in units of dx (in the impinging jet a stalled call moved a particle 4.2 dx: README),
+    the value the driver measured before the field update reset the displacements."""
+    import re
+
+    from mpi4py import MPI
+
+    from psph.drivers.fluid import FluidDriver
+    from tests.conftest import periodic_scene
+
+    scene = periodic_scene(n=16, sigma=0.1, initial={"velocity": "taylor_green"},
+                           physics={"scheme": "delta_ale"}, time={"t_end": 0.01},
+                           shifting={"method": "iips"}, iips={"update": "nfts", "threshold": 1e-9, "max_newton": 1})
+    messages, measured = [], []
+    with FluidDriver(scene, MPI.COMM_SELF, tmp_path, log=messages.append) as driver:
+        largest = driver.iips.max_shift
+        driver.iips.max_shift = lambda system: measured.append(largest(system)) or measured[-1]
+        driver.run()
+    logged = [float(m) for line in messages for m in re.findall(r"kept the iterate.*largest displacement "
+                                                                  r"([0-9.e+-]+) dx", line)]
+    assert len(logged) == len(measured) > 0
+    assert logged == pytest.approx([x / scene.domain.dx for x in measured], rel=0.05)
+    assert 0.0 < min(logged) and max(logged) < 1.0
+
 def _taylor_green_driver(tmp_path, name, skin, reach):
     """A delta-plus Taylor-Green run to t = 0.05 whose driver expects stages to reach `reach` dt max|u|."""
     from mpi4py import MPI
