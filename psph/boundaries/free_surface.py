@@ -5,19 +5,20 @@ flags each fluid particle SURFACE (on the free surface), REGION (within a kernel
 particle: seed 004's "free-surface particles and their neighbouring particles") or 0 (interior), in the
 particle field `free_surface`, with lambda in `surface_lambda` and the outward normal in `surface_normal` (in
 the region, the surface's normal nearby; zero inside), all written to the snapshots; with outflow faces,
-`outflow_band` marks the particles within a kernel support of one. It runs at the start of
+`outflow_band` marks the particles within a kernel support of one, and with inflow buffers `inflow_band`
+the fluid within a kernel support of a buffer particle. It runs at the start of
 every time step of an explicit law, at the start of every IIPS call, and for every history row.
 
 Near a free surface the shifting would push the surface particles outward, where no particle holds them
 (grad C points into the fluid there). So:
 - explicit laws: thesis eq. 6.29 (Sun et al.'s delta+-SPH): in the region, du = 0 where lambda < 0.4 and
   du = (I - n (x) n) du elsewhere (seed 001 section 6.3: du . n = 0 close to the free surface);
-- IIPS: the fluid within a kernel support of an outflow face is fixed (see FreeSurface.unknowns); and the
-  whole region is fixed, not unknowns: the surface particles, as thesis section 10.2.1 fixes the
-  interface particles (which it finds by a grad C threshold), and their neighbours too, whose supports the
-  surface cuts. There grad C cannot vanish, and with only the surface row fixed the Newton iteration drives
-  the next rows through it (a slab perturbed by 0.1 dx: out of the domain within one call of 20 iterations;
-  README, Free surfaces);
+- IIPS: the fluid within a kernel support of an outflow face or of an inflow buffer's particle is fixed
+  (see FreeSurface.unknowns); and the whole region is fixed, not unknowns: the surface particles, as
+  thesis section 10.2.1 fixes the interface particles (which it finds by a grad C threshold), and their
+  neighbours too, whose supports the surface cuts. There grad C cannot vanish, and with only the surface
+  row fixed the Newton iteration drives the next rows through it (a slab perturbed by 0.1 dx: out of the
+  domain within one call of 20 iterations; README, Free surfaces);
 - the history's L2/Linf(grad C) are taken over the interior particles.
 
 A scene without a free surface, or whose shifting is none, gets NoFreeSurface: no pass, no field (the IIPS
@@ -43,6 +44,8 @@ from psph.profiling import phase
 FIELDS = (FieldSpec("free_surface", (), np.int8), FieldSpec("surface_lambda"), FieldSpec("surface_normal", ("d",)))
 # with outflow faces: 1 for the particles within a kernel support of one at detection (IIPS keeps that fluid fixed)
 BAND = FieldSpec("outflow_band", (), np.int8)
+# with inflow buffers: 1 for the fluid within a kernel support of a buffer particle at detection (the same)
+INFLOW_BAND = FieldSpec("inflow_band", (), np.int8)
 
 
 def _fluid(system):
@@ -80,8 +83,10 @@ class FreeSurface(NoFreeSurface):
     active = True
     fields = FIELDS
 
-    def __init__(self, spec):
+    def __init__(self, spec, inflow=False):
+        """inflow: the scene has inflow buffers (their fluid neighbours get `inflow_band`)."""
         self.spec = spec
+        self.inflow = inflow
         # the scheme's WallTerms when it has ghost walls: their images complete the support in lambda
         self.ghost_walls = None
 
@@ -116,6 +121,12 @@ class FreeSurface(NoFreeSurface):
             if system.domain.outflow:
                 p.add_field(BAND)
                 p.owned(BAND.name)[:] = system.domain.past_outflow(p.owned("position"), -k.support * (1.0 - TIE))
+            if self.inflow:
+                p.add_field(INFLOW_BAND)
+                nearest = np.empty(n)  # to the nearest inflow particle (group 0; every other particle is group 1)
+                sums.nearest_distance(pos, ptr, idx, np.zeros(p.n_local, np.int8),
+                                      (p["kind"] != Kind.INLET).astype(np.int8), nearest)
+                p.owned(INFLOW_BAND.name)[:] = nearest < k.support
 
     def restrict(self, system, du, walls=None, t=0.0) -> None:
         """Thesis eq. 6.29 on the owned shifting velocities `du` (in place); then, with `walls` (the
@@ -135,13 +146,17 @@ class FreeSurface(NoFreeSurface):
         that is still filling, that fluid's support is cut while its lambda is an interior particle's (0.83 one
         dx above a face with one buffer row): IIPS pulled it by 0.7 dx towards the face in one call. Without
         a buffer most of it is the cut face's surface region already, but not where a wall's solids fill its
-        support (the impinging jet's sheet along the plate), which IIPS moved with a cut support too. The band
-        is taken where detect() found the particles (field outflow_band), so that the unknowns stay those of
-        the call's start. IIPS measures its Linf(grad C) (threshold, stall, divergence) over these; the
-        history's L2/Linf(grad C) over interior()."""
+        support (the impinging jet's sheet along the plate), which IIPS moved with a cut support too. So is
+        the fluid within a kernel support of an inflow buffer's particle: the buffer's fields are prescribed,
+        so the NFTS update's fluxes between it and a moved neighbour made or lost mass (the impinging jet at
+        H/dx = 10: the mass budget off by 1.8% at t U/H = 10, 0.35% with this band; README). The bands are
+        taken where detect() found the particles (fields outflow_band, inflow_band), so that the unknowns
+        stay those of the call's start. IIPS measures its Linf(grad C) (threshold, stall, divergence) over
+        these; the history's L2/Linf(grad C) over interior()."""
         unknowns = self.interior(system)
-        if BAND.name in system.particles:
-            unknowns &= system.particles.owned(BAND.name) == 0
+        for band in (BAND, INFLOW_BAND):
+            if band.name in system.particles:
+                unknowns &= system.particles.owned(band.name) == 0
         return unknowns
 
     def count(self, system) -> int:
@@ -154,7 +169,8 @@ class FreeSurface(NoFreeSurface):
         return (f"free-surface detection (Marrone et al. 2010): lambda <= {s.lambda_surface:g} surface, "
                 f"> {s.lambda_interior:g} interior, scan region between; explicit shifting du . n = 0 in the "
                 f"region, du = 0 where lambda < {s.lambda_normal:g} (thesis eq. 6.29); IIPS fixes the "
-                "surface particles and their neighbours, and the fluid within a kernel support of an outflow face")
+                "surface particles and their neighbours, and the fluid within a kernel support of an outflow face"
+                + (" or of an inflow buffer" if self.inflow else ""))
 
 
 def make_free_surface(scene, pre_procedure=False):
@@ -164,5 +180,5 @@ def make_free_surface(scene, pre_procedure=False):
 
     shifts = pre_procedure or scene.shifting.method != "none"
     if scene.physics.scheme in FLUID_SCHEMES and scene.describe_free_surface() and shifts:
-        return FreeSurface(scene.free_surface)
+        return FreeSurface(scene.free_surface, inflow=bool(scene.inflow))
     return NoFreeSurface()

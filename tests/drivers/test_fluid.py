@@ -260,6 +260,7 @@ def test_a_kept_stalled_call_logs_how_far_it_moved_a_particle(tmp_path):
     assert logged == pytest.approx([x / scene.domain.dx for x in measured], rel=0.05)
     assert 0.0 < min(logged) and max(logged) < 1.0
 
+
 def _taylor_green_driver(tmp_path, name, skin, reach):
     """A delta-plus Taylor-Green run to t = 0.05 whose driver expects stages to reach `reach` dt max|u|."""
     from mpi4py import MPI
