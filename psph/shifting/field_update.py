@@ -23,10 +23,10 @@ import numpy as np
 from psph.compute.field_update import mls_interpolate, nfts_increments
 from psph.compute.neighbours import build_cross_lists
 from psph.errors import NumericalError
-from psph.parallel.comm import allreduce_max, raise_if_any
+from psph.parallel.comm import raise_if_any
 from psph.parallel.halo import build_halo_pattern, halo_copies
 from psph.particles import FieldSpec, Kind
-from psph.shifting.iips import SHIFT_FIELD
+from psph.shifting.iips import SHIFT_FIELD, largest_shift
 
 
 class NoFieldUpdate:
@@ -44,11 +44,6 @@ class NoFieldUpdate:
 
     def after(self, system, scheme):
         pass
-
-
-def _max_shift(system):
-    s = system.particles.owned(SHIFT_FIELD.name)
-    return allreduce_max(system.comm, float(np.sqrt((s * s).sum(axis=1)).max()) if len(s) else 0.0)
 
 
 class FictitiousTimeStep(NoFieldUpdate):
@@ -76,7 +71,7 @@ class FictitiousTimeStep(NoFieldUpdate):
     def after(self, system, scheme):
         p = system.particles
         shift = p.owned(SHIFT_FIELD.name)
-        largest = _max_shift(system)
+        largest = largest_shift(system)
         if largest == 0.0:
             return
         n = max(1, math.ceil(largest / (self.cfl * self.dx)))

@@ -363,8 +363,13 @@ class ImplicitShifting(Shifting):
 
     def max_shift(self, system) -> float:
         """Largest displacement of the last call (collective)."""
-        s = system.particles.owned(SHIFT_FIELD.name)
-        return allreduce_max(system.comm, float(np.sqrt((s * s).sum(axis=1)).max()) if len(s) else 0.0)
+        return largest_shift(system)
+
+
+def largest_shift(system) -> float:
+    """Largest displacement of the owned particles in the field SHIFT_FIELD, over all ranks (collective)."""
+    s = system.particles.owned(SHIFT_FIELD.name)
+    return allreduce_max(system.comm, float(np.sqrt((s * s).sum(axis=1)).max()) if len(s) else 0.0)
 
 
 def pre_procedure(spec, comm, system, iips=None, surface=None):
