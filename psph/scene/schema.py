@@ -640,6 +640,9 @@ class Scene:
             for j in range(k):
                 if _overlap(lo, hi, *boxes[j], 1e-9 * d.dx):
                     raise SceneError(f"inflow[{k}]", f"the buffer overlaps inflow[{j}]'s")
+        if not self.describe_free_surface():
+            raise SceneError("inflow", "the fluid fills a closed domain: what the buffers bring in has nowhere to "
+                             "go (give domain.outflow, or a fill region with a free surface)")
 
     def _check_buffer(self, k, f):
         """One inflow buffer: inside the domain, on the fluid's lattice, at least a kernel support deep, its

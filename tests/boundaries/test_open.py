@@ -342,18 +342,30 @@ def test_uniform_jet_through_an_outflow_buffer_stays_exact(tmp_path, dim):
     assert np.abs(p.owned("density") - 1.0).max() < 1e-12
 
 
+def channel():
+    """A channel without walls, periodic across, from a buffer at x = 0 to an outflow face at x = 2, with
+    delta+, to t = 0.5 (a table)."""
+    return {"name": "channel",
+            "domain": {"dimension": 2, "lower": [0.0, 0.0], "upper": [2.0, 1.0], "periodic": [False, True],
+                       "dx": 0.05, "outflow": ["x+"]},
+            "inflow": [{"lower": [0.0, 0.0], "upper": [0.2, 1.0], "velocity": [1.0, 0.0]}],
+            "initial": {"velocity": "inflow"}, "physics": {"scheme": "delta_ale", "tensile_switch": False},
+            "shifting": {"method": "delta_plus"}, "time": {"t_end": 0.5}, "output": {"history_every": 20}}
+
+
+def test_an_inflow_into_a_closed_full_domain_is_refused():
+    """Without the outflow face the channel's fluid fills the domain and has no free surface: what the buffer
+    brings in would only compress it."""
+    with pytest.raises(SceneError) as err:
+        scene_from_table(apply_overrides(channel(), ["domain.outflow=[]"]))
+    assert err.value.key == "inflow" and "nowhere to go" in str(err.value)
+
+
 def test_channel_shifts_up_to_its_outflow_face(tmp_path):
-    """A channel without walls, periodic across, from a buffer to an outflow face, with delta+: the fluid cut
-    off at the face counts as a free surface (its particles have half a support), so delta+ shifts it only
-    along the face and the uniform stream stays exact (without the detection the run stopped at t = 0.17
-    with the density 10% off at the face)."""
-    table = {"name": "channel",
-             "domain": {"dimension": 2, "lower": [0.0, 0.0], "upper": [2.0, 1.0], "periodic": [False, True],
-                        "dx": 0.05, "outflow": ["x+"]},
-             "inflow": [{"lower": [0.0, 0.0], "upper": [0.2, 1.0], "velocity": [1.0, 0.0]}],
-             "initial": {"velocity": "inflow"}, "physics": {"scheme": "delta_ale", "tensile_switch": False},
-             "shifting": {"method": "delta_plus"}, "time": {"t_end": 0.5}, "output": {"history_every": 20}}
-    driver = FluidDriver(scene_from_table(table), MPI.COMM_SELF, tmp_path)
+    """The channel: the fluid cut off at the outflow face counts as a free surface (its particles have half a
+    support), so delta+ shifts it only along the face and the uniform stream stays exact (without the
+    detection the run stopped at t = 0.17 with the density 10% off at the face)."""
+    driver = FluidDriver(scene_from_table(channel()), MPI.COMM_SELF, tmp_path)
     assert driver.scheme.surface.active
     driver.run()
     p = driver.system.particles
