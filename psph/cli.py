@@ -169,7 +169,6 @@ def _scene_and_restart(args, comm):
             if not item.startswith(RESTART_KEYS):
                 raise UsageError(f"--set {item!r}: a restart may change only time.*, output.* and neighbours.* keys")
         restart = read_checkpoint(comm, args.restart)
-        _keep_old_walls(restart[0]["scene"])
         try:  # the checkpoint's own scene first: an error there is the file's, not an override's
             saved = scene_from_table(restart[0]["scene"])
         except SceneError as err:
@@ -194,22 +193,6 @@ def _scene_and_restart(args, comm):
             raise SceneError("time.t_end", f"{scene.time.t_end:g} is not after the checkpoint's time "
                                            f"{state['time']:.6g} (step {state['step']}): nothing to continue")
     return scene, restart
-
-
-def _keep_old_walls(table: dict) -> None:
-    """A checkpoint written before physics.wall_adhesion existed ran with seed 004's walls everywhere: its
-    continuation keeps them (the key's default would change the physics mid-run), where the key applies."""
-    from psph.scene.load import scene_from_table
-
-    physics = table.setdefault("physics", {})
-    if "wall_adhesion" in physics:
-        return
-    physics["wall_adhesion"] = True
-    try:
-        scene_from_table(table)
-    except SceneError as err:
-        if err.key == "physics.wall_adhesion":  # no clone walls or no free surface: the key does not apply
-            del physics["wall_adhesion"]
 
 
 def _start_log(path, line: str) -> None:

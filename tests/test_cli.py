@@ -251,23 +251,6 @@ def test_the_trial_solve_prints_nothing(tmp_path):
     assert "rows=200," in res.stdout  # the run's own sub-solver
 
 
-def test_a_checkpoint_older_than_wall_adhesion_keeps_the_walls_it_ran_with():
-    """A checkpoint's scene lists every key of its day: one written before physics.wall_adhesion has none,
-    and the key's default (false) would change the walls mid-run. Where the key applies it reads true."""
-    from psph.cli import _keep_old_walls
-    from psph.scene.load import read_table, scene_from_table
-    from psph.scene.validate import to_table
-
-    for case, expected in (("dam_break.toml", True), ("taylor_green.toml", False)):
-        table = to_table(scene_from_table(read_table(CASES / case)))
-        del table["physics"]["wall_adhesion"]
-        _keep_old_walls(table)
-        assert scene_from_table(table).physics.wall_adhesion is expected
-    table = to_table(scene_from_table(read_table(CASES / "dam_break.toml")))  # a new checkpoint: as it is
-    _keep_old_walls(table)
-    assert scene_from_table(table).physics.wall_adhesion is False
-
-
 def test_a_log_inside_a_new_output_directory(tmp_path):
     out = tmp_path / "new"
     res = run_psph("run", CASES / "static_perturbed.toml", "--out", out, "--log", out / "my.log", "--quiet",

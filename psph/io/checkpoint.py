@@ -22,13 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
-from psph.errors import UsageError, point
+from psph.errors import SceneError, UsageError, point
 from psph.io.files import jsonable, replace_atomically
 from psph.io.snapshots import SNAPSHOT_NAME, h5py, write_particle_file
 from psph.parallel.comm import allreduce_sum, exclusive_scan
 from psph.parallel.decomposition import Decomposition, Split
 from psph.parallel.ordering import block_range
 from psph.particles import FieldSpec, ParticleSet
+from psph.scene.load import scene_from_table
 
 FORMAT = "psph-checkpoint-1"
 NAME = re.compile(r"checkpoint_(\d{6,})\.h5")  # checkpoint_name's, and no other file's
@@ -159,6 +160,7 @@ def read_checkpoint(comm, path) -> tuple:
                 raise OSError("not a psph checkpoint")
             state = json.loads(bytes(f["state"][()]).decode())
             _check_state(state)
+            _keep_old_walls(state["scene"])
             boxes = state["decomposition"]["boxes"]
             dim = len(boxes[0][0])
             counts = state["rank_counts"]
@@ -181,6 +183,21 @@ def read_checkpoint(comm, path) -> tuple:
     if any(errors):
         raise UsageError(next(e for e in errors if e))
     return result
+
+
+def _keep_old_walls(table: dict) -> None:
+    """A checkpoint written before physics.wall_adhesion existed ran with seed 004's walls everywhere: its
+    continuation keeps them (the key's default would change the physics mid-run), where the key applies.
+    read_checkpoint applies it to the state's scene."""
+    physics = table.setdefault("physics", {})
+    if "wall_adhesion" in physics:
+        return
+    physics["wall_adhesion"] = True
+    try:
+        scene_from_table(table)
+    except SceneError as err:
+        if err.key == "physics.wall_adhesion":  # no clone walls or no free surface: the key does not apply
+            del physics["wall_adhesion"]
 
 
 def check_positions(comm, path, particles, domain) -> None:

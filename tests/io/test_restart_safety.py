@@ -16,8 +16,10 @@ from mpi4py import MPI
 from psph.errors import UsageError
 from psph.io.checkpoint import latest_checkpoint, read_checkpoint
 from psph.io.history import read_history
+from psph.scene.load import read_table, scene_from_table
+from psph.scene.validate import to_table
 from tests.conftest import periodic_scene
-from tests.helpers import run_psph
+from tests.helpers import CASES, run_psph
 from tests.io.test_checkpoint import same_history
 
 # cases/taylor_green.toml cut short: 100 particles, 14 steps to t = 0.05 (a history row each), snapshots at 0,
@@ -154,6 +156,20 @@ def test_an_inconsistent_checkpoint_is_one_line_naming_what_is_wrong(finished, t
     with pytest.raises(UsageError) as err:
         read_checkpoint(MPI.COMM_SELF, bad)
     assert str(err.value) == f"cannot restart from {str(bad)!r}: {words}"
+
+
+@pytest.mark.parametrize("case,expected", [("dam_break.toml", True), ("taylor_green.toml", False)])
+def test_a_checkpoint_older_than_wall_adhesion_keeps_the_walls_it_ran_with(finished, tmp_path, case, expected):
+    """A checkpoint's scene lists every key of its day: one written before physics.wall_adhesion has none,
+    and the key's default (false) would change the walls mid-run. read_checkpoint gives it true where the
+    key applies (clone walls and a free surface) and leaves a new checkpoint's value as it is."""
+    table = to_table(scene_from_table(read_table(CASES / case)))
+    del table["physics"]["wall_adhesion"]
+    old = edit_checkpoint(finished / CHECKPOINT, tmp_path / "old.h5", edit_state(lambda s: s.update(scene=table)))
+    assert scene_from_table(read_checkpoint(MPI.COMM_SELF, old)[0]["scene"]).physics.wall_adhesion is expected
+    table["physics"]["wall_adhesion"] = False
+    new = edit_checkpoint(finished / CHECKPOINT, tmp_path / "new.h5", edit_state(lambda s: s.update(scene=table)))
+    assert read_checkpoint(MPI.COMM_SELF, new)[0]["scene"]["physics"]["wall_adhesion"] is False
 
 
 def test_restart_errors_from_the_command_line_are_one_line(finished, tmp_path):
