@@ -29,10 +29,13 @@ TRIAL_MAX_IT = 1000
 
 
 @contextmanager
-def petsc_errors(what: str):
+def petsc_errors(what: str, options_collective: bool = True):
     """Turn a PETSc error into a one-line PsphError: a UsageError (exit 2) for a bad option (OPTION_ERRORS) or
     an option's file (FILE_ERRORS). Only the option errors are marked collective (raised on every rank, the
-    CLI exits cleanly); any other may be one rank's, and the CLI aborts every rank."""
+    CLI exits cleanly), and only with options_collective; any other may be one rank's, and the CLI aborts
+    every rank. A run's solves pass options_collective=False: their options have passed the trial solve, so
+    an error with one of those codes there (an argument out of range, an unsupported case) may come from
+    one rank's data, and a clean exit of that rank alone would leave the others waiting in the solve."""
     PETSc = petsc()
     try:
         yield
@@ -45,7 +48,7 @@ def petsc_errors(what: str):
         # bug) exits 1
         kind = UsageError if exc.ierr in OPTION_ERRORS + FILE_ERRORS else PsphError
         err = kind(f"PETSc failed in {what} (error {exc.ierr}): {detail}; check the command-line PETSc options")
-        err.collective = exc.ierr in OPTION_ERRORS
+        err.collective = options_collective and exc.ierr in OPTION_ERRORS
         raise err from None
 
 
@@ -127,9 +130,10 @@ class LinearSolver:
             self.ksp.setOperators(mat)
         self.operator_sizes = mat.getSizes()
 
-    def solve(self, b, x) -> int:
-        """Solve operator x = b (x holds the initial guess); returns iterations or raises SolverError."""
-        with phase("ksp_solve"), petsc_errors(f"the -{self.prefix} solve"):
+    def solve(self, b, x, trial=False) -> int:
+        """Solve operator x = b (x holds the initial guess); returns iterations or raises SolverError. trial:
+        the trial solve (see trial()), where an option's error is the options' and so every rank's."""
+        with phase("ksp_solve"), petsc_errors(f"the -{self.prefix} solve", options_collective=trial):
             self.ksp.solve(b, x)
         reason = self.ksp.getConvergedReason()
         its = self.ksp.getIterationNumber()
@@ -167,7 +171,7 @@ class LinearSolver:
                 if capped:
                     self.ksp.setTolerances(max_it=max(self.ksp.getTolerances()[3], TRIAL_MAX_IT))
                 self.set_operator(mat)
-                self.solve(b, x)
+                self.solve(b, x, trial=True)
         except PsphError as err:  # on a well-posed system any failure is the options'
             if isinstance(err, UsageError):
                 raise

@@ -360,6 +360,47 @@ def test_solver_settings_survive_a_change_of_matrix_size():
         assert np.allclose(x.getArray(), 0.5)
 
 
+def test_an_option_type_error_is_every_ranks_at_the_trial_solve_only():
+    """GAMG on a BAIJ matrix fails at the first solve with PETSc's error 56 (unsupported): at the trial solve
+    that is the options' fault, the same on every rank (collective: a clean exit). The same code from a
+    run's solve may be one rank's data, so it is not collective there (the CLI aborts every rank)."""
+    from psph.errors import is_collective
+    from psph.solvers.linear import LinearSolver
+    from psph.solvers.petsc import petsc
+
+    PETSc = petsc()
+    mat = PETSc.Mat().createBAIJ((4, 4), 2, nnz=1, comm=MPI.COMM_SELF)
+    for i in range(4):
+        mat.setValue(i, i, 2.0)
+    mat.assemble()
+    with petsc_options(iips_pc_type="gamg"):
+        solver = LinearSolver(MPI.COMM_SELF, "iips_")
+        with pytest.raises(UsageError, match=r"error 56") as trial:
+            solver.trial(mat)
+    assert is_collective(trial.value)
+
+    class Unsupported:  # the run's KSP, failing as GAMG on BAIJ does
+        def __init__(self, ksp):
+            self.ksp = ksp
+
+        def solve(self, b, x):
+            raise PETSc.Error(56)
+
+        def __getattr__(self, name):
+            return getattr(self.ksp, name)
+
+    solver = LinearSolver(MPI.COMM_SELF, "iips_")
+    solver.set_operator(mat)
+    solver.ksp = Unsupported(solver.ksp)
+    b, x = mat.createVecs()
+    with pytest.raises(UsageError, match=r"error 56") as run:
+        solver.solve(b, x)
+    assert not is_collective(run.value)
+    solver.ksp = solver.ksp.ksp
+    for obj in (solver, mat, b, x):
+        obj.destroy()
+
+
 def test_a_destroyed_matrix_releases_the_arrays_it_was_built_on():
     """petsc4py 3.18 keeps a matrix made on our arrays, and the arrays, alive after the last Python reference
     is dropped: FixedPatternMatrix.destroy frees both (an IIPS run once leaked 13 GB in 2000 steps)."""
