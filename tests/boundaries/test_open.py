@@ -229,13 +229,13 @@ def test_impinging_jet_matches_serial(comm, mpi_tmp_path, buffer):
         mpi_tmp_path = mpi_tmp_path / "buffer"
     out = {}
     for name, c in (("par", comm), ("ser", MPI.COMM_SELF)):
-        driver = FluidDriver(sc, c, mpi_tmp_path / f"{name}{comm.rank if name == 'ser' else ''}")
-        driver.run()
-        p = driver.system.particles
-        out[name] = {k: gather_by_gid(c, p.owned("gid"), p.owned(k)) for k in ("position", "velocity", "kind")}
-        out[name]["totals"] = dict(driver.open.totals)
-        c.Barrier()
-        rows = read_history(driver.sim.out_dir / "history.csv")
+        with FluidDriver(sc, c, mpi_tmp_path / f"{name}{comm.rank if name == 'ser' else ''}") as driver:
+            driver.run()
+            p = driver.system.particles
+            out[name] = {k: gather_by_gid(c, p.owned("gid"), p.owned(k)) for k in ("position", "velocity", "kind")}
+            out[name]["totals"] = dict(driver.open.totals)
+            c.Barrier()
+            rows = read_history(driver.sim.out_dir / "history.csv")
         out[name]["history"] = np.array([[r[k] for k in ("cl_pressure", "stagnation_pressure", "mass_in", "mass_out",
                                                           "mass_balance_error")] for r in rows])
     par, ser = out["par"], out["ser"]
@@ -259,17 +259,17 @@ def test_outflow_buffer_matches_serial(comm, mpi_tmp_path):
     sc = free_jet(2, domain={"outflow_buffer": True}, physics={"sound_speed": 20.0})
     out = {}
     for name, c in (("par", comm), ("ser", MPI.COMM_SELF)):
-        driver = FluidDriver(sc, c, mpi_tmp_path / f"{name}{comm.rank if name == 'ser' else ''}")
-        p = driver.system.particles
-        fluid = p.owned("kind") == Kind.FLUID
-        x = p.owned("position")
-        p.owned("density")[fluid] *= 1.0 + 1e-3 * np.sin(7.0 * x[fluid, 1]) * np.cos(5.0 * x[fluid, 0])
-        p.owned("mass")[fluid] = p.owned("density")[fluid] * p.owned("volume")[fluid]
-        p.owned("pressure")[:] = driver.scheme.eos.pressure(p.owned("density"))
-        driver.run()
-        p = driver.system.particles
-        out[name] = {k: gather_by_gid(c, p.owned("gid"), p.owned(k)) for k in ("density", "velocity", "kind")}
-        out[name]["totals"] = dict(driver.open.totals)
+        with FluidDriver(sc, c, mpi_tmp_path / f"{name}{comm.rank if name == 'ser' else ''}") as driver:
+            p = driver.system.particles
+            fluid = p.owned("kind") == Kind.FLUID
+            x = p.owned("position")
+            p.owned("density")[fluid] *= 1.0 + 1e-3 * np.sin(7.0 * x[fluid, 1]) * np.cos(5.0 * x[fluid, 0])
+            p.owned("mass")[fluid] = p.owned("density")[fluid] * p.owned("volume")[fluid]
+            p.owned("pressure")[:] = driver.scheme.eos.pressure(p.owned("density"))
+            driver.run()
+            p = driver.system.particles
+            out[name] = {k: gather_by_gid(c, p.owned("gid"), p.owned(k)) for k in ("density", "velocity", "kind")}
+            out[name]["totals"] = dict(driver.open.totals)
     par, ser = out["par"], out["ser"]
     assert par["totals"] == ser["totals"] and ser["totals"]["removed"] > 0
     assert np.count_nonzero(ser["kind"][1] == Kind.OUTLET) > 0
@@ -465,11 +465,11 @@ def test_the_outflow_buffer_behind_iips_and_its_update_matches_serial(comm, mpi_
     out = {}
     for name, c in (("par", comm), ("ser", MPI.COMM_SELF)):
         where = mpi_tmp_path / update / f"{name}{comm.rank if name == 'ser' else ''}"
-        driver = FluidDriver(buffer_behind_iips(update), c, where)
-        disturbed_start(driver)
-        driver.run()
-        p = driver.system.particles
-        out[name] = {k: gather_by_gid(c, p.owned("gid"), p.owned(k)) for k in ("density", "velocity", "kind")}
+        with FluidDriver(buffer_behind_iips(update), c, where) as driver:
+            disturbed_start(driver)
+            driver.run()
+            p = driver.system.particles
+            out[name] = {k: gather_by_gid(c, p.owned("gid"), p.owned(k)) for k in ("density", "velocity", "kind")}
     par, ser = out["par"], out["ser"]
     assert np.count_nonzero(ser["kind"][1] == Kind.OUTLET) > 0
     for k in ("density", "velocity", "kind"):

@@ -17,10 +17,10 @@ pytestmark = pytest.mark.mpi
 def run(scene, comm, out):
     """The final positions, velocities and densities by gid, and every body-force column of the history
     (cd_*, cl_*, cm_*) over the run."""
-    driver = FluidDriver(scene, comm, out)
-    driver.run()
-    p = driver.system.particles
-    result = {k: gather_by_gid(comm, p.owned("gid"), p.owned(k))[1] for k in ("position", "velocity", "density")}
+    with FluidDriver(scene, comm, out) as driver:
+        driver.run()
+        p = driver.system.particles
+        result = {k: gather_by_gid(comm, p.owned("gid"), p.owned(k))[1] for k in ("position", "velocity", "density")}
     comm.Barrier()  # rank 0 wrote the history
     rows = read_history(out / "history.csv")
     result.update({k: np.array([r[k] for r in rows]) for k in rows[0] if k.startswith(("cd_", "cl_", "cm_"))})
@@ -94,9 +94,9 @@ def test_runs_with_walls_match_serial(comm, mpi_tmp_path, case, sets, tol):
     scene = load_scene(CASES / case, ["domain.dx=0.05", "time.t_end=0.05", "output.every=0", *sets])
     assert_matches_serial(scene, comm, mpi_tmp_path, tol)
     if case == "moving_square.toml" and comm.size > 1:  # the square's particles lie on two ranks at the start
-        driver = FluidDriver(scene, comm, mpi_tmp_path / "start")
-        square = int(np.count_nonzero(driver.system.particles.owned("body") == 1))
-        assert sum(n > 0 for n in comm.allgather(square)) >= 2
+        with FluidDriver(scene, comm, mpi_tmp_path / "start") as driver:
+            square = int(np.count_nonzero(driver.system.particles.owned("body") == 1))
+            assert sum(n > 0 for n in comm.allgather(square)) >= 2
 
 
 def test_ghost_walls_match_serial(comm, mpi_tmp_path):

@@ -40,9 +40,9 @@ def final_state(driver, comm):
 
 def run(sc, comm, out, restart=None):
     with petsc_options(iips_ksp_rtol=1e-12, iips_ksp_atol=1e-30):
-        driver = FluidDriver(sc, comm, out, restart=read_checkpoint(comm, restart) if restart else None)
-        summary = driver.run()
-    return final_state(driver, comm), summary
+        with FluidDriver(sc, comm, out, restart=read_checkpoint(comm, restart) if restart else None) as driver:
+            summary = driver.run()
+            return final_state(driver, comm), summary
 
 
 def same_history(a, b):
