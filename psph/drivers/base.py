@@ -1,9 +1,24 @@
 """What every driver shares: it is a context manager that frees its PETSc objects and communicators."""
 
+import math
 import sys
 from contextlib import contextmanager
 
 from psph.errors import is_collective
+
+
+def resumed_state(restart, scene):
+    """The driver's state in a restart's checkpoint (io.checkpoint.read_checkpoint's), or None. A restart may
+    change output.every (cli.RESTART_KEYS): its snapshots then follow the new period, from its first multiple
+    after the checkpoint's time (none before the end for 0); with the saved period, the saved next time, so
+    that the snapshots fall on the steps of the run without the restart."""
+    if restart is None:
+        return None
+    state, every = restart[0]["driver"], scene.output.every
+    if restart[0]["scene"]["output"]["every"] != every:
+        t = state["time"]
+        state["next_output"] = (math.floor(t / every + 1e-9) + 1) * every if every > 0 else math.inf
+    return state
 
 
 class Driver:

@@ -23,7 +23,7 @@ from psph.boundaries.free_surface import make_free_surface
 from psph.boundaries.open import describe_open, make_open_boundaries
 from psph.compute.sums import nearest_distance
 from psph.diagnostics import fluid_mask, grad_c, interpolate_fluid, norms
-from psph.drivers.base import Driver
+from psph.drivers.base import Driver, resumed_state
 from psph.errors import NumericalError
 from psph.initial import reset_initial_fields
 from psph.io.history import start_series
@@ -221,7 +221,7 @@ class FluidDriver(Driver):
 
     def _build(self, scene, comm, restart) -> None:
         """The set-up on the Simulation: packing, pre-procedure, initial fields, boundaries, IIPS, diagnostics."""
-        self.resumed = restart[0]["driver"] if restart else None
+        self.resumed = resumed_state(restart, scene)
         self.pre, self.packing = None, None
         if restart is None and scene.packing.iterations > 0:
             self.packing = self.pack()

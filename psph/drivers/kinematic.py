@@ -13,7 +13,7 @@ import time
 
 from psph.analytic import taylor_green
 from psph.diagnostics import distribution_report, grad_c
-from psph.drivers.base import Driver
+from psph.drivers.base import Driver, resumed_state
 from psph.profiling import phase
 from psph.shifting import make_shifting
 from psph.shifting.iips import pre_procedure
@@ -37,7 +37,7 @@ class KinematicDriver(Driver):
         self.sim = Simulation(scene, comm, out_dir, log=log, progress=progress, restart=restart)
         with self.closing_on_failure():
             self.shifting = make_shifting(scene, self.sim.comm)
-            self.resumed = restart[0]["driver"] if restart else None
+            self.resumed = resumed_state(restart, scene)
             if self.resumed and self.resumed["shifting"] is not None:
                 self.shifting.restore(self.resumed["shifting"])
         d, p = scene.domain, scene.physics

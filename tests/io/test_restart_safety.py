@@ -220,6 +220,23 @@ def test_a_run_replaces_only_its_own_checkpoints(tmp_path):
     assert (tmp_path / "checkpoint_000007.h5").read_text() == "someone else's"
 
 
+@pytest.mark.parametrize("every,times", [(0.0, [0.1]), (0.01, [0.04, 0.05, 0.06, 0.07, 0.08, 0.09, 0.1])])
+def test_a_restart_that_changes_output_every_writes_on_the_new_period(finished, tmp_path, every, times):
+    """The checkpoint (t = 0.0357) was due its next snapshot at 0.05 (output.every = 0.025). A restart to
+    t = 0.1 with output.every = 0 writes only the final state (it wrote one every step from 0.05 on), and with
+    0.01 one at each multiple of 0.01 after the checkpoint (it started at 0.05)."""
+    out = tmp_path / "elsewhere"
+    done = run_psph("run", "--restart", finished / CHECKPOINT, "--out", out, "--quiet", "--set", "time.t_end=0.1",
+                    "--set", f"output.every={every}")
+    assert done.returncode == 0, done.stderr
+    written = []
+    for name in xdmf_files(out):
+        with h5py.File(out / name, "r") as f:
+            written.append(float(f.attrs["time"]))
+    dt = 0.05 / 14
+    assert len(written) == len(times) and all(0.0 <= w - t < dt for w, t in zip(written, times)), written
+
+
 # ------------------------------------------------------------------ E: a restart into another directory
 def test_a_restart_into_another_directory_indexes_only_its_own_snapshots(finished, tmp_path):
     """The XDMF of the new directory lists the snapshots it holds (from the checkpoint on): ParaView opens it."""
