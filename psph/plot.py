@@ -41,11 +41,20 @@ def _summary(run_dir: Path) -> dict:
 
 
 def plot(out_dir, fig_dir=None) -> list:
-    """Write the figures for a run or a study directory; returns the PNG paths."""
+    """Write the figures for a run or a study directory; returns the PNG paths. A file that cannot be read
+    (a truncated snapshot) or written (a full disk, --figures naming a file) is a UsageError naming it."""
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
         raise UsageError(f"{str(out_dir)!r} is not a directory")
     fig_dir = Path(fig_dir) if fig_dir else out_dir / "figures"
+    try:
+        return _plot(out_dir, fig_dir)
+    except OSError as exc:
+        where = f" ({exc.filename})" if exc.filename else ""
+        raise UsageError(f"psph plot {str(out_dir)!r}: {' '.join(str(exc).split())}{where}") from None
+
+
+def _plot(out_dir: Path, fig_dir: Path) -> list:
     runs = sorted(d for d in out_dir.iterdir() if (d / "summary.json").is_file())
     if (out_dir / "history.csv").is_file():
         fig_dir.mkdir(parents=True, exist_ok=True)
@@ -116,12 +125,14 @@ def _grad_c_magnitude(run_dir: Path, data: dict):
     from psph.simulation import make_domain
     from psph.system import ParticleSystem
 
-    if not (run_dir / "summary.json").is_file():
-        return None
+    n = len(data["gid"])
+    volume = data.get("volume", np.ones(n))
+    if not (run_dir / "summary.json").is_file() or not (np.isfinite(data["position"]).all()
+                                                        and np.isfinite(volume).all()):
+        return None  # a failed run's state: a NaN position would stall the neighbour search
     scene = scene_from_table(_summary(run_dir)["scene"])
     d = scene.domain
     particles = ParticleSet(d.dimension)
-    n = len(data["gid"])
     particles.set_owned({"position": data["position"], "gid": data["gid"], "kind": data["kind"],
                          "volume": data.get("volume", np.full(n, d.dx ** d.dimension))})
     system = ParticleSystem(MPI.COMM_SELF, make_domain(scene), make_kernel(d.kernel, d.dimension, d.h), particles,
@@ -139,7 +150,10 @@ def plot_fields(run_dir: Path, fig_dir: Path):
     snaps = sorted(run_dir.glob("snapshot_*.h5"))
     if not snaps:
         return None
-    data, t = last_snapshot(run_dir)
+    try:
+        data, t = last_snapshot(run_dir)
+    except OSError as exc:
+        raise OSError(f"cannot read the last snapshot {snaps[-1].name}: {exc}") from None
     pos = data["position"]
     if pos.shape[1] == 3:
         return None  # 3-D: ParaView (OUT/psph.xdmf)
@@ -156,15 +170,21 @@ def plot_fields(run_dir: Path, fig_dir: Path):
     plt = _pyplot()
     n = len(fields)
     fig, axes = plt.subplots(1, n, figsize=(4.6 * n, 4.2), squeeze=False)
+    placed = np.isfinite(pos).all(axis=1)
     for ax, (name, values) in zip(axes.flat, fields.items()):
-        if pos.shape[1] == 1:
-            ax.plot(pos[:, 0], values, ".", ms=2)
+        # a failed run's last snapshot holds the state at the failure, possibly with non-finite values
+        shown = placed & np.isfinite(values)
+        left_out = len(pos) - int(np.count_nonzero(shown))
+        if not shown.any():
+            ax.axis("off")
+        elif pos.shape[1] == 1:
+            ax.plot(pos[shown, 0], values[shown], ".", ms=2)
         else:
-            sc = ax.scatter(pos[:, 0], pos[:, 1], c=values, s=max(0.5, 4000.0 / len(pos)), cmap="viridis",
-                            linewidths=0)
+            sc = ax.scatter(pos[shown, 0], pos[shown, 1], c=values[shown], s=max(0.5, 4000.0 / len(pos)),
+                            cmap="viridis", linewidths=0)
             fig.colorbar(sc, ax=ax, shrink=0.8)
             ax.set_aspect("equal")
-        ax.set_title(name, fontsize=10)
+        ax.set_title(name + (f" ({left_out} non-finite left out)" if left_out else ""), fontsize=10)
     return _save(plt, fig, fig_dir / "fields.png", f"{run_dir.name}: last snapshot, t = {t:.4g}")
 
 

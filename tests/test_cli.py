@@ -157,6 +157,30 @@ def test_quiet_run_logs_to_file_and_plots(tmp_path):
     assert res.returncode == 2 and "holds neither a run" in res.stderr
 
 
+def test_plot_of_a_broken_or_failed_run_is_one_line_or_leaves_out_what_is_not_finite(tmp_path):
+    """A failed run's last snapshot may hold NaN (the state at the failure): fields.png leaves those particles
+    out and says so. A truncated snapshot, or figures that cannot be written, are one line and exit 2."""
+    out = tmp_path / "run"
+    res = run_psph("run", CASES / "taylor_green.toml", "--out", out, "--quiet", "--set", "domain.dx=0.1",
+                   "--set", "time.t_end=0.02")
+    assert res.returncode == 0, res.stderr
+    last = sorted(out.glob("snapshot_*.h5"))[-1]
+    with h5py.File(last, "r+") as f:
+        f["particles/position"][0] = np.nan
+        f["particles/pressure"][1] = np.inf
+    res = run_psph("plot", out)
+    assert res.returncode == 0, res.stderr
+    assert (out / "figures" / "fields.png").read_bytes()[:4] == b"\x89PNG"
+    for args, words in (((), f"cannot read the last snapshot {last.name}"),
+                        (("--figures", "/dev/full"), "/dev/full")):
+        if not args:
+            last.write_bytes(last.read_bytes()[:5000])
+        res = run_psph("plot", out, *args)
+        lines = res.stderr.strip().splitlines()
+        assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+        assert len(lines) == 1 and lines[0].startswith("psph: error: psph plot") and words in lines[0], lines
+
+
 def test_an_output_directory_that_cannot_be_made_is_one_line(tmp_path):
     (tmp_path / "file").write_text("mine")
     res = run_psph("run", SCENE, "--out", tmp_path / "file" / "out", "--set", "domain.dx=0.05")
