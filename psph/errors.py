@@ -62,8 +62,15 @@ def is_collective(err) -> bool:
     return isinstance(err, PsphError) and getattr(err, "collective", isinstance(err, (SceneError, UsageError)))
 
 
-def rebuild_error(cls, message: str) -> PsphError:
-    """An instance of `cls` carrying `message` as is (used to re-raise another rank's error)."""
+# what a NumericalError says about where it happened (its keyword arguments)
+WHERE = ("step", "time", "gid", "position")
+
+
+def rebuild_error(cls, message: str, where=None) -> PsphError:
+    """An instance of `cls` carrying `message` as is, and the attributes `where` (a NumericalError's WHERE),
+    to re-raise another rank's error."""
     err = cls.__new__(cls)
     Exception.__init__(err, message)
+    for name, value in (where or {}).items():
+        setattr(err, name, value)
     return err

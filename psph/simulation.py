@@ -130,14 +130,18 @@ class Simulation:
     @contextmanager
     def diagnose_failures(self, where):
         """On a NumericalError inside the block, write a diagnostic snapshot (the state at failure, with
-        grad C) before letting the error end the run. `where()` gives (step, time). Collective."""
+        grad C) before letting the error end the run. It is labelled with the error's step and time (a
+        failure within a step: that step, at the stage's time), else with `where()`'s (step, time) (the last
+        completed step). Collective: the error is every rank's (raise_if_any), with its WHERE."""
         from psph.diagnostics import grad_c
         from psph.errors import NumericalError
 
         try:
             yield
-        except NumericalError:
+        except NumericalError as err:
             step, t = where()
+            step = step if getattr(err, "step", None) is None else err.step
+            t = t if getattr(err, "time", None) is None else err.time
             self.history.flush()
             path = self.snapshots.write(self.system.particles, step=step, time=t,
                                         extra={"grad_c": grad_c(self.system)})

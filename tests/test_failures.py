@@ -95,3 +95,23 @@ def test_a_failure_names_its_place_and_says_when_that_is_not_finite():
     assert str(NumericalError("NaN density", step=3, gid=5, position=[0.25, 1.0])) == \
         "NaN density [step 3, particle gid 5, at (0.25, 1)]"
     assert str(NumericalError("NaN density", position=[np.nan, 1.0])).endswith("at a non-finite position (nan, 1)]")
+
+
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_the_snapshot_at_a_failure_is_labelled_with_the_failed_step(tmp_path, ranks):
+    """A time step far above the stable one fails within step 1: the state at the failure is labelled step
+    1, at the time that step started from (0), not as a second step 0 (the XDMF had two grids step_0). On 2
+    ranks the ranks that did not fail take the failed rank's step and time (raise_if_any)."""
+    import h5py
+
+    from tests.helpers import run_psph
+
+    out = tmp_path / "out"
+    proc = run_psph("run", CASES / "taylor_green.toml", "--out", out, "--quiet", "--set", "domain.dx=0.05",
+                    "--set", "time.t_end=0.5", "--set", "time.cfl=2.0", "--set", "physics.sound_speed=2.0",
+                    "--set", "shifting.method=none", "--set", "iips.update=none", ranks=ranks)
+    assert proc.returncode == 3 and "[step 1, t = 0" in proc.stderr, proc.stderr
+    with h5py.File(out / "snapshot_000001.h5", "r") as f:
+        assert (int(f.attrs["step"]), float(f.attrs["time"])) == (1, 0.0)
+    grids = [line for line in (out / "psph.xdmf").read_text().splitlines() if "<Grid Name=\"step_" in line]
+    assert len(grids) == 2 and len(set(grids)) == 2, grids

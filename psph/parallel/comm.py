@@ -69,13 +69,14 @@ def raise_if_any(comm, error) -> None:
 
     Lets a check that fails on one rank stop all ranks together instead of leaving them in a collective.
     """
-    from psph.errors import PsphError, rebuild_error
+    from psph.errors import WHERE, PsphError, rebuild_error
 
     local = None if error is None else (type(error), str(error))
     if local is not None and not isinstance(error, PsphError):
         local = (PsphError, f"{type(error).__name__}: {error}")
-    for item in comm.allgather(local):
+    where = {k: getattr(error, k) for k in WHERE if getattr(error, k, None) is not None}
+    for item, item_where in comm.allgather((local, where)):
         if item is not None:
-            err = error if (error is not None and item == local) else rebuild_error(*item)
+            err = error if (error is not None and item == local) else rebuild_error(*item, item_where)
             err.collective = True  # every rank raises it: the CLI can exit cleanly
             raise err
