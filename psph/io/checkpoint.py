@@ -28,7 +28,7 @@ from psph.io.snapshots import SNAPSHOT_NAME, h5py, write_particle_file
 from psph.parallel.comm import allreduce_sum, exclusive_scan
 from psph.parallel.decomposition import Decomposition, Split
 from psph.parallel.ordering import block_range
-from psph.particles import FieldSpec, ParticleSet
+from psph.particles import FieldSpec, Kind, ParticleSet
 from psph.scene.load import scene_from_table
 
 FORMAT = "psph-checkpoint-1"
@@ -116,6 +116,19 @@ def _check_state(state) -> None:
             raise ValueError(f"its state lists no field {name!r}")
 
 
+def _check_identities(f, arrays) -> None:
+    """Raise ValueError for gids that are not unique over the whole file (read by every rank: each must know)
+    or a kind that is no Kind."""
+    gids = f["particles"]["gid"][:]
+    unique, counts = np.unique(gids, return_counts=True)
+    if len(unique) < len(gids):
+        raise ValueError(f"particles/gid repeats gid {unique[np.argmax(counts)]}")
+    if "kind" in arrays:
+        bad = ~np.isin(arrays["kind"], [k.value for k in Kind])
+        if bad.any():
+            raise ValueError(f"particles/kind holds {arrays['kind'][bad][0]}, which is no particle kind")
+
+
 def _read_rows(f, state, name, start, stop, dim) -> np.ndarray:
     """Rows [start, stop) of /particles/<name>, checked against the state's field list: shape, type, and
     (floating fields) finite values; ValueError names the field otherwise."""
@@ -170,6 +183,7 @@ def read_checkpoint(comm, path) -> tuple:
             else:
                 start, stop = block_range(int(sum(counts)), comm.rank, comm.size)
             arrays = {name: _read_rows(f, state, name, start, stop, dim) for name in state["fields"]}
+            _check_identities(f, arrays)
         particles = ParticleSet(dim, specs=())
         for name, (shape, dtype) in state["fields"].items():
             particles.add_field(FieldSpec(name, tuple(shape), np.dtype(dtype).type))

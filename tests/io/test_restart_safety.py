@@ -150,6 +150,10 @@ def test_a_checkpoint_holding_an_infinite_value_in_any_field_is_refused(finished
     (lambda f: set_dataset(f, "particles/gid", f["particles/gid"][()].astype(np.float64)),
      "particles/gid holds float64, expected int64"),
     (lambda f: f["particles"].pop("mass"), "it has no dataset particles/mass"),
+    (lambda f: f["particles/gid"].write_direct(f["particles/gid"][:1], dest_sel=np.s_[1:2]),
+     "particles/gid repeats gid 0"),
+    (lambda f: f["particles/kind"].write_direct(np.array([77], np.int8), dest_sel=np.s_[4:5]),
+     "particles/kind holds 77, which is no particle kind"),
 ])
 def test_an_inconsistent_checkpoint_is_one_line_naming_what_is_wrong(finished, tmp_path, edit, words):
     bad = edit_checkpoint(finished / CHECKPOINT, tmp_path / "bad.h5", edit)
