@@ -2,7 +2,8 @@
 shifting and with the delta+ and Skillen et al. laws (and IIPS, if asked), at H/dx = 10 and 20.
 
     .venv/bin/python run_scripts/impinging_jet.py [--resolutions 10 20]
-                                                  [--methods none delta_plus skillen iips iips_backtrack]
+                                                  [--methods none delta_plus skillen iips iips_backtrack
+                                                             iips_capped]
                                                   [--iips-resolutions 10] [--t-end 10] [--average-from 5]
                                                   [--ranks 2] [--no-run]
 
@@ -15,8 +16,9 @@ averages over t U/H in [--average-from, --t-end] of the history's rows and of OU
     force     cl = 2 F_y / (rho0 U^2 2 H) on the plate, pressure plus viscous (-2: the jet's momentum flux)
 IIPS runs as the thesis runs it with a free surface (section 10.2.2): Procedure A, threshold
 Linf(grad C) = 0.02, the MLS II field update; iips_backtrack the same with iips.backtrack = 1 (a Newton step
-that raises L2(grad C) is halved, then undone, ending the call). A run that stops is reported in the table
-with psph's message.
+that raises L2(grad C) is halved, then undone, ending the call); iips_capped the same as iips with
+iips.stall_max_shift = 0.5 (a stalled call keeps its best iterate among those that move no particle farther
+than 0.5 h = 1 dx). A run that stops is reported in the table with psph's message.
 Writes, in --out (results/impinging_jet): jet.md/.csv, wall_pressure.png (time-averaged profiles against
 Taylor's) and stagnation.png (p0 against time). --no-run builds them from the finished runs in --out only.
 """
@@ -36,8 +38,10 @@ from psph.studies import CASES, NotRun, command_line, parse_args, plot_histories
 
 IIPS = ["shifting.method=iips", "iips.procedure=A", "iips.threshold=0.02", "iips.update=mls2"]
 METHODS = {"none": ["shifting.method=none"], "delta_plus": ["shifting.method=delta_plus"],
-           "skillen": ["shifting.method=skillen"], "iips": IIPS, "iips_backtrack": [*IIPS, "iips.backtrack=1"]}
-STYLE = {"none": ":", "delta_plus": "-", "skillen": "-.", "iips": "--", "iips_backtrack": (0, (5, 1, 1, 1))}
+           "skillen": ["shifting.method=skillen"], "iips": IIPS, "iips_backtrack": [*IIPS, "iips.backtrack=1"],
+           "iips_capped": [*IIPS, "iips.stall_max_shift=0.5"]}
+STYLE = {"none": ":", "delta_plus": "-", "skillen": "-.", "iips": "--", "iips_backtrack": (0, (5, 1, 1, 1)),
+         "iips_capped": (0, (1, 1))}
 SPAN = 2.0  # |x| / H of the compared stretch (psph.drivers.fluid.ImpingingJetReference.SPAN)
 
 

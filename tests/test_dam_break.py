@@ -114,3 +114,10 @@ def test_particles_past_a_box_side_are_mirrored_back():
     periodic = WallTerms(load_scene(CASES / "couette.toml"))
     pos, vel = np.array([[-5.0, 0.5], [0.2, -0.01]]), np.array([[1.0, 0.0], [0.0, -1.0]])
     assert periodic.reflect(pos, vel) == 1 and pos[0, 0] == -5.0 and pos[1, 1] == pytest.approx(0.01)
+
+
+def test_the_dam_break_diagnostics_name_the_missing_fluid_scheme():
+    from psph.errors import SceneError
+
+    with pytest.raises(SceneError, match=r"diagnostics.dam_break: needs a fluid scheme, not physics.scheme = 'none'"):
+        load_scene(CASES / "dam_break.toml", ["physics.scheme=none"])

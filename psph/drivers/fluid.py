@@ -489,7 +489,7 @@ class FluidDriver(Driver):
             if dev.size and dev.max() > limit:
                 k = int(np.argmax(dev))
                 error = NumericalError(f"density left the weakly compressible range: |rho/rho0 - 1| = "
-                                       f"{dev[k]:.4f} > {limit:g} (physics.max_density_variation)",
+                                       f"{dev[k]:.3g} > {limit:g} (physics.max_density_variation)",
                                        gid=int(p.owned("gid")[k]), position=p.owned("position")[k], **where)
             elif self.scheme.variant == 0 and p.n_owned:
                 drift = np.abs(p.owned("volume") / p.owned("volume0") - 1.0)

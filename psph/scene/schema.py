@@ -447,6 +447,9 @@ class IIPSSpec:
                            "iterate of lowest Linf(grad C) and report it (best; the thesis caps the iterations "
                            "for cost, section 10.1.1), or stop, reject, warn as on_failure",
                            choices=("best", "stop", "reject", "warn"))
+    stall_max_shift: float = option(0.0, doc="on_stall = best: keep the iterate of lowest Linf(grad C) among "
+                                    "those that move no particle farther than this many h from the call's start "
+                                    "(the start itself always qualifies); 0: any iterate", ge=0.0)
 
     def check(self, path):
         if self.threshold > 0 and self.beta > 0:
@@ -714,8 +717,10 @@ class Scene:
         if not self.diagnostics.impinging_jet:
             return
         key = "diagnostics.impinging_jet"
-        if self.physics.scheme not in FLUID_SCHEMES or self.domain.dimension != 2:
-            raise SceneError(key, "needs a 2-D fluid scene")
+        if self.physics.scheme not in FLUID_SCHEMES:
+            raise SceneError(key, f"needs a fluid scheme, not physics.scheme = {self.physics.scheme!r}")
+        if self.domain.dimension != 2:
+            raise SceneError(key, "needs a 2-D scene")
         if not self.inflow or self.inflow[0].velocity[1] >= 0.0 or self.inflow[0].velocity[0] != 0.0:
             raise SceneError(key, "needs inflow[0] with a velocity [0, -U] (the jet falls along -y)")
         if not self.bodies or self.bodies[0].shape != "rectangle" or self.bodies[0].angle != 0.0:
@@ -725,8 +730,10 @@ class Scene:
         if not self.diagnostics.dam_break:
             return
         key, d = "diagnostics.dam_break", self.domain
-        if self.physics.scheme not in FLUID_SCHEMES or d.dimension != 2:
-            raise SceneError(key, "needs a 2-D fluid scene")
+        if self.physics.scheme not in FLUID_SCHEMES:
+            raise SceneError(key, f"needs a fluid scheme, not physics.scheme = {self.physics.scheme!r}")
+        if d.dimension != 2:
+            raise SceneError(key, "needs a 2-D scene")
         g = self.physics.gravity
         if len(g) != 2 or g[0] != 0.0 or g[1] >= 0.0:
             raise SceneError(key, "needs physics.gravity along -y, [0, -g]")

@@ -20,12 +20,13 @@ Triggering and stopping (thesis Algorithms 1-3, eq. 8.34-8.35):
 - Procedure A: at least one Newton iteration per call, then more while above the threshold;
   Procedure B: iterate only while above the threshold;
 - at most `iips.max_newton` iterations per call. With a threshold, not reaching it is a stall: by default
-  (`iips.on_stall = "best"`) the call keeps its iterate of lowest Linf(grad C) and the stall is reported
-  and counted, as the thesis caps the iterations for cost (section 10.1.1). The printed operator is not
-  the exact Jacobian (seeds/README.md), so near the threshold the iteration can wander instead of
-  converging. Growth of Linf(grad C) by `iips.divergence_factor` within a call is a divergence; it and a
-  diverged linear solve stop the run (`iips.on_failure = "stop"`), or undo the call's displacements and
-  carry on (`"reject"`), reported either way.
+  (`iips.on_stall = "best"`) the call keeps its iterate of lowest Linf(grad C) (with
+  `iips.stall_max_shift = c`, of those that move no particle farther than c h; the start qualifies) and
+  the stall is reported and counted, as the thesis caps the iterations for cost (section 10.1.1). The
+  printed operator is not the exact Jacobian (seeds/README.md), so near the threshold the iteration can
+  wander instead of converging. Growth of Linf(grad C) by `iips.divergence_factor` within a call is a
+  divergence; it and a diverged linear solve stop the run (`iips.on_failure = "stop"`), or undo the call's
+  displacements and carry on (`"reject"`), reported either way.
 - step control (`iips.backtrack = k`, default 0): a step that raises L2(grad C) is halved up to k times,
   and undone if L2 still rises, which ends the call: a stall (iips.on_stall) above the threshold. Accepted
   iterates then never raise L2, so the divergence check above seldom fires (Linf can still grow).
@@ -278,7 +279,8 @@ class ImplicitShifting(Shifting):
             report.L2_grad_c, report.Linf_grad_c = l2, linf
             if stuck:  # back at the step's start, which the best iterate has already counted
                 break
-            if linf < best_linf:
+            if linf < best_linf and (not self.spec.stall_max_shift
+                                     or largest_shift(system) <= self.spec.stall_max_shift * h):
                 best_linf = linf
                 p.owned(BEST_FIELD.name)[:] = p.owned(SHIFT_FIELD.name)
             if not np.isfinite(linf) or linf > self.spec.divergence_factor * max(start_linf, DIVERGENCE_FLOOR):

@@ -191,4 +191,7 @@ def iips_operator(kind, solver):
     elif kind == "matrix_free" and needs is not None:
         raise UsageError(f"{needs}: iips.operator = \"matrix_free\" provides no entries but the diagonal; "
                          f"use -{prefix}pc_type jacobi or none, or iips.operator = \"assembled\"")
+    elif kind == "matrix_free" and options.hasName(f"{prefix}mat_type"):
+        raise UsageError(f"-{prefix}mat_type {options.getString(f'{prefix}mat_type', '')}: iips.operator = "
+                         "\"matrix_free\" builds no matrix; drop the option, or use iips.operator = \"assembled\"")
     return OPERATORS[kind](prefix)

@@ -169,6 +169,36 @@ def test_stall_keeps_the_iterate_of_lowest_grad_c():
     assert measure(system)[2] == pytest.approx(min(seen), rel=1e-12)
 
 
+def test_a_stall_keeps_the_best_iterate_within_stall_max_shift():
+    """iips.stall_max_shift = c: the stalled call keeps the iterate of lowest Linf(grad C) among those that
+    move no particle farther than c h, the call's start included. With c just below the unrestricted best
+    iterate's displacement that iterate is passed over; with a tiny c every iterate is, and the call ends
+    where it started."""
+    from psph.shifting.iips import largest_shift
+
+    base = {"max_newton": 4, "threshold": 1e-9}
+    scene = periodic_scene(n=20, sigma=0.1, iips=base)
+    system = build_system(scene, MPI.COMM_SELF)
+    h = system.kernel.h
+    start = measure(system)[2]
+    seen = []
+    ImplicitShifting(scene.iips, MPI.COMM_SELF).correct(
+        system, on_iteration=lambda info: seen.append((info["Linf_grad_c"], largest_shift(system) / h)))
+    best = min(seen)
+    assert best[1] > 0.0
+    for cap in (0.99 * best[1], 1e-6):
+        expected = min([start] + [linf for linf, moved in seen if moved <= cap])
+        scene = periodic_scene(n=20, sigma=0.1, iips={**base, "stall_max_shift": cap})
+        system = build_system(scene, MPI.COMM_SELF)
+        before = dict(zip(system.particles.owned("gid"), system.particles.owned("position").copy()))
+        report = ImplicitShifting(scene.iips, MPI.COMM_SELF).correct(system)
+        assert report.failed and "kept the iterate" in report.message
+        assert report.Linf_grad_c == pytest.approx(expected, rel=1e-10) and expected > best[0]
+        assert largest_shift(system) <= cap * h
+    for g, x in zip(system.particles.owned("gid"), system.particles.owned("position")):  # the tiny cap: the start
+        assert np.allclose(x, before[g], atol=1e-14)
+
+
 def test_diverged_linear_solve_raises_with_reason():
     scene = periodic_scene(n=20, sigma=0.1, iips={"max_newton": 2})
     with petsc_options(iips_ksp_max_it=1, iips_ksp_rtol=1e-12):
@@ -312,8 +342,10 @@ def test_a_dropped_operator_is_freed(operator):
 
 @pytest.mark.parametrize("options,expect", [
     ({"iips_pc_type": "sor"}, r"-iips_pc_type sor: .*matrix_free"),
-    ({"iips_pc_jacobi_type": "rowmax"}, r"-iips_pc_type jacobi -iips_pc_jacobi_type rowmax: .*matrix_free")])
+    ({"iips_pc_jacobi_type": "rowmax"}, r"-iips_pc_type jacobi -iips_pc_jacobi_type rowmax: .*matrix_free"),
+    ({"iips_mat_type": "baij"}, r"-iips_mat_type baij: .*matrix_free.* builds no matrix")])
 def test_the_matrix_free_operator_refuses_a_preconditioner_that_needs_entries(options, expect):
+    """... or a matrix type, which it would leave unread (the run's end warned of an unread option)."""
     scene = periodic_scene(n=10, iips={"operator": "matrix_free"})
     with petsc_options(**options), pytest.raises(UsageError, match=expect):
         ImplicitShifting(scene.iips, MPI.COMM_SELF)
