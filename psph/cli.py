@@ -260,6 +260,7 @@ def cmd_run(args, petsc_options, comm) -> int:
     try:
         with driver_for(scene)(scene, comm, out, log=log, progress=not args.quiet, **kwargs) as driver:
             summary = driver.run()
+            rejected = sum(getattr(m, "rejections", 0) for m in driver.shifting_methods())
         late = stop.requested(comm)
     finally:
         stop.uninstall()
@@ -267,6 +268,9 @@ def cmd_run(args, petsc_options, comm) -> int:
         log(f"psph: {signal.Signals(late).name} came as the run ended: it is complete")
     log(f"psph: {summary['n_particles']} particles, {summary['steps']} steps, "
         f"{summary['wall_time_s']:.2f} s; results in {out}")
+    if rejected:  # with iips.on_failure/on_stall = "reject" a run ends well even if no call moved anything
+        _warn(comm, f"psph: warning: {rejected} IIPS call(s) were rejected and their displacements undone "
+                    f"(iips.on_failure / iips.on_stall = \"reject\"; each is in the log)")
     _warn_unused_options(comm)
     return 0
 
@@ -310,9 +314,14 @@ def _warn_unused_options(comm) -> None:
     from psph.solvers.petsc import unused_options
 
     unused = [o for o in unused_options() if not o.startswith(AT_FINALIZE)]
-    if unused and comm.rank == 0:
-        line = (f"psph: warning: PETSc options that nothing read: {', '.join(unused)} (misspelt, or for a solver "
-                "this scene does not have)")
+    if unused:
+        _warn(comm, f"psph: warning: PETSc options that nothing read: {', '.join(unused)} (misspelt, or for a "
+                    "solver this scene does not have)")
+
+
+def _warn(comm, line: str) -> None:
+    """A warning on stderr (also with --quiet) and in the log, from rank 0."""
+    if comm.rank == 0:
         print(line, file=sys.stderr, flush=True)
         _append_log(line)
 

@@ -246,11 +246,18 @@ def test_the_trial_solve_refuses_no_solver_that_works(tmp_path, options):
 
 def test_the_trial_solve_leaves_the_iteration_cap_to_the_run(tmp_path):
     """A small -iips_ksp_max_it with iips.on_failure = "reject" is a choice (cap the solves, undo the calls
-    they fail), not a solver that does not work: the trial lets it pass, and the run rejects its call."""
+    they fail), not a solver that does not work: the trial lets it pass, and the run rejects its call. The
+    run's end warns of the rejected calls on stderr, with --quiet too."""
     res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path, "--set", "domain.dx=0.1", "--set",
                    "shifting.method=iips", "--set", "iips.on_failure=reject", "-iips_ksp_max_it", "1")
     assert res.returncode == 0, res.stderr
     assert "IIPS call rejected: iips linear solve diverged: DIVERGED_MAX_IT after 1 iterations" in res.stdout
+    warning = "psph: warning: 1 IIPS call(s) were rejected and their displacements undone"
+    assert res.stderr.startswith(warning) and warning in (tmp_path / "psph.log").read_text(), res.stderr
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path, "--set", "domain.dx=0.1", "--set",
+                   "shifting.method=iips", "--set", "iips.on_failure=reject", "-iips_ksp_max_it", "1", "--quiet",
+                   "--overwrite")
+    assert res.returncode == 0 and res.stdout == "" and res.stderr.startswith(warning), res.stdout + res.stderr
     assert json.loads((tmp_path / "summary.json").read_text())["steps"] == 0
 
 
