@@ -50,7 +50,7 @@ def plot(out_dir, fig_dir=None) -> list:
     try:
         return _plot(out_dir, fig_dir)
     except OSError as exc:
-        where = f" ({exc.filename})" if exc.filename else ""
+        where = f" ({exc.filename})" if exc.filename and str(exc.filename) not in str(exc) else ""
         raise UsageError(f"psph plot {str(out_dir)!r}: {' '.join(str(exc).split())}{where}") from None
 
 

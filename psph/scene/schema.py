@@ -713,14 +713,18 @@ class Scene:
                 if not d.lower[a] <= point[a] <= d.upper[a]:
                     raise SceneError(f"output.probes[{k}]", f"{list(point)} lies outside the domain along axis {a}")
 
-    def _check_jet(self):
-        if not self.diagnostics.impinging_jet:
-            return
-        key = "diagnostics.impinging_jet"
+    def _needs_2d_fluid(self, key):
+        """Refuse the diagnostics `key` without a fluid scheme or in a dimension other than 2."""
         if self.physics.scheme not in FLUID_SCHEMES:
             raise SceneError(key, f"needs a fluid scheme, not physics.scheme = {self.physics.scheme!r}")
         if self.domain.dimension != 2:
             raise SceneError(key, "needs a 2-D scene")
+
+    def _check_jet(self):
+        if not self.diagnostics.impinging_jet:
+            return
+        key = "diagnostics.impinging_jet"
+        self._needs_2d_fluid(key)
         if not self.inflow or self.inflow[0].velocity[1] >= 0.0 or self.inflow[0].velocity[0] != 0.0:
             raise SceneError(key, "needs inflow[0] with a velocity [0, -U] (the jet falls along -y)")
         if not self.bodies or self.bodies[0].shape != "rectangle" or self.bodies[0].angle != 0.0:
@@ -730,10 +734,7 @@ class Scene:
         if not self.diagnostics.dam_break:
             return
         key, d = "diagnostics.dam_break", self.domain
-        if self.physics.scheme not in FLUID_SCHEMES:
-            raise SceneError(key, f"needs a fluid scheme, not physics.scheme = {self.physics.scheme!r}")
-        if d.dimension != 2:
-            raise SceneError(key, "needs a 2-D scene")
+        self._needs_2d_fluid(key)
         g = self.physics.gravity
         if len(g) != 2 or g[0] != 0.0 or g[1] >= 0.0:
             raise SceneError(key, "needs physics.gravity along -y, [0, -g]")
