@@ -131,8 +131,8 @@ class Simulation:
     def diagnose_failures(self, where):
         """On a NumericalError inside the block, write a diagnostic snapshot (the state at failure, with
         grad C) before letting the error end the run. It is labelled with the error's step and time (a
-        failure within a step: that step, at the stage's time), else with `where()`'s (step, time) (the last
-        completed step). Collective: the error is every rank's (raise_if_any), with its WHERE."""
+        failure within a step: that step and the time it started from), else with `where()`'s (step, time)
+        (the last completed step). Collective: the error is every rank's (raise_if_any), with its WHERE."""
         from psph.diagnostics import grad_c
         from psph.errors import NumericalError
 
