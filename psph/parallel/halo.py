@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from psph.compute.neighbours import image_rows
-from psph.parallel.comm import alltoallv, exchange_counts
+from psph.parallel.comm import allreduce_max, alltoallv, exchange_counts
 
 
 @dataclass
@@ -71,9 +71,14 @@ def attach_halo(comm, particles, pattern: HaloPattern, names) -> None:
 
 
 def migrate(comm, particles, dest: np.ndarray) -> None:
-    """Move owned particles (all fields) to the ranks `dest` gives; drops the halo. Collective."""
-    order = np.argsort(dest, kind="stable")
+    """Move owned particles (all fields) to the ranks `dest` gives; drops the halo. Collective. Where no
+    particle changes rank (most rebuilds: IIPS rebuilds about once per Newton iteration in a violent flow)
+    only the halo is dropped, without the exchange of every field."""
     counts = np.bincount(dest, minlength=comm.size).astype(np.int64)
+    if allreduce_max(comm, int(counts[comm.rank] != particles.n_owned)) == 0:
+        particles.set_owned({name: particles.owned(name) for name in particles.names})
+        return
+    order = np.argsort(dest, kind="stable")
     recv_counts = exchange_counts(comm, counts)
     arrays = {name: alltoallv(comm, particles.owned(name)[order], counts, recv_counts)
               for name in particles.names}

@@ -89,6 +89,22 @@ def test_migration_carries_fields_and_balances(comm):
     assert np.all((p.owned("position") >= b_lo) & (p.owned("position") <= b_hi))
 
 
+def test_migrate_without_moves_keeps_the_rows_and_with_moves_carries_them(comm):
+    """No particle changing rank (the shortcut, no exchange): the owned rows stay as they were, in order, and
+    the halo goes. Every particle sent to the next rank: each arrives there with its fields."""
+    from psph.parallel.halo import migrate
+
+    s = build_system(periodic_scene(dim=2, n=12, sigma=0.1), comm)
+    p = s.particles
+    before = p.owned_arrays()
+    assert p.n_halo > 0
+    migrate(comm, p, np.full(p.n_owned, comm.rank))
+    assert p.n_halo == 0 and all(np.array_equal(p.owned(k), v) for k, v in before.items())
+    incoming = comm.sendrecv(before, dest=(comm.rank + 1) % comm.size, source=(comm.rank - 1) % comm.size)
+    migrate(comm, p, np.full(p.n_owned, (comm.rank + 1) % comm.size))
+    assert all(np.array_equal(p.owned(k), v) for k, v in incoming.items())
+
+
 def test_update_refreshes_halo_then_rebuilds(comm):
     """Small moves reuse the lists; larger ones trigger a rebuild; sums stay rank-independent."""
     scene = periodic_scene(dim=2, n=24, sigma=0.1)
