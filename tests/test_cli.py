@@ -204,8 +204,10 @@ def test_petsc_options_that_nothing_read_are_named_in_a_warning(tmp_path):
     assert res.returncode == 0 and "nothing read: -iips_pc_type hypre" in res.stderr, res.stderr
     res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "c", "--quiet", "--set",
                    "domain.dx=0.1", "--set", "shifting.method=iips", "--set", "iips.operator=matrix_free",
-                   "-iips_mat_type", "aij")  # the matrix-free operator reads no matrix type, nor does the trial
-    assert res.returncode == 0 and "nothing read: -iips_mat_type aij" in res.stderr, res.stderr
+                   "-iips_mat_type", "aij")  # the matrix-free operator reads no matrix type: refused, one line
+    assert res.returncode == 2 and res.stderr.strip() == ("psph: error: -iips_mat_type aij: iips.operator = "
+                                                           "\"matrix_free\" builds no matrix; drop the option, or "
+                                                           "use iips.operator = \"assembled\""), res.stderr
 
 
 @pytest.mark.parametrize("ranks, options, message", [

@@ -280,8 +280,9 @@ def test_a_failed_continuation_in_place_leaves_one_consistent_run(finished, tmp_
     assert not (run / "summary.json").exists()
     snapshots = sorted(p.name for p in run.glob("snapshot_*"))
     assert xdmf_files(run) == snapshots == [f"snapshot_00000{k}.h5" for k in range(3)]
-    with h5py.File(run / "snapshot_000002.h5") as f:  # the failure's state, at the checkpoint's time
-        assert f.attrs["step"] == 10 and "grad_c" in f["particles"]
+    with h5py.File(run / "snapshot_000002.h5") as f:  # the failure's state: step 11, from the checkpoint's time
+        assert f.attrs["step"] == 11 and f.attrs["time"] == read_checkpoint(MPI.COMM_SELF, run / CHECKPOINT)[0]["time"]
+        assert "grad_c" in f["particles"]
     assert [r["step"] for r in read_history(run / "history.csv")] == list(range(11))
     assert "removed what" in (run / "psph.log").read_text()
 
