@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from psph.compute.neighbours import image_rows
-from psph.parallel.comm import allreduce_max, alltoallv, exchange_counts
+from psph.parallel.comm import allreduce_max, alltoallv_fields, exchange_counts
 
 
 @dataclass
@@ -51,22 +51,14 @@ def halo_exchange(comm, particles, pattern: HaloPattern, names) -> None:
     The halo rows must already exist (attach_halo); positions receive their periodic image shift.
     """
     lo = particles.n_owned
-    for name in names:
-        arr = particles[name]
-        data = arr[pattern.send_index]
-        if name == "position":
-            data = data + pattern.send_shift
-        arr[lo:] = alltoallv(comm, data, pattern.send_counts, pattern.recv_counts)
+    received = halo_copies(comm, pattern, {name: particles[name][:lo] for name in names}, shifted=("position",))
+    for name, rows in received.items():
+        particles[name][lo:] = rows
 
 
 def attach_halo(comm, particles, pattern: HaloPattern, names) -> None:
     """Create the halo rows for `pattern` and fill fields `names` (others are zero). Collective."""
-    received = {}
-    for name in names:
-        data = particles.owned(name)[pattern.send_index]
-        if name == "position":
-            data = data + pattern.send_shift
-        received[name] = alltoallv(comm, data, pattern.send_counts, pattern.recv_counts)
+    received = halo_copies(comm, pattern, {name: particles.owned(name) for name in names}, shifted=("position",))
     particles.set_halo(received, pattern.n_halo)
 
 
@@ -80,18 +72,16 @@ def migrate(comm, particles, dest: np.ndarray) -> None:
         return
     order = np.argsort(dest, kind="stable")
     recv_counts = exchange_counts(comm, counts)
-    arrays = {name: alltoallv(comm, particles.owned(name)[order], counts, recv_counts)
-              for name in particles.names}
-    particles.set_owned(arrays)
+    particles.set_owned(alltoallv_fields(comm, {name: particles.owned(name)[order] for name in particles.names},
+                                         counts, recv_counts))
 
 
 def halo_copies(comm, pattern: HaloPattern, arrays: dict, shifted=()) -> dict:
     """Send the rows of owned `arrays` through `pattern` without touching any ParticleSet; arrays named in
     `shifted` are positions and receive the periodic image shift. Returns the received rows. Collective."""
-    out = {}
+    data = {}
     for name, arr in arrays.items():
-        data = arr[pattern.send_index]
+        data[name] = arr[pattern.send_index]
         if name in shifted:
-            data = data + pattern.send_shift
-        out[name] = alltoallv(comm, data, pattern.send_counts, pattern.recv_counts)
-    return out
+            data[name] = data[name] + pattern.send_shift
+    return alltoallv_fields(comm, data, pattern.send_counts, pattern.recv_counts)

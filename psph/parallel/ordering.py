@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from psph.parallel.comm import alltoallv, exchange_counts
+from psph.parallel.comm import alltoallv_fields, exchange_counts
 
 
 def gid_rows(comm, gid: np.ndarray) -> tuple:
@@ -31,8 +31,9 @@ def to_gid_blocks(comm, gid: np.ndarray, arrays: dict) -> tuple:
     order = np.argsort(dest, kind="stable")
     counts = np.bincount(dest, minlength=comm.size).astype(np.int64)
     recv_counts = exchange_counts(comm, counts)
-    got_rows = alltoallv(comm, rows[order], counts, recv_counts)
-    local = np.argsort(got_rows)
-    out = {name: alltoallv(comm, np.asarray(a)[order], counts, recv_counts)[local] for name, a in arrays.items()}
+    got = alltoallv_fields(comm, {"_row": rows[order], **{name: np.asarray(a)[order] for name, a in arrays.items()}},
+                           counts, recv_counts)
+    local = np.argsort(got.pop("_row"))
+    out = {name: a[local] for name, a in got.items()}
     start = block_range(total, comm.rank, comm.size)[0]
     return start, total, out

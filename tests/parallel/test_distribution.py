@@ -105,6 +105,23 @@ def test_migrate_without_moves_keeps_the_rows_and_with_moves_carries_them(comm):
     assert all(np.array_equal(p.owned(k), v) for k, v in incoming.items())
 
 
+def test_fields_travel_in_one_message_as_they_would_one_by_one(comm):
+    """alltoallv_fields packs rows of several dtypes and shapes (int8, int64, float, (d,), (d, d)) side by
+    side as bytes: each arrives as alltoallv sends it alone, also where a rank sends or receives nothing."""
+    from psph.parallel.comm import alltoallv, alltoallv_fields, exchange_counts
+
+    rng = np.random.default_rng(comm.rank)
+    counts = np.array([0 if (comm.rank + r) % 3 == 1 else 2 + r + comm.rank for r in range(comm.size)], np.int64)
+    n = int(counts.sum())
+    arrays = {"kind": rng.integers(0, 6, n).astype(np.int8), "gid": rng.integers(0, 10**12, n),
+              "position": rng.random((n, 2)), "matrix": rng.random((n, 2, 2))}
+    recv = exchange_counts(comm, counts)
+    together = alltoallv_fields(comm, arrays, counts, recv)
+    for name, a in arrays.items():
+        alone = alltoallv(comm, a, counts, recv)
+        assert together[name].dtype == a.dtype and np.array_equal(together[name], alone), name
+
+
 def test_update_refreshes_halo_then_rebuilds(comm):
     """Small moves reuse the lists; larger ones trigger a rebuild; sums stay rank-independent."""
     scene = periodic_scene(dim=2, n=24, sigma=0.1)
