@@ -33,6 +33,7 @@ from psph.scene.load import scene_from_table
 
 FORMAT = "psph-checkpoint-1"
 NAME = re.compile(r"checkpoint_(\d{6,})\.h5")  # checkpoint_name's, and no other file's
+PARTIAL = re.compile(r"checkpoint_(\d{6,})\.h5\.tmp")  # one being written (left by a kill during the write)
 
 
 def checkpoint_name(step: int) -> str:
@@ -256,7 +257,8 @@ def results_after(out_dir, state) -> tuple:
     replaces: (final, partial). final: a finished run's summary.json and later checkpoints (a continuation
     that failed early would leave them contradicting the rest; continuing needs --overwrite); partial: the
     snapshots past the checkpoint's snapshot index (an interrupted run's, which the continuation writes
-    again). The history's later rows need no list: Simulation rewrites history.csv from the checkpoint's."""
+    again) and the temporary files of later checkpoints that a kill left half written. The history's later
+    rows need no list: Simulation rewrites history.csv from the checkpoint's."""
     from psph.io.history import SUMMARY_NAME
 
     out_dir = Path(out_dir)
@@ -267,5 +269,8 @@ def results_after(out_dir, state) -> tuple:
     for p in sorted(out_dir.iterdir()):
         m = SNAPSHOT_NAME.fullmatch(p.name)
         if m and int(m.group(1)) >= len(state["snapshots"]):
+            partial.append(p)
+        m = PARTIAL.fullmatch(p.name)
+        if m and int(m.group(1)) > state["step"]:
             partial.append(p)
     return final, partial

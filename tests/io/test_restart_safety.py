@@ -288,14 +288,18 @@ def test_a_failed_continuation_in_place_leaves_one_consistent_run(finished, tmp_
 
 
 def test_an_interrupted_run_continues_in_place_without_overwrite(finished, tmp_path):
-    """No summary: the run did not finish (killed), its snapshots past the checkpoint are written again and
-    the continuation equals the run never interrupted."""
+    """No summary: the run did not finish (killed), its snapshots past the checkpoint are written again, a
+    later checkpoint's half-written temporary file is removed, and the continuation equals the run never
+    interrupted."""
     run = copy_run(finished, tmp_path / "run")
     (run / "summary.json").unlink()
+    (run / "checkpoint_000012.h5.tmp").write_bytes(b"half written")  # a kill during a later write: removed
+    (run / "checkpoint_000007.h5.tmp").write_bytes(b"mine")  # before the checkpoint: not this continuation's
     done = run_psph("run", "--restart", run / CHECKPOINT, "--quiet")
     assert done.returncode == 0, done.stderr
     same_history(run, finished)
     assert xdmf_files(run) == xdmf_files(finished)
+    assert not (run / "checkpoint_000012.h5.tmp").exists() and (run / "checkpoint_000007.h5.tmp").exists()
     for name in ("snapshot_000002.h5",):
         with h5py.File(run / name) as a, h5py.File(finished / name) as b:
             assert np.array_equal(a["particles/position"][()], b["particles/position"][()])
