@@ -117,9 +117,13 @@ def _check_state(state) -> None:
             raise ValueError(f"its state lists no field {name!r}")
 
 
-def _check_identities(f, arrays) -> None:
-    """Raise ValueError for gids that are not unique over the whole file (read by every rank: each must know)
-    or a kind that is no Kind."""
+# fields every particle holds a positive value of (a run stops before one turns negative)
+POSITIVE = ("volume", "mass", "density")
+
+
+def _check_rows(f, arrays, start) -> None:
+    """Raise ValueError for gids that are not unique over the whole file (read by every rank: each must know),
+    a kind that is no Kind, or a POSITIVE field's value <= 0 in this rank's rows (from row `start`)."""
     gids = f["particles"]["gid"][:]
     unique, counts = np.unique(gids, return_counts=True)
     if len(unique) < len(gids):
@@ -128,6 +132,10 @@ def _check_identities(f, arrays) -> None:
         bad = ~np.isin(arrays["kind"], [k.value for k in Kind])
         if bad.any():
             raise ValueError(f"particles/kind holds {arrays['kind'][bad][0]}, which is no particle kind")
+    for name in POSITIVE:
+        if name in arrays and (arrays[name] <= 0.0).any():
+            row = int(np.argmax(arrays[name] <= 0.0))
+            raise ValueError(f"particles/{name} holds {arrays[name][row]:g} in row {start + row}, not > 0")
 
 
 def _read_rows(f, state, name, start, stop, dim) -> np.ndarray:
@@ -184,7 +192,7 @@ def read_checkpoint(comm, path) -> tuple:
             else:
                 start, stop = block_range(int(sum(counts)), comm.rank, comm.size)
             arrays = {name: _read_rows(f, state, name, start, stop, dim) for name in state["fields"]}
-            _check_identities(f, arrays)
+            _check_rows(f, arrays, start)
         particles = ParticleSet(dim, specs=())
         for name, (shape, dtype) in state["fields"].items():
             particles.add_field(FieldSpec(name, tuple(shape), np.dtype(dtype).type))

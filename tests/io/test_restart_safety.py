@@ -154,6 +154,10 @@ def test_a_checkpoint_holding_an_infinite_value_in_any_field_is_refused(finished
      "particles/gid repeats gid 0"),
     (lambda f: f["particles/kind"].write_direct(np.array([77], np.int8), dest_sel=np.s_[4:5]),
      "particles/kind holds 77, which is no particle kind"),
+    (lambda f: f["particles/volume"].write_direct(np.array([-1.0]), dest_sel=np.s_[4:5]),
+     "particles/volume holds -1 in row 4, not > 0"),
+    (lambda f: f["particles/density"].write_direct(np.array([0.0]), dest_sel=np.s_[7:8]),
+     "particles/density holds 0 in row 7, not > 0"),
 ])
 def test_an_inconsistent_checkpoint_is_one_line_naming_what_is_wrong(finished, tmp_path, edit, words):
     bad = edit_checkpoint(finished / CHECKPOINT, tmp_path / "bad.h5", edit)
