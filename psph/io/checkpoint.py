@@ -121,13 +121,15 @@ def _check_state(state) -> None:
 POSITIVE = ("volume", "mass", "density")
 
 
-def _check_rows(f, arrays, start) -> None:
-    """Raise ValueError for gids that are not unique over the whole file (read by every rank: each must know),
-    a kind that is no Kind, or a POSITIVE field's value <= 0 in this rank's rows (from row `start`)."""
-    gids = f["particles"]["gid"][:]
-    unique, counts = np.unique(gids, return_counts=True)
-    if len(unique) < len(gids):
-        raise ValueError(f"particles/gid repeats gid {unique[np.argmax(counts)]}")
+def _check_rows(f, arrays, start, gids=False) -> None:
+    """Raise ValueError for a kind that is no Kind or a POSITIVE field's value <= 0 in this rank's rows (from
+    row `start`), and, with `gids`, for gids that are not unique over the whole file (read by one rank:
+    read_checkpoint passes every rank's error to all)."""
+    if gids:
+        every = f["particles"]["gid"][:]
+        unique, counts = np.unique(every, return_counts=True)
+        if len(unique) < len(every):
+            raise ValueError(f"particles/gid repeats gid {unique[np.argmax(counts)]}")
     if "kind" in arrays:
         bad = ~np.isin(arrays["kind"], [k.value for k in Kind])
         if bad.any():
@@ -192,7 +194,7 @@ def read_checkpoint(comm, path) -> tuple:
             else:
                 start, stop = block_range(int(sum(counts)), comm.rank, comm.size)
             arrays = {name: _read_rows(f, state, name, start, stop, dim) for name in state["fields"]}
-            _check_rows(f, arrays, start)
+            _check_rows(f, arrays, start, gids=comm.rank == 0)
         particles = ParticleSet(dim, specs=())
         for name, (shape, dtype) in state["fields"].items():
             particles.add_field(FieldSpec(name, tuple(shape), np.dtype(dtype).type))

@@ -128,6 +128,18 @@ def test_a_checkpoint_holding_a_nan_position_is_refused_on_every_rank(finished, 
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_a_repeated_gid_is_refused_on_every_rank(finished, tmp_path, ranks):
+    """Rank 0 alone reads the whole gid column; the refusal reaches every rank (the copy is in rank 1's rows
+    of two)."""
+    bad = edit_checkpoint(finished / CHECKPOINT, tmp_path / "gid.h5",
+                          lambda f: f["particles/gid"].write_direct(f["particles/gid"][:1], dest_sel=np.s_[99:100]))
+    done = run_psph("run", "--restart", bad, "--out", tmp_path / "out", ranks=ranks, timeout=120)
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert done.stderr.splitlines()[0] == f"psph: error: cannot restart from {str(bad)!r}: particles/gid repeats gid 0"
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_checkpoint_holding_an_infinite_value_in_any_field_is_refused(finished, tmp_path):
     def inf_density(f):
         rho = f["particles/density"][()]
