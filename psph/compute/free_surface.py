@@ -1,6 +1,7 @@
 """Free-surface detection kernels (numba; no communication): Marrone et al.'s algorithm (J. Comput. Phys.
 229 (2010) 3652, reference [25] of seed 004, which detects the free surface with it; the indicator lambda is
-thesis 000 eq. 6.28, which prints the inverse of M_i below and means the smallest eigenvalue of M_i).
+thesis 000 eq. 6.28, which prints the inverse of M_i below and means the smallest eigenvalue of M_i, and
+prints the volume omega_i where the sum needs omega_j, V_j below).
 
     M_i      = sum_j (x_j - x_i) (x) grad_i W_ij V_j          (compute.sums.renormalisation_matrix)
     lambda_i = smallest eigenvalue of M_i: about 1 in a full support, about 1/2 on a flat surface, 0 alone

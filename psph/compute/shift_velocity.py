@@ -123,5 +123,10 @@ def neuhauser_acceleration(pos, vol, v0, pref, ptr, idx, kp, c0, alpha, out):
 
     pref is the reference pressure over rho0 per particle (P_S p_ref / rho0, or P^F / rho0). The first
     sum pushes particles down the concentration gradient and, through the upwind term, resists their
-    approach; the second smooths the transport velocity. (Solid-boundary terms: walls issue.)"""
+    approach; the second smooths the transport velocity. (Solid-boundary terms: walls issue.)
+
+    Signs: read with the thesis' own grad_i W_ij (eq. 5.48), eq. 6.33 and 7.1 as printed would pull
+    particles together, and eq. 7.4 prints the opposite sign to them; the thesis never defines its n_ij.
+    psph takes the repulsive reading above with e_ij from i to j
+    (tests/compute/test_shift_velocity.py::test_neuhauser_pushes_a_pair_apart_and_harder_as_it_closes)."""
     _NEUHAUSER[pos.shape[1]](pos, vol, v0, pref, ptr, idx, kp, c0, alpha, out)

@@ -1,8 +1,10 @@
 """physics.scheme = delta_ale (or a variant): a flow integrated in time, with explicit shifting inside the
 scheme or IIPS after each step (thesis 000 ch. 9: Procedure B, then the scene's field update).
 
-Each step: dt from the CFL condition (thesis eq. 5.52) and the viscous limit 0.125 h^2 / nu; a neighbour
-rebuild if the step could outrun the skin; the integrator's stages; the shifting law's end-of-step update;
+Each step: dt from the CFL condition (thesis eq. 5.52, with the reference c0 where the thesis has each
+particle's sound speed: 3% apart at 1% compression with Tait) and the viscous limit 0.125 h^2 / nu (Morris
+et al. 1997, not in the seeds); a neighbour rebuild if the step could outrun the skin; the integrator's
+stages; the shifting law's end-of-step update;
 the open boundaries' rows emitted, joined and removed (psph.boundaries.open); IIPS and its field update
 when the scene asks; checks (NaN, density outside the weakly compressible range,
 escaped particles, collapsing time step) that stop the run with the step, time, particle and a diagnostic

@@ -488,8 +488,10 @@ class OutputSpec:
 @dataclass(frozen=True)
 class DiagnosticsSpec:
     test_wavelength: float = option(
-        0.5, doc="wavelength l of the test function f = sin(2 pi x/l) + cos(2 pi y/l) (thesis eq. 3.6), "
-        "in domain length units; l/dx particles per wavelength", gt=0.0)
+        0.5, doc="wavelength l of the test function f = sin(2 pi x/l) + cos(2 pi y/l), in domain length "
+        "units; l/dx particles per wavelength. The thesis prints sin(pi x/lambda) + cos(pi y/lambda) (eq. 3.6), "
+        "whose period is 2 lambda, but counts lambda/dx particles per wavelength (40 for lambda = L at dx/L = "
+        "0.0125): psph follows the counts, l = lambda/2", gt=0.0)
     impinging_jet: bool = option(False, doc="fluid runs: compare the wall pressure with Taylor's solution for a "
                                  "jet impinging normally on a plate (thesis eq. 3.3): the jet is inflow[0] (along "
                                  "-y, half-width H its half cross-section), the plate the top of bodies[0]")

@@ -6,8 +6,11 @@ du = dx / dt.
     none        du = 0 (a Lagrangian scheme; the du-terms are skipped)
     delta_plus  seed 001 eq. 16-17 (Sun et al.):  du* = -Ma (2h) c0 grad C^, R = 0.2, n = 4;
                 |du| <= U_max / 2
-    lind        thesis eq. 6.15-6.16 (Lind et al. 2012): dx = -0.5 h^2 grad C^ (b = 0.2, n = 4), |dx| <= 0.2 h
+    lind        thesis eq. 6.15-6.16 (Lind et al. 2012): dx = -0.5 h^2 grad C^, |dx| <= 0.2 h; the correction's
+                b = 0.2, n = 4 are not in eq. 6.15-6.16 (the thesis: "suggested in Monaghan 2000"), as in
+                delta_plus
     skillen     thesis eq. 6.18 (Skillen et al. 2013): dx = -A h |u_i| dt grad C, A = `shifting.skillen_a`
+                (the thesis gives no value for A; psph's default is 2)
     oger        thesis eq. 6.32 (Oger et al. 2016): du = -U_char 2 dx grad C, U_char = Ma c0 = U_max,
                 |du| <= 0.25 |u_i|
     neuhauser   thesis eq. 6.33-6.35 with the particle-shifting coefficient P_S (eq. 7.1), or the fictitious

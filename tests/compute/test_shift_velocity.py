@@ -49,6 +49,34 @@ def test_neuhauser_acceleration_matches_brute_force(dim):
 
 
 @pytest.mark.parametrize("dim", [1, 2, 3])
+def test_neuhauser_pushes_a_pair_apart_and_harder_as_it_closes(dim):
+    """The sign the brute-force test above cannot check (it sums the same reading): thesis eq. 6.33 / 7.1,
+    read with its own grad_i W_ij (eq. 5.48), would pull particles together and eq. 7.4 is printed with the
+    opposite sign; psph takes the repulsive reading. Two particles 0.8 dx apart along x, at rest, push each
+    other apart; approaching each other (the upwind term c0/2 (v0_i - v0_j) . e_ij), harder; receding,
+    less."""
+    from psph.compute.smoothing import make_kernel
+
+    dx = 0.1
+    kern = make_kernel("wendland_c6", dim, 2.0 * dx)
+    pos = np.zeros((2, dim))
+    pos[1, 0] = 0.8 * dx
+    vol, pref = np.full(2, dx**dim), np.ones(2)
+    ptr, idx = np.array([0, 1, 2]), np.array([1, 0])
+
+    def push(speed):  # particle 0's acceleration along x; the pair closes at 2 * speed
+        v0 = np.zeros((2, dim))
+        v0[0, 0], v0[1, 0] = speed, -speed
+        out = np.zeros((2, dim))
+        shift_velocity.neuhauser_acceleration(pos, vol, v0, pref, ptr, idx, kern.params, 10.0, 0.0, out)
+        assert np.allclose(out[0], -out[1]) and np.allclose(out[:, 1:], 0.0)
+        return out[0, 0]
+
+    assert push(0.0) < 0.0  # away from particle 1, on its right
+    assert push(0.01) < push(0.0) < push(-0.01) < 0.0
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
 @pytest.mark.parametrize("fluid_only", [False, True])
 def test_grad_c_from_the_gradient_pass_is_the_same(dim, fluid_only):
     """compute.fluid.renormalised_gradient with grad_c: the corrected grad C over every neighbour, the
