@@ -107,7 +107,7 @@ def cmd_info(args, petsc_options, comm) -> int:
     from psph.drivers import describe_model
     from psph.scene.load import load_scene
     from psph.scene.validate import to_table
-    from psph.simulation import estimate_resources, estimate_time_step
+    from psph.simulation import estimate_resources, estimate_time_step, iips_assembled
 
     scene = load_scene(args.scene, args.set)
     if comm.rank == 0:
@@ -116,8 +116,8 @@ def cmd_info(args, petsc_options, comm) -> int:
         print("# model terms (only these run)")
         for line in describe_model(scene):
             print(f"#   {line}")
-        n, nbytes, per_particle = estimate_resources(scene)
-        print(f"# estimated particles: {n}, memory: {nbytes / 2**30:.3g} GiB "
+        n, nbytes, per_particle = estimate_resources(scene, comm.size, iips_assembled(scene, petsc_options))
+        print(f"# estimated particles: {n}, memory on {comm.size} rank(s): {nbytes / 2**30:.3g} GiB "
               f"({per_particle:.0f} bytes per particle)")
         step = estimate_time_step(scene)
         if step:
@@ -211,7 +211,7 @@ def cmd_run(args, petsc_options, comm) -> int:
     from psph.solvers.petsc import initialize
 
     scene, restart = _scene_and_restart(args, comm)
-    check_resources(scene, allow_large=args.allow_large)
+    check_resources(scene, allow_large=args.allow_large, ranks=comm.size, petsc_options=petsc_options)
     default_out = os.path.dirname(os.path.abspath(args.restart)) if restart else f"{scene.name}_out"
     out = os.path.abspath(args.out or default_out)
     continuing = restart is not None and os.path.realpath(out) == os.path.dirname(os.path.realpath(args.restart))
@@ -266,8 +266,8 @@ def cmd_run(args, petsc_options, comm) -> int:
         stop.uninstall()
     if late:  # the signal came during the last step or the final writes: nothing was cut short
         log(f"psph: {signal.Signals(late).name} came as the run ended: it is complete")
-    log(f"psph: {summary['n_particles']} particles, {summary['steps']} steps, "
-        f"{summary['wall_time_s']:.2f} s; results in {out}")
+    log(f"psph: {summary['n_particles']} particles, {summary['steps']} steps, {summary['wall_time_s']:.2f} s, "
+        f"peak memory {summary['peak_memory_mib']:.0f} MiB per rank; results in {out}")
     if rejected:  # with iips.on_failure/on_stall = "reject" a run ends well even if no call moved anything
         _warn(comm, f"psph: warning: {rejected} IIPS call(s) were rejected and their displacements undone "
                     f"(iips.on_failure / iips.on_stall = \"reject\"; each is in the log)")

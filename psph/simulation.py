@@ -12,6 +12,8 @@ from psph.domain import Domain
 from psph.initial import create_particles
 from psph.io.history import History, write_summary
 from psph.io.snapshots import SnapshotWriter
+from psph.parallel.comm import allreduce_max, allreduce_sum
+from psph.profiling import memory
 from psph.scene.validate import to_table
 from psph.system import BASE_HALO_FIELDS, ParticleSystem
 
@@ -151,6 +153,7 @@ class Simulation:
     def summary(self, steps: int, final: dict, **extra) -> dict:
         """Flush the history, write summary.json (collective call; rank 0 writes) and return it."""
         self.history.flush()
+        peak = memory()[1]
         data = {
             "psph_version": __version__,
             "scene": to_table(self.scene),
@@ -159,6 +162,9 @@ class Simulation:
             "steps": steps,
             "wall_time_s": time.perf_counter() - self.started,
             "neighbour_rebuilds": self.system.rebuilds,
+            # resident memory at its peak (profiling.memory): the largest rank's, and all ranks' together
+            "peak_memory_mib": allreduce_max(self.comm, peak) / 2**20,
+            "peak_memory_mib_total": allreduce_sum(self.comm, peak) / 2**20,
             "final": final,
         }
         data.update(extra)
@@ -166,22 +172,63 @@ class Simulation:
         return data
 
 
-def estimate_resources(scene) -> tuple:
-    """(particles, bytes, bytes per particle) a run of `scene` needs, before allocating anything.
+# Memory model of estimate_resources, its constants from the peaks runs reach (summary.json's peak_memory_mib;
+# run_scripts/bench_memory.py prints the model against them)
+BASE_BYTES = 256 * 2**20  # per rank before any particle: Python, numpy, numba's kernels, PETSc, MPI, h5py
+LIST_ENTRY_BYTES = 40  # per neighbour-list entry: its index (8), the search's work copies, pair caches
+AIJ_ENTRY_BYTES = 30  # per assembled-matrix nonzero: value and column (12), its slot (4), the build's copies
+AIJ_SPLIT_ENTRY_BYTES = 40  # the same on several ranks, whose build also splits the pattern into two blocks
+FIELD_DOUBLES = {True: 64, False: 16}  # per local particle, fluid runs (fields, Runge-Kutta stages) or not
 
-    Per particle: ~64 doubles of fields, the neighbour list (one index per neighbour within support +
-    skin) and, for IIPS, d^2 matrix entries of 12 bytes per neighbour.
+
+def iips_assembled(scene, petsc_options=()) -> bool:
+    """Whether a run of `scene` with these PETSc command-line options builds the assembled IIPS matrix
+    (shifting.iips_operator.iips_operator decides the same from PETSc's options database at run time)."""
+    if scene.shifting.method != "iips":
+        return False
+    if scene.iips.operator != "auto":
+        return scene.iips.operator == "assembled"
+    options = list(petsc_options)
+    pc = options[options.index("-iips_pc_type") + 1] if "-iips_pc_type" in options[:-1] else "jacobi"
+    return "-iips_mat_type" in options or pc not in ("jacobi", "none")
+
+
+def estimate_resources(scene, ranks=1, assembled=False) -> tuple:
+    """(particles, bytes, bytes per particle) a run of `scene` on `ranks` ranks needs, before allocating
+    anything; `assembled`: with the assembled IIPS matrix (iips_assembled).
+
+    BASE_BYTES per rank, and per particle: its fields, for the particle and for its copies in other
+    ranks' halos (a rank's share taken as a cube of particles, its halo the list radius around it); its
+    neighbour list (LIST_ENTRY_BYTES per entry, the neighbours within the support and the skin); with
+    IIPS the matrix-free operator's pairs (half the support's neighbours, d (d + 1) / 2 doubles and a
+    4-byte column each) and vectors, or the assembled matrix's d^2 entries per list entry and its own
+    d^2 (AIJ_ENTRY_BYTES each, AIJ_SPLIT_ENTRY_BYTES on several ranks). The constants make it an upper estimate, within 1.5 times of the peaks
+    run_scripts/bench_memory.py measures.
     """
     import math
 
     d = scene.domain
-    radius = (1.0 + scene.neighbours.skin) * d.support / d.dx
-    ball = {1: 2.0 * radius, 2: math.pi * radius**2, 3: 4.0 / 3.0 * math.pi * radius**3}[d.dimension]
-    per_particle = 8 * 64 + ball * (8 + 12 * d.dimension**2)
+    dim = d.dimension
+
+    def ball(r):
+        return {1: 2.0 * r, 2: math.pi * r**2, 3: 4.0 / 3.0 * math.pi * r**3}[dim]
+
+    support = d.support / d.dx
+    radius = (1.0 + scene.neighbours.skin) * support
     n = d.estimated_particles()
     if scene.initial.drop_radius > 0:  # the disc's lattice points, and the packing's frame around it
         n = math.ceil(math.pi * (scene.initial.drop_radius + d.support) ** 2 / d.dx**2)
-    return n, n * per_particle, per_particle
+    side = max(n / max(ranks, 1), 1.0) ** (1.0 / dim)
+    halo = ((side + 2.0 * radius) / side) ** dim - 1.0
+    fluid = scene.physics.scheme not in ("none", "kinematic")
+    per_particle = 8 * FIELD_DOUBLES[fluid] * (1.0 + halo) + LIST_ENTRY_BYTES * ball(radius)
+    if scene.shifting.method == "iips":
+        if assembled:
+            entry = AIJ_ENTRY_BYTES if ranks == 1 else AIJ_SPLIT_ENTRY_BYTES
+            per_particle += entry * dim**2 * (ball(radius) + 1.0)
+        else:
+            per_particle += ball(support) / 2.0 * (4 + 4 * dim * (dim + 1)) + 8 * 6 * dim
+    return n, n * per_particle + ranks * BASE_BYTES, per_particle
 
 
 def estimate_time_step(scene) -> str:
@@ -215,11 +262,12 @@ def machine_memory() -> int:
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
-def check_resources(scene, allow_large=False) -> None:
-    """Refuse (SceneError on domain.dx) a scene whose estimated memory exceeds 80% of this machine's."""
+def check_resources(scene, allow_large=False, ranks=1, petsc_options=()) -> None:
+    """Refuse (SceneError on domain.dx) a scene whose estimated memory on `ranks` ranks (estimate_resources)
+    exceeds 80% of this machine's."""
     from psph.errors import SceneError
 
-    n, nbytes, _ = estimate_resources(scene)
+    n, nbytes, _ = estimate_resources(scene, ranks, iips_assembled(scene, petsc_options))
     limit = 0.8 * machine_memory()
     if nbytes > limit and not allow_large:
         raise SceneError("domain.dx", f"{n} particles need about {nbytes / 2**30:.3g} GiB, more than 80% of "

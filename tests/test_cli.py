@@ -43,6 +43,9 @@ def test_run_writes_the_output_contract(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     for key in ("wall_time_s", "ranks", "n_particles", "steps", "final"):
         assert key in summary
+    # this run's own processes: more than the libraries' 100 MiB, less than 1 GiB
+    assert 100 < summary["peak_memory_mib"] == summary["peak_memory_mib_total"] < 1024
+    assert f"peak memory {summary['peak_memory_mib']:.0f} MiB per rank" in res.stdout
     assert summary["n_particles"] == 400 and summary["ranks"] == 1
     assert {"L2_grad_c", "Linf_grad_c"} <= set(summary["final"])
     header = (out / "history.csv").read_text().splitlines()[0].split(",")
