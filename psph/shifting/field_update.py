@@ -45,6 +45,16 @@ class NoFieldUpdate:
     def after(self, system, scheme):
         pass
 
+    # what an update changes: after it, their halo copies are refreshed, so that what reads them before the
+    # next step refreshes its fields (the history's grad C, a snapshot's halo-based diagnostics) sees the
+    # owners' values, on every rank count
+    CHANGED = ("volume", "density", "mass", "velocity", "pressure")
+
+    @classmethod
+    def refresh(cls, system) -> None:
+        """Refresh the halo copies of the fields an update changed. Collective."""
+        system.refresh(cls.CHANGED)
+
 
 class FictitiousTimeStep(NoFieldUpdate):
     """NFTS (thesis eq. 9.7). Its volume line gives a particle the room its neighbours vacate, V_i += V_i
@@ -99,6 +109,7 @@ class FictitiousTimeStep(NoFieldUpdate):
             p.owned("pressure")[:] = scheme.eos.pressure(rho)
             p.owned("position")[:] += p.owned("nfts_step")
             system.update()
+        self.refresh(system)
 
 
 class MovingLeastSquares(NoFieldUpdate):
@@ -160,6 +171,7 @@ class MovingLeastSquares(NoFieldUpdate):
         else:
             mass[fluid] = p.owned("volume0")[fluid] * rho[fluid]
         p.owned("pressure")[fluid] = scheme.eos.pressure(rho[fluid])
+        self.refresh(system)
 
 
 def make_field_update(scene):

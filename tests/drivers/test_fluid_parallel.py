@@ -16,14 +16,15 @@ pytestmark = pytest.mark.mpi
 
 def run(scene, comm, out):
     """The final positions, velocities and densities by gid, and every body-force column of the history
-    (cd_*, cl_*, cm_*) over the run."""
+    (cd_*, cl_*, cm_*) and its grad C norms over the run."""
     with FluidDriver(scene, comm, out) as driver:
         driver.run()
         p = driver.system.particles
         result = {k: gather_by_gid(comm, p.owned("gid"), p.owned(k))[1] for k in ("position", "velocity", "density")}
     comm.Barrier()  # rank 0 wrote the history
     rows = read_history(out / "history.csv")
-    result.update({k: np.array([r[k] for r in rows]) for k in rows[0] if k.startswith(("cd_", "cl_", "cm_"))})
+    result.update({k: np.array([r[k] for r in rows]) for k in rows[0]
+                   if k.startswith(("cd_", "cl_", "cm_")) or k in ("L2_grad_c", "Linf_grad_c")})
     return result
 
 
@@ -50,6 +51,16 @@ def test_fluid_run_matches_serial(comm, mpi_tmp_path, shifting, update, viscosit
                            time={"t_end": 0.04}, shifting={"method": shifting},
                            iips={"update": update, "threshold": 1e-3, "pre_newton": 20 if relaxed else 0})
     assert_matches_serial(scene, comm, mpi_tmp_path, tol)
+
+
+@pytest.mark.parametrize("scheme,shifting", [
+    ("delta_ale_const_mass", "delta_plus"), ("delta_ale_const_volume", "delta_plus"), ("delta_ale", "lind"),
+    ("delta_ale", "skillen"), ("delta_ale", "oger")])
+def test_scheme_variants_and_shifting_laws_match_serial(comm, mpi_tmp_path, scheme, shifting):
+    """The two simplified delta-ALE variants and the other explicit laws."""
+    scene = periodic_scene(n=16, initial={"velocity": "taylor_green"}, physics={"scheme": scheme},
+                           time={"t_end": 0.04}, shifting={"method": shifting})
+    assert_matches_serial(scene, comm, mpi_tmp_path, 1e-11)
 
 
 @pytest.mark.parametrize("shifting,update,thesis,tol", [
