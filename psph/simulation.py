@@ -189,8 +189,13 @@ def iips_assembled(scene, petsc_options=()) -> bool:
     if scene.iips.operator != "auto":
         return scene.iips.operator == "assembled"
     options = list(petsc_options)
-    pc = options[options.index("-iips_pc_type") + 1] if "-iips_pc_type" in options[:-1] else "jacobi"
-    return "-iips_mat_type" in options or pc not in ("jacobi", "none")
+
+    def value(name, default):
+        return options[options.index(name) + 1].lower() if name in options[:-1] else default
+
+    pc = value("-iips_pc_type", "jacobi")
+    jacobi = value("-iips_pc_jacobi_type", "diagonal")
+    return "-iips_mat_type" in options or pc not in ("jacobi", "none") or (pc == "jacobi" and jacobi != "diagonal")
 
 
 def estimate_resources(scene, ranks=1, assembled=False) -> tuple:
@@ -202,8 +207,8 @@ def estimate_resources(scene, ranks=1, assembled=False) -> tuple:
     neighbour list (LIST_ENTRY_BYTES per entry, the neighbours within the support and the skin); with
     IIPS the matrix-free operator's pairs (half the support's neighbours, d (d + 1) / 2 doubles and a
     4-byte column each) and vectors, or the assembled matrix's d^2 entries per list entry and its own
-    d^2 (AIJ_ENTRY_BYTES each, AIJ_SPLIT_ENTRY_BYTES on several ranks). The constants make it an upper estimate, within 1.5 times of the peaks
-    run_scripts/bench_memory.py measures.
+    d^2 (AIJ_ENTRY_BYTES each, AIJ_SPLIT_ENTRY_BYTES on several ranks). The constants make it an upper
+    estimate, within 1.5 times of the peaks run_scripts/bench_memory.py measures.
     """
     import math
 
