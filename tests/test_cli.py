@@ -293,3 +293,17 @@ def test_a_log_inside_a_new_output_directory(tmp_path):
                    "--set", "domain.dx=0.1")
     assert res.returncode == 0, res.stderr
     assert "running scene" in (out / "my.log").read_text() and (out / "summary.json").exists()
+
+
+def test_a_flow_with_iips_and_no_threshold_is_warned_about(tmp_path):
+    """Without iips.threshold or iips.beta every call of a flow runs all iips.max_newton iterations, on past
+    convergence (a rank audit: the elliptical drop then differed by 0.15 dx between 1 and 2 ranks)."""
+    tgv = CASES / "taylor_green.toml"
+    sets = ["--set", "domain.dx=0.1", "--set", "time.t_end=0.02", "--set", "iips.max_newton=2",
+            "--set", "output.every=0"]
+    bare = run_psph("run", tgv, "--out", tmp_path / "bare", "--quiet", *sets, "--set", "iips.threshold=0")
+    assert bare.returncode == 0, bare.stderr
+    assert "warning: iips.threshold = 0 (and no iips.beta): every IIPS call of this flow runs all 2" in bare.stderr
+    assert "warning: iips.threshold" in (tmp_path / "bare" / "psph.log").read_text()
+    kept = run_psph("run", tgv, "--out", tmp_path / "kept", "--quiet", *sets)
+    assert kept.returncode == 0 and "warning" not in kept.stderr, kept.stderr
