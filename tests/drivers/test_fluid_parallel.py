@@ -87,14 +87,21 @@ def test_riemann_ale_run_matches_serial(comm, mpi_tmp_path, shifting, update, th
     ("lid_driven_cavity.toml", [*CAVITY_DELTA_PLUS, "physics.viscosity=morris"], 1e-11),
     ("hydrostatic_tank.toml", [], 1e-11),
     ("trapezoidal_tank.toml", [], 1e-11),
+    ("couette.toml", [], 1e-11),
+    ("couette.toml", ["shifting.method=iips", "iips.procedure=A", "iips.max_newton=2", "iips.update=nfts"], 1e-7),
+    ("taylor_green.toml", ["shifting.method=delta_plus", "iips.update=none", "physics.eos=tait",
+                           "time.integrator=rk4"], 1e-11),
+    ("taylor_green.toml", ["shifting.method=none", "iips.update=none", "physics.scheme=riemann_ale",
+                           "physics.riemann_dissipation=low"], 1e-11),
     ("inclined_ellipse.toml", ["domain.dx=0.2", "physics.free_stream_ramp=0.05"], 1e-11),
     ("moving_square.toml", ["domain.dx=0.1", "time.t_end=0.3", "bodies.1.motion.law=ramp",
                             "bodies.1.motion.ramp_time=0.1", "bodies.1.motion.velocity=[0.3, 0.0]",
                             "bodies.1.motion.angular_velocity=0.5", "bodies.1.motion.rotation_law=oscillate",
                             "bodies.1.motion.period=0.2"], 1e-11)])
-def test_runs_with_walls_match_serial(comm, mpi_tmp_path, case, sets, tol):
-    """Walls across ranks: solid particles in halos, the clones mirrored from each rank's own fluid rows, the
-    forces on the bodies summed over the ranks. The moving square, put across a border between ranks
+def test_scene_runs_match_serial(comm, mpi_tmp_path, case, sets, tol):
+    """Shipped scenes, with two Taylor-Green runs for Tait with RK4 and for the low-dissipation Riemann
+    solver. Walls across ranks: solid particles in halos, the clones mirrored from each rank's own fluid
+    rows, the forces on the bodies summed over the ranks. The moving square, put across a border between ranks
     (x = 5 on 2 ranks, about 3.3 on 3) and rocking by its own rotation law as it translates, carries its
     solid particles from rank to rank."""
     from psph.scene.load import load_scene
