@@ -50,6 +50,8 @@ def _parser() -> argparse.ArgumentParser:
                      "afresh); messages and errors are appended")
     info = sub.add_parser("info", help="print the resolved scene, its model terms and estimated size")
     scene_args(info)
+    info.add_argument("--ranks", type=int, help="estimate the memory for this many ranks (default: the ranks "
+                      "psph info runs on)")
     sub.add_parser("keys", help="list every scene key with its type, default and meaning")
     plot = sub.add_parser("plot", help="PNG figures of a run (fields, history) or of a study directory of runs")
     plot.add_argument("out_dir", help="a run's output directory, or a directory of runs")
@@ -108,16 +110,19 @@ def cmd_info(args, petsc_options, comm) -> int:
     from psph.scene.load import load_scene
     from psph.scene.validate import to_table
     from psph.simulation import estimate_resources, estimate_time_step, iips_assembled
+    from psph.solvers.petsc import initialize
 
     scene = load_scene(args.scene, args.set)
+    initialize(petsc_options)  # which IIPS operator the options choose (the memory estimate)
     if comm.rank == 0:
         print(f"# scene {scene.name!r} from {args.scene}")
         _print_table(to_table(scene))
         print("# model terms (only these run)")
         for line in describe_model(scene):
             print(f"#   {line}")
-        n, nbytes, per_particle = estimate_resources(scene, comm.size, iips_assembled(scene, petsc_options))
-        print(f"# estimated particles: {n}, memory on {comm.size} rank(s): {nbytes / 2**30:.3g} GiB "
+        ranks = args.ranks or comm.size
+        n, nbytes, per_particle = estimate_resources(scene, ranks, iips_assembled(scene))
+        print(f"# estimated particles: {n}, memory on {ranks} rank(s): {nbytes / 2**30:.3g} GiB "
               f"({per_particle:.0f} bytes per particle)")
         step = estimate_time_step(scene)
         if step:
@@ -204,6 +209,8 @@ def _start_log(path, line: str) -> None:
 
 
 def cmd_run(args, petsc_options, comm) -> int:
+    from mpi4py import MPI
+
     from psph.drivers import driver_for
     from psph.io.checkpoint import results_after
     from psph.io.files import holds_results
@@ -211,7 +218,11 @@ def cmd_run(args, petsc_options, comm) -> int:
     from psph.solvers.petsc import initialize
 
     scene, restart = _scene_and_restart(args, comm)
-    check_resources(scene, allow_large=args.allow_large, ranks=comm.size, petsc_options=petsc_options)
+    initialize(petsc_options)  # the memory check asks PETSc's options which IIPS operator the run builds
+    node = comm.Split_type(MPI.COMM_TYPE_SHARED)  # the ranks on this machine
+    node_ranks = node.Get_size()
+    node.Free()
+    check_resources(scene, allow_large=args.allow_large, ranks=comm.size, node_ranks=node_ranks)
     default_out = os.path.dirname(os.path.abspath(args.restart)) if restart else f"{scene.name}_out"
     out = os.path.abspath(args.out or default_out)
     continuing = restart is not None and os.path.realpath(out) == os.path.dirname(os.path.realpath(args.restart))
@@ -228,7 +239,6 @@ def cmd_run(args, petsc_options, comm) -> int:
                              f"(step {state['step']}): {', '.join(os.path.basename(p) for p in final)}; continuing "
                              "there replaces them: pass --overwrite to do so, or choose another --out")
         later = final + later
-    initialize(petsc_options)
     if scene.shifting.method == "iips" or scene.iips.pre_newton > 0:
         from psph.shifting.iips import ImplicitShifting
 
@@ -256,12 +266,12 @@ def cmd_run(args, petsc_options, comm) -> int:
         log(f"psph: {os.path.join(out, 'psph.xdmf')} lists the snapshots from the checkpoint on; the earlier ones "
             f"are in {os.path.dirname(os.path.abspath(args.restart))}")
     iips = scene.iips
-    if (scene.shifting.method == "iips" and scene.physics.scheme not in ("none", "kinematic")
-            and iips.threshold == 0.0 and iips.beta == 0.0):
-        _warn(comm, f"psph: warning: iips.threshold = 0 (and no iips.beta): every IIPS call of this flow runs all "
-                    f"{iips.max_newton} iips.max_newton iterations, on past convergence, where round-off grows and the "
-                    "results differ between rank counts (thesis: 0.02 with a free surface, 0.08 in bounded flows, "
-                    "0.001 in Taylor-Green)")
+    if (scene.shifting.method == "iips" and scene.physics.scheme != "none" and iips.threshold == 0.0
+            and iips.beta == 0.0):  # time-dependent: a static run iterates to iips.max_newton by design
+        _warn(comm, f"psph: warning: iips.threshold = 0 (and no iips.beta): every IIPS call of this run iterates "
+                    f"until iips.max_newton = {iips.max_newton} (or a step without descent ends it), on past "
+                    "convergence, where round-off grows and the results differ between rank counts (thesis: 0.02 "
+                    "with a free surface, 0.08 in bounded flows, 0.001 in Taylor-Green)")
     kwargs = {"restart": restart} if restart else {}  # static runs write no checkpoints
     stop.install(comm)
     try:

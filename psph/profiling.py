@@ -62,33 +62,18 @@ def reset() -> None:
 
 def memory() -> tuple:
     """(resident, peak resident) bytes of this process: Linux's VmRSS and VmHWM, else (where /proc is
-    missing) the peak from getrusage for both."""
+    missing) the peak from getrusage for both, or 0 where neither is available."""
     try:
         with open("/proc/self/status") as status:
             fields = dict(line.split(":", 1) for line in status if line.startswith(("VmRSS", "VmHWM")))
         return tuple(1024 * int(fields[k].split()[0]) for k in ("VmRSS", "VmHWM"))
     except (OSError, KeyError, ValueError):
-        import resource
+        try:
+            import resource
+        except ImportError:  # neither (Windows): unknown
+            return 0, 0
         import sys
 
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * (1 if sys.platform == "darwin" else 1024)
         return peak, peak
 
-
-def reset_peak_memory() -> bool:
-    """Restart the peak (VmHWM) from the current resident size (Linux 4.0+, writing 5 to
-    /proc/self/clear_refs); first hands freed heap memory back to the system (glibc's malloc_trim), so that
-    the new peak counts what is allocated from now on. Returns whether the peak was reset."""
-    import ctypes
-    import ctypes.util
-
-    try:
-        ctypes.CDLL(ctypes.util.find_library("c")).malloc_trim(0)
-    except (OSError, AttributeError, TypeError):
-        pass
-    try:
-        with open("/proc/self/clear_refs", "w") as refs:
-            refs.write("5")
-        return True
-    except OSError:
-        return False

@@ -162,7 +162,8 @@ class Simulation:
             "steps": steps,
             "wall_time_s": time.perf_counter() - self.started,
             "neighbour_rebuilds": self.system.rebuilds,
-            # resident memory at its peak (profiling.memory): the largest rank's, and all ranks' together
+            # resident memory at its peak (profiling.memory): the largest rank's, and all ranks' summed (an
+            # upper bound: shared pages count on every rank, and the ranks peak at different moments)
             "peak_memory_mib": allreduce_max(self.comm, peak) / 2**20,
             "peak_memory_mib_total": allreduce_sum(self.comm, peak) / 2**20,
             "final": final,
@@ -181,21 +182,19 @@ AIJ_SPLIT_ENTRY_BYTES = 40  # the same on several ranks, whose build also splits
 FIELD_DOUBLES = {True: 64, False: 16}  # per local particle, fluid runs (fields, Runge-Kutta stages) or not
 
 
-def iips_assembled(scene, petsc_options=()) -> bool:
-    """Whether a run of `scene` with these PETSc command-line options builds the assembled IIPS matrix
-    (shifting.iips_operator.iips_operator decides the same from PETSc's options database at run time)."""
-    if scene.shifting.method != "iips":
-        return False
-    if scene.iips.operator != "auto":
-        return scene.iips.operator == "assembled"
-    options = list(petsc_options)
+def iips_runs(scene) -> bool:
+    """Whether a run of `scene` builds an IIPS operator: IIPS shifting, or the static pre-procedure."""
+    return scene.shifting.method == "iips" or scene.iips.pre_newton > 0
 
-    def value(name, default):
-        return options[options.index(name) + 1].lower() if name in options[:-1] else default
 
-    pc = value("-iips_pc_type", "jacobi")
-    jacobi = value("-iips_pc_jacobi_type", "diagonal")
-    return "-iips_mat_type" in options or pc not in ("jacobi", "none") or (pc == "jacobi" and jacobi != "diagonal")
+def iips_assembled(scene) -> bool:
+    """Whether a run of `scene` builds the assembled IIPS matrix, under PETSc's options as they stand (the
+    command line, PETSC_OPTIONS, options files: initialise PETSc with the run's options first), as the run
+    itself decides (psph.shifting.iips_operator.assembles)."""
+    from psph.shifting.iips import PREFIX
+    from psph.shifting.iips_operator import assembles
+
+    return iips_runs(scene) and assembles(scene.iips.operator, PREFIX)
 
 
 def estimate_resources(scene, ranks=1, assembled=False) -> tuple:
@@ -227,7 +226,7 @@ def estimate_resources(scene, ranks=1, assembled=False) -> tuple:
     halo = ((side + 2.0 * radius) / side) ** dim - 1.0
     fluid = scene.physics.scheme not in ("none", "kinematic")
     per_particle = 8 * FIELD_DOUBLES[fluid] * (1.0 + halo) + LIST_ENTRY_BYTES * ball(radius)
-    if scene.shifting.method == "iips":
+    if iips_runs(scene):
         if assembled:
             entry = AIJ_ENTRY_BYTES if ranks == 1 else AIJ_SPLIT_ENTRY_BYTES
             per_particle += entry * dim**2 * (ball(radius) + 1.0)
@@ -267,13 +266,16 @@ def machine_memory() -> int:
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
-def check_resources(scene, allow_large=False, ranks=1, petsc_options=()) -> None:
-    """Refuse (SceneError on domain.dx) a scene whose estimated memory on `ranks` ranks (estimate_resources)
-    exceeds 80% of this machine's."""
+def check_resources(scene, allow_large=False, ranks=1, node_ranks=None) -> None:
+    """Refuse (SceneError on domain.dx) a scene whose estimated memory (estimate_resources, with the IIPS
+    operator PETSc's options choose) exceeds 80% of this machine's: the share of `node_ranks` of the run's
+    `ranks` ranks (all of them if None; on a cluster, the ranks on this node)."""
     from psph.errors import SceneError
 
-    n, nbytes, _ = estimate_resources(scene, ranks, iips_assembled(scene, petsc_options))
-    limit = 0.8 * machine_memory()
-    if nbytes > limit and not allow_large:
-        raise SceneError("domain.dx", f"{n} particles need about {nbytes / 2**30:.3g} GiB, more than 80% of "
+    n, nbytes, _ = estimate_resources(scene, ranks, iips_assembled(scene))
+    here = ranks if node_ranks is None else node_ranks
+    need = (nbytes - ranks * BASE_BYTES) * here / ranks + here * BASE_BYTES
+    on = "" if here == ranks else f" on this machine ({here} of the run's {ranks} ranks)"
+    if need > 0.8 * machine_memory() and not allow_large:
+        raise SceneError("domain.dx", f"{n} particles need about {need / 2**30:.3g} GiB{on}, more than 80% of "
                          f"this machine's {machine_memory() / 2**30:.3g} GiB (run with --allow-large to try anyway)")

@@ -63,6 +63,8 @@ NUDGE = 1e-3
 DIVERGENCE_FLOOR = 1e-6
 
 
+PREFIX = "iips_"  # the options prefix of the IIPS solver and matrix
+
 class ImplicitShifting(Shifting):
     name = "iips"
 
@@ -74,7 +76,7 @@ class ImplicitShifting(Shifting):
         self.spec = spec
         self.volume = volume
         self.surface = NoFreeSurface() if surface is None else surface
-        self.solver = LinearSolver(comm, "iips_", ksp_type="bcgs", pc_type="jacobi", rtol=1e-2,
+        self.solver = LinearSolver(comm, PREFIX, ksp_type="bcgs", pc_type="jacobi", rtol=1e-2,
                                    initial_guess_nonzero=True)
         self.operator = iips_operator(spec.operator, self.solver)
         # -iips_ksp_initial_guess_nonzero (default on): start a call's first solve from the stored guess. The

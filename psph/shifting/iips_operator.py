@@ -172,6 +172,28 @@ class _PythonMatrix:
 OPERATORS = {"assembled": AssembledOperator, "matrix_free": MatrixFreeOperator}
 
 
+def assembly_needed(prefix, pc=None):
+    """What, in PETSc's options database (the command line, PETSC_OPTIONS, options files), asks for entries
+    the matrix-free operator does not have, as the options to name (None: nothing). pc: the preconditioner's
+    type of a set-up solver; without one, -<prefix>pc_type, or Jacobi, psph's default."""
+    options = petsc().Options()
+    if pc is None:
+        pc = options.getString(f"{prefix}pc_type", "jacobi").lower()
+    jacobi = options.getString(f"{prefix}pc_jacobi_type", "diagonal").lower()
+    if pc not in MATRIX_FREE_PCS:
+        return f"-{prefix}pc_type {pc}"
+    if pc == "jacobi" and jacobi != "diagonal":
+        return f"-{prefix}pc_type jacobi -{prefix}pc_jacobi_type {jacobi}"
+    return None
+
+
+def assembles(kind, prefix, pc=None) -> bool:
+    """Whether iips.operator `kind` resolves to the assembled matrix under PETSc's options (iips_operator)."""
+    if kind == "auto":
+        return assembly_needed(prefix, pc) is not None or petsc().Options().hasName(f"{prefix}mat_type")
+    return kind == "assembled"
+
+
 def iips_operator(kind, solver):
     """The operator `kind` (iips.operator) for `solver` (a LinearSolver). "auto" is matrix-free where the
     preconditioner needs only the operator's diagonal (`-iips_pc_type jacobi` on the diagonal, or none) and no
@@ -180,18 +202,11 @@ def iips_operator(kind, solver):
     prefix = solver.prefix
     options = petsc().Options()
     pc = solver.ksp.getPC().getType()
-    jacobi = options.getString(f"{prefix}pc_jacobi_type", "diagonal").lower()
-    needs = None
-    if pc not in MATRIX_FREE_PCS:
-        needs = f"-{prefix}pc_type {pc}"
-    elif pc == "jacobi" and jacobi != "diagonal":
-        needs = f"-{prefix}pc_type jacobi -{prefix}pc_jacobi_type {jacobi}"
-    if kind == "auto":
-        kind = "matrix_free" if needs is None and not options.hasName(f"{prefix}mat_type") else "assembled"
-    elif kind == "matrix_free" and needs is not None:
+    needs = assembly_needed(prefix, pc)
+    if kind == "matrix_free" and needs is not None:
         raise UsageError(f"{needs}: iips.operator = \"matrix_free\" provides no entries but the diagonal; "
                          f"use -{prefix}pc_type jacobi or none, or iips.operator = \"assembled\"")
-    elif kind == "matrix_free" and options.hasName(f"{prefix}mat_type"):
+    if kind == "matrix_free" and options.hasName(f"{prefix}mat_type"):
         raise UsageError(f"-{prefix}mat_type {options.getString(f'{prefix}mat_type', '')}: iips.operator = "
                          "\"matrix_free\" builds no matrix; drop the option, or use iips.operator = \"assembled\"")
-    return OPERATORS[kind](prefix)
+    return OPERATORS["assembled" if assembles(kind, prefix, pc) else "matrix_free"](prefix)
