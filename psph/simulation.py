@@ -180,6 +180,7 @@ LIST_ENTRY_BYTES = 40  # per neighbour-list entry: its index (8), the search's w
 AIJ_ENTRY_BYTES = 30  # per assembled-matrix nonzero: value and column (12), its slot (4), the build's copies
 AIJ_SPLIT_ENTRY_BYTES = 40  # the same on several ranks, whose build also splits the pattern into two blocks
 FIELD_DOUBLES = {True: 64, False: 16}  # per local particle, fluid runs (fields, Runge-Kutta stages) or not
+WALLS_FACTOR = 1.5  # per lattice point with bodies: their solid particles, solid fields and clone terms
 
 
 def iips_runs(scene) -> bool:
@@ -206,8 +207,10 @@ def estimate_resources(scene, ranks=1, assembled=False) -> tuple:
     neighbour list (LIST_ENTRY_BYTES per entry, the neighbours within the support and the skin); with
     IIPS the matrix-free operator's pairs (half the support's neighbours, d (d + 1) / 2 doubles and a
     4-byte column each) and vectors, or the assembled matrix's d^2 entries per list entry and its own
-    d^2 (AIJ_ENTRY_BYTES each, AIJ_SPLIT_ENTRY_BYTES on several ranks). The constants make it an upper
-    estimate, within 1.5 times of the peaks run_scripts/bench_memory.py measures.
+    d^2 (AIJ_ENTRY_BYTES each, AIJ_SPLIT_ENTRY_BYTES on several ranks); with bodies the particle's part
+    times WALLS_FACTOR. The particles are the domain's lattice points (a scene whose fluid fills part of
+    its domain is overestimated). The constants make it an upper estimate, within 1.5 times of the peaks
+    run_scripts/bench_memory.py measures (1.63 in the dam break, whose lattice includes the air).
     """
     import math
 
@@ -226,6 +229,8 @@ def estimate_resources(scene, ranks=1, assembled=False) -> tuple:
     halo = ((side + 2.0 * radius) / side) ** dim - 1.0
     fluid = scene.physics.scheme not in ("none", "kinematic")
     per_particle = 8 * FIELD_DOUBLES[fluid] * (1.0 + halo) + LIST_ENTRY_BYTES * ball(radius)
+    if scene.bodies:
+        per_particle *= WALLS_FACTOR
     if iips_runs(scene):
         if assembled:
             entry = AIJ_ENTRY_BYTES if ranks == 1 else AIJ_SPLIT_ENTRY_BYTES

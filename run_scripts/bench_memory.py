@@ -31,6 +31,12 @@ CASES = {
     "tgv": ("taylor_green", FLOW, (1 / 200, 1 / 400)),
     "tgv_riemann": ("taylor_green", FLOW + ["physics.scheme=riemann_ale"], (1 / 200, 1 / 400)),
     "tgv_iips": ("taylor_green", FLOW[:2] + ["iips.update=mls2", "shifting.method=iips"], (1 / 200, 1 / 400)),
+    # walls and bodies, each with its own shifting: IIPS + NFTS in the cavity and the moving square (Procedure
+    # A, so that it runs within these few steps), delta+ in the dam break and the jet
+    "cavity": ("lid_driven_cavity", FLOW[:2] + ["iips.procedure=A"], (0.01, 0.005)),
+    "dam_break": ("dam_break", FLOW[:2], (0.05, 0.025)),
+    "moving_square": ("moving_square", FLOW[:2] + ["iips.procedure=A"], (0.05, 0.025)),
+    "impinging_jet": ("impinging_jet", FLOW[:2], (0.1, 0.05)),
 }
 TARGET = (1.0, 1.5)
 
