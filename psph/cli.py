@@ -214,7 +214,7 @@ def cmd_run(args, petsc_options, comm) -> int:
     from psph.drivers import driver_for
     from psph.io.checkpoint import results_after
     from psph.io.files import holds_results
-    from psph.simulation import check_resources
+    from psph.simulation import check_resources, iips_runs
     from psph.solvers.petsc import initialize
 
     scene, restart = _scene_and_restart(args, comm)
@@ -239,7 +239,7 @@ def cmd_run(args, petsc_options, comm) -> int:
                              f"(step {state['step']}): {', '.join(os.path.basename(p) for p in final)}; continuing "
                              "there replaces them: pass --overwrite to do so, or choose another --out")
         later = final + later
-    if scene.shifting.method == "iips" or scene.iips.pre_newton > 0:
+    if iips_runs(scene):
         from psph.shifting.iips import ImplicitShifting
 
         shifting = ImplicitShifting(scene.iips, comm)  # a bad -iips_ option stops the run before --overwrite clears
