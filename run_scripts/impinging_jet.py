@@ -15,7 +15,8 @@ averages over t U/H in [--average-from, --t-end] of the history's rows and of OU
     profile   RMS over |x| <= 2 H of the time-averaged wall pressure minus Taylor's (psph.analytic)
     force     cl = 2 F_y / (rho0 U^2 2 H) on the plate, pressure plus viscous (-2: the jet's momentum flux)
 IIPS runs as the thesis runs it with a free surface (section 10.2.2): Procedure A, threshold
-Linf(grad C) = 0.02, the MLS II field update; iips_backtrack the same with iips.backtrack = 1 (a Newton step
+Linf(grad C) = 0.02, the MLS II field update, full steps and no bound on what a stalled call keeps (the
+scene's iips.stall_max_shift = 0.5 set back to 0); iips_backtrack the same with iips.backtrack = 1 (a Newton step
 that raises L2(grad C) is halved, then undone, ending the call); iips_capped the same as iips with
 iips.stall_max_shift = 0.5 (a stalled call keeps its best iterate among those that move no particle farther
 than 0.5 h = 1 dx). A run that stops is reported in the table with psph's message.
@@ -36,7 +37,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 from psph.analytic import impinging_jet_wall  # noqa: E402
 from psph.studies import CASES, NotRun, command_line, parse_args, plot_histories, run_scene, write_table  # noqa: E402
 
-IIPS = ["shifting.method=iips", "iips.procedure=A", "iips.threshold=0.02", "iips.update=mls2"]
+IIPS = ["shifting.method=iips", "iips.procedure=A", "iips.threshold=0.02", "iips.update=mls2",
+        "iips.stall_max_shift=0"]
 METHODS = {"none": ["shifting.method=none"], "delta_plus": ["shifting.method=delta_plus"],
            "skillen": ["shifting.method=skillen"], "iips": IIPS, "iips_backtrack": [*IIPS, "iips.backtrack=1"],
            "iips_capped": [*IIPS, "iips.stall_max_shift=0.5"]}
