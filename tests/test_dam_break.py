@@ -22,7 +22,8 @@ def test_the_release_averages_to_the_incompressible_initial_pressure(tmp_path):
     is 5 times further off. run_scripts/dam_break.py measures it at more resolutions and sound speeds."""
     scene = load_scene(CASES / "dam_break.toml", ["domain.dx=0.05", "physics.sound_speed=40", "time.t_end=0.2",
                                                    "output.every=0", "output.history_every=1", DAM_BREAK_PROBES])
-    FluidDriver(scene, MPI.COMM_SELF, tmp_path).run()
+    with FluidDriver(scene, MPI.COMM_SELF, tmp_path) as driver:
+        driver.run()
     error, start, swing = release_pressure_errors(tmp_path)
     rms, start_rms = np.sqrt(np.mean(error**2)), np.sqrt(np.mean(start**2))
     assert rms < 0.025 and start_rms > 5.0 * rms, (rms, start_rms)
@@ -36,7 +37,8 @@ def test_the_surge_runs_behind_ritter_and_keeps_its_mass(tmp_path):
     (the collapse releases potential energy that the artificial viscosity and the diffusive terms dissipate)."""
     scene = load_scene(CASES / "dam_break.toml", ["domain.dx=0.1", "time.t_end=1.6", "output.every=0",
                                                    "output.history_every=10"])
-    FluidDriver(scene, MPI.COMM_SELF, tmp_path).run()
+    with FluidDriver(scene, MPI.COMM_SELF, tmp_path) as driver:
+        driver.run()
     rows = read_history(tmp_path / "history.csv")
     t = np.array([r["time"] for r in rows])
     front = np.array([r["front_x"] for r in rows])
@@ -70,7 +72,8 @@ def test_the_film_on_the_right_wall_is_not_shifted_through_it(tmp_path):
     solid rows of the domain's lattice, boundaries.extended_lattice)."""
     scene = load_scene(CASES / "dam_break.toml", ["domain.dx=0.1", "time.t_end=5.5", "output.every=0",
                                                    "output.history_every=100"])
-    FluidDriver(scene, MPI.COMM_SELF, tmp_path).run()
+    with FluidDriver(scene, MPI.COMM_SELF, tmp_path) as driver:
+        driver.run()
     rows = read_history(tmp_path / "history.csv")
     assert rows[-1]["wall_reflections"] == 0
     # the fluid's nearest approach to a solid particle: dx on the lattice at t = 0 (the first rows dx/2 either
@@ -88,7 +91,8 @@ def test_dam_break_matches_serial(comm, mpi_tmp_path):
     results = {}
     for name, c in (("par", comm), ("ser", MPI.COMM_SELF)):
         out = mpi_tmp_path / f"{name}{comm.rank if name == 'ser' else ''}"
-        FluidDriver(scene, c, out).run()
+        with FluidDriver(scene, c, out) as driver:
+            driver.run()
         c.Barrier()
         history = read_history(out / "history.csv")
         results[name] = [np.array([[r[k] for k in ("front_x", "column_height", "kinetic_energy",

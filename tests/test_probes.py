@@ -22,7 +22,8 @@ def test_probes_read_the_hydrostatic_pressure_and_nan_in_the_air(tmp_path):
     """Water at rest, H = 1, g = rho0 = 1: p = 1 - y at the wet probes, no velocity, nan more than a kernel
     support (0.2) above the surface."""
     scene = load_scene(CASES / "hydrostatic_tank.toml", [*TANK, "time.t_end=0.5"])
-    FluidDriver(scene, MPI.COMM_SELF, tmp_path).run()
+    with FluidDriver(scene, MPI.COMM_SELF, tmp_path) as driver:
+        driver.run()
     rows = read_history(tmp_path / "probes.csv")
     assert len(rows) == len(read_history(tmp_path / "history.csv")) > 5
     assert list(rows[0]) == ["time"] + [f"{q}_{k}" for k in range(4) for q in "puv"]
@@ -46,7 +47,8 @@ def test_bad_probes_are_refused_by_key(sets, key, words):
 
 def test_a_restart_continues_probes_csv(tmp_path):
     scene = load_scene(CASES / "hydrostatic_tank.toml", [*TANK, "time.t_end=0.3", "output.checkpoint_every=70"])
-    FluidDriver(scene, MPI.COMM_SELF, tmp_path / "whole").run()
+    with FluidDriver(scene, MPI.COMM_SELF, tmp_path / "whole") as driver:
+        driver.run()
     shutil.copytree(tmp_path / "whole", tmp_path / "again")
     checkpoint = latest_checkpoint(tmp_path / "again")
     again = FluidDriver(scene, MPI.COMM_SELF, tmp_path / "again", restart=read_checkpoint(MPI.COMM_SELF, checkpoint))
@@ -61,7 +63,8 @@ def test_probes_match_serial(comm, mpi_tmp_path):
     readings = {}
     for name, c in (("par", comm), ("ser", MPI.COMM_SELF)):
         out = mpi_tmp_path / f"{name}{comm.rank if name == 'ser' else ''}"
-        FluidDriver(scene, c, out).run()
+        with FluidDriver(scene, c, out) as driver:
+            driver.run()
         c.Barrier()
         readings[name] = np.array([list(r.values()) for r in read_history(out / "probes.csv")])
     par, ser = readings["par"], readings["ser"]

@@ -235,7 +235,8 @@ def test_a_run_replaces_only_its_own_checkpoints(tmp_path):
                            physics={"scheme": "delta_ale", "reynolds": 100.0, "sound_speed": 10.0},
                            shifting={"method": "none"}, output={"checkpoint_every": 5})
     (tmp_path / "checkpoint_000007.h5").write_text("someone else's")
-    FluidDriver(scene, MPI.COMM_SELF, tmp_path).run()
+    with FluidDriver(scene, MPI.COMM_SELF, tmp_path) as driver:
+        driver.run()
     assert sorted(p.name for p in tmp_path.glob("checkpoint_*")) == ["checkpoint_000007.h5", CHECKPOINT]
     assert (tmp_path / "checkpoint_000007.h5").read_text() == "someone else's"
 
