@@ -176,7 +176,7 @@ class Simulation:
 # Memory model of estimate_resources, its constants from the peaks runs reach (summary.json's peak_memory_mib;
 # run_scripts/bench_memory.py prints the model against them)
 BASE_BYTES = 256 * 2**20  # per rank before any particle: Python, numpy, numba's kernels, PETSc, MPI, h5py
-LIST_ENTRY_BYTES = 40  # per neighbour-list entry: its index (8), the search's work copies, pair caches
+LIST_ENTRY_BYTES = 40  # per neighbour-list entry: its index (4), the search's work copies, pair caches
 AIJ_ENTRY_BYTES = 30  # per assembled-matrix nonzero: value and column (12), its slot (4), the build's copies
 AIJ_SPLIT_ENTRY_BYTES = 40  # the same on several ranks, whose build also splits the pattern into two blocks
 FIELD_DOUBLES = {True: 64, False: 16}  # per local particle, fluid runs (fields, Runge-Kutta stages) or not
@@ -210,7 +210,8 @@ def estimate_resources(scene, ranks=1, assembled=False) -> tuple:
     d^2 (AIJ_ENTRY_BYTES each, AIJ_SPLIT_ENTRY_BYTES on several ranks); with bodies the particle's part
     times WALLS_FACTOR. The particles are the domain's lattice points (a scene whose fluid fills part of
     its domain is overestimated). The constants make it an upper estimate, within 1.5 times of the peaks
-    run_scripts/bench_memory.py measures (1.63 in the dam break, whose lattice includes the air).
+    run_scripts/bench_memory.py measures (1.63 in the dam break, whose lattice includes the air; 1.60-1.73
+    for 2-D runs of 160 000 particles, kept so that 3-D runs stay above their peaks).
     """
     import math
 

@@ -51,7 +51,7 @@ class ParticleSystem:
         self.decomposition = decomposition
         self.pattern = None
         self.nbr_ptr = np.zeros(1, dtype=np.int64)
-        self.nbr_idx = np.zeros(0, dtype=np.int64)
+        self.nbr_idx = np.zeros(0, dtype=np.int32)
         self.rebuilds = 0
         self._reference = None
         self.where = {}  # the driver's step and time, for the reports of check_escaped

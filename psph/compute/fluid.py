@@ -209,7 +209,7 @@ class PairCache:
 
     def __init__(self):
         self.ptr = np.zeros(1, dtype=np.int64)
-        self.idx = np.zeros(0, dtype=np.int64)
+        self.idx = np.zeros(0, dtype=np.int32)
         self.f = np.zeros(0)
 
     def fit(self, ptr, idx):
@@ -217,7 +217,7 @@ class PairCache:
         if self.ptr.size != ptr.size:
             self.ptr = np.zeros(ptr.size, dtype=np.int64)
         if self.idx.size < idx.size:
-            self.idx = np.empty(idx.size, dtype=np.int64)
+            self.idx = np.empty(idx.size, dtype=np.int32)
             self.f = np.empty(idx.size)
         return self
 

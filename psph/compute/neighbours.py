@@ -132,7 +132,7 @@ def _scan(query, n_rows, sorted_pos, members, start, qcell, ncell, reach, r2max,
         if rows_in[c]:
             lo0, hi0, lo1, hi1, lo2, hi2 = _stencil(c, ncell, reach)
             bound += rows_in[c] * _candidates(start, ncell, lo0, hi0, lo1, hi1, lo2, hi2)
-    idx = np.empty(int(min(expected, bound)) + 1, dtype=np.int64)
+    idx = np.empty(int(min(expected, bound)) + 1, dtype=np.int32)
     ptr = np.zeros(n_rows + 1, dtype=np.int64)
     out = 0
     x = np.zeros(3)
@@ -140,7 +140,7 @@ def _scan(query, n_rows, sorted_pos, members, start, qcell, ncell, reach, r2max,
         lo0, hi0, lo1, hi1, lo2, hi2 = _stencil(qcell[i], ncell, reach)
         candidates = _candidates(start, ncell, lo0, hi0, lo1, hi1, lo2, hi2)
         if out + candidates >= idx.size:
-            grown = np.empty(max(out + candidates + 1, idx.size + idx.size // 2), dtype=np.int64)
+            grown = np.empty(max(out + candidates + 1, idx.size + idx.size // 2), dtype=np.int32)
             grown[:out] = idx[:out]
             idx = grown
         for a in range(query.shape[1]):
@@ -162,6 +162,10 @@ def _scan(query, n_rows, sorted_pos, members, start, qcell, ncell, reach, r2max,
     return ptr, idx[:out]
 
 
+# the lists' indices are int32 (half the memory of int64; the search, the fluid's pair cache and the IIPS
+# operator read them): a rank holds fewer particles, halo included
+INDEX_LIMIT = 2**31 - 1
+
 # Volume of the unit ball in 1-3 D (the first guess of a list's length)
 _BALL = (2.0, np.pi, 4.0 / 3.0 * np.pi)
 
@@ -172,6 +176,8 @@ def _lists(query, n_rows, data, radius, exclude_self):
     order; with exclude_self, query i is data i and is left out of its own row."""
     if not radius > 0.0:
         raise ValueError("the neighbour-list radius must be positive")
+    if data.shape[0] > INDEX_LIMIT:
+        raise ValueError("more local particles than 32-bit neighbour indices address")
     d = data.shape[1]
     lo, ncell, size = _cell_grid(np.concatenate((data, query[:n_rows])),
                                  radius / _CELLS_PER_RADIUS * (1.0 + 4.0 * _MARGIN))
@@ -195,7 +201,7 @@ def build_neighbour_lists(pos, n_rows, radius):
     """CSR neighbour lists (ptr, idx) of rows 0..n_rows-1 over all particles in `pos`.
 
     pos: (n, d) positions of owned then halo particles; radius: list radius (support + skin).
-    Returns ptr (n_rows + 1,) and idx (ptr[-1],) int64 (a view of a buffer at most a quarter longer); row i is
+    Returns ptr (n_rows + 1,) int64 and idx (ptr[-1],) int32 (a view of a buffer at most a quarter longer); row i is
     idx[ptr[i]:ptr[i+1]], ascending in cell order, j != i.
     """
     return _lists(pos, n_rows, pos, radius, True)
