@@ -177,7 +177,7 @@ class Simulation:
 # run_scripts/bench_memory.py prints the model against them)
 BASE_BYTES = 256 * 2**20  # per rank before any particle: Python, numpy, numba's kernels, PETSc, MPI, h5py
 LIST_ENTRY_BYTES = 40  # per neighbour-list entry: its index (4), the search's work copies, pair caches
-AIJ_ENTRY_BYTES = 30  # per assembled-matrix nonzero: value and column (12), its slot (4), the build's copies
+AIJ_ENTRY_BYTES = 20  # per assembled-matrix nonzero: value and column (12), its slot (4), the build's copies
 AIJ_SPLIT_ENTRY_BYTES = 40  # the same on several ranks, whose build also splits the pattern into two blocks
 FIELD_DOUBLES = {True: 64, False: 16}  # per local particle, fluid runs (fields, Runge-Kutta stages) or not
 WALLS_FACTOR = 1.5  # per lattice point with bodies: their solid particles, solid fields and clone terms

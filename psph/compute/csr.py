@@ -43,7 +43,7 @@ def split_csr(indptr, indices, col_start, col_end):
         di[r + 1] = di[r] + inside
         oi[r + 1] = oi[r] + indptr[r + 1] - indptr[r] - inside
     block = np.empty(indices.size, dtype=np.int8)
-    where = np.empty(indices.size, dtype=np.int64)
+    where = np.empty(indices.size, dtype=np.int32)  # positions within a block, which fit (see split_positions)
     block_positions(indptr, indices, col_start, col_end, di, oi, block, where)
     dj = np.empty(di[n], dtype=np.int32)
     oj = np.empty(oi[n], dtype=np.int32)
@@ -61,7 +61,9 @@ def split_positions(indptr, indices, col_start, col_end, ia_d, ia_o, slot, where
     PETSc reports (ia_d, ia_o), coded as `add_at` reads it (p: diagonal block, -1 - p: off-diagonal block).
     Returns False if they disagree with the CSR (then the caller uses the generic path)."""
     block = np.empty(indices.size, dtype=np.int8)
-    position = np.empty(indices.size, dtype=np.int64)
+    # int32, as the codes: the caller's pattern has fewer than 2^31 values (compute.iips.iips_structure checks),
+    # and int64 here made the largest transient of a distributed matrix's build (25 bytes per nonzero at the peak)
+    position = np.empty(indices.size, dtype=np.int32)
     if not block_positions(indptr, indices, col_start, col_end, ia_d, ia_o, block, position):
         return False
     for e in range(slot.size):

@@ -130,6 +130,13 @@ class LinearSolver:
             self.ksp.setOperators(mat)
         self.operator_sizes = mat.getSizes()
 
+    def release_operator(self) -> None:
+        """Drop the solver's hold on its operator and what its set-up built from it (KSPReset: work vectors,
+        the preconditioner's data; the types, tolerances and options stay), so that an operator about to be
+        replaced is freed before its successor is built rather than after. Collective."""
+        with petsc_errors(f"resetting the -{self.prefix} solver"):
+            self.ksp.reset()
+
     def solve(self, b, x, trial=False) -> int:
         """Solve operator x = b (x holds the initial guess); returns iterations or raises SolverError. trial:
         the trial solve (see trial()), where an option's error is the options' and so every rank's."""
