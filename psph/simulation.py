@@ -210,7 +210,7 @@ def estimate_resources(scene, ranks=1, assembled=False) -> tuple:
     d^2 (AIJ_ENTRY_BYTES each, AIJ_SPLIT_ENTRY_BYTES on several ranks); with bodies the particle's part
     times WALLS_FACTOR. The particles are the domain's lattice points (a scene whose fluid fills part of
     its domain is overestimated). The constants make it an upper estimate, within 1.5 times of the peaks
-    run_scripts/bench_memory.py measures (1.63 in the dam break, whose lattice includes the air; 1.60-1.73
+    run_scripts/bench_memory.py measures (1.63 in the dam break, whose lattice includes the air; 1.61-1.77
     for 2-D runs of 160 000 particles, kept so that 3-D runs stay above their peaks).
     """
     import math

@@ -74,7 +74,7 @@ def test_the_estimate_counts_an_iips_pre_procedure_and_nothing_without_iips():
 def test_a_rebuilt_iips_matrix_is_freed_before_its_successor_is_built(monkeypatch):
     """After a neighbour-list rebuild the assembled matrix of the last structure, which the solver used, is
     gone (its arrays freed) before the new one is built: the KSP held it through the build, so two matrices
-    shared the peak (static IIPS at 160 000 particles in 2-D, one rank: 1531 MiB instead of 1083)."""
+    shared the peak (static IIPS at 160 000 particles in 2-D, one rank: 1536 MiB instead of 1083)."""
     import weakref
 
     from psph.simulation import build_system

@@ -112,8 +112,8 @@ class ImplicitShifting(Shifting):
         free = self.surface.unknowns(system)
         with phase("iips_structure"):
             # the previous vectors and operator first, the solver's hold on it included: their memory can serve
-            # the new ones (an assembled matrix the KSP still held stayed alive through the build: 1531 MiB
-            # peak for 160 000 particles in 2-D instead of 1000)
+            # the new ones (an assembled matrix the KSP still held stayed alive through the build: 1536 MiB
+            # peak for 160 000 particles in 2-D, one rank, instead of 1083)
             self._free_vectors()
             self.operator.build(system, free)
         self.mat = self.operator.mat

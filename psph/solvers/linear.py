@@ -115,27 +115,32 @@ class LinearSolver:
 
     def set_operator(self, mat) -> None:
         """Use `mat` from now on. A matrix of another size (after a neighbour-list rebuild) gets a fresh
-        KSP: some preconditioners (GAMG) cannot be reset to new sizes. The new KSP keeps the old one's
-        types and tolerances (options set only while the solver was built, as a program or test may do,
-        are gone from the database by then). Collective: the local sizes may change on some ranks only,
-        and creating a KSP is collective, so the ranks decide together."""
+        KSP (_renew): some preconditioners (GAMG) cannot be reset to new sizes. Collective: the local sizes
+        may change on some ranks only, and creating a KSP is collective, so the ranks decide together."""
         changed = self.operator_sizes is not None and self.operator_sizes != mat.getSizes()
         if self.comm.allreduce(changed, op=MPI.LOR):
-            rtol, atol, _, max_it = self.ksp.getTolerances()
-            settings = dict(ksp_type=self.ksp.getType(), pc_type=self.ksp.getPC().getType(), rtol=rtol,
-                            atol=atol, max_it=max_it, initial_guess_nonzero=self.ksp.getInitialGuessNonzero())
-            self.ksp.destroy()
-            self.ksp = self._create(settings)
+            self._renew()
         with petsc_errors(f"setting up the -{self.prefix} solver"):
             self.ksp.setOperators(mat)
         self.operator_sizes = mat.getSizes()
 
     def release_operator(self) -> None:
-        """Drop the solver's hold on its operator and what its set-up built from it (KSPReset: work vectors,
-        the preconditioner's data; the types, tolerances and options stay), so that an operator about to be
-        replaced is freed before its successor is built rather than after. Collective."""
-        with petsc_errors(f"resetting the -{self.prefix} solver"):
-            self.ksp.reset()
+        """Let go of the operator and of what the set-up built from it, so that an operator about to be
+        replaced is freed before its successor is built rather than after: a fresh KSP (_renew; KSPReset
+        would also drop the viewers of -<prefix>ksp_view and the like, and -<prefix>ksp_converged_rate then
+        crashes the next solve). The next set_operator takes any size. Collective."""
+        self._renew()
+        self.operator_sizes = None
+
+    def _renew(self) -> None:
+        """Replace the KSP by a fresh one of its types and tolerances (options set only while the solver was
+        built, as a program or test may do, are gone from the database by then), and the options database's.
+        Collective."""
+        rtol, atol, _, max_it = self.ksp.getTolerances()
+        settings = dict(ksp_type=self.ksp.getType(), pc_type=self.ksp.getPC().getType(), rtol=rtol,
+                        atol=atol, max_it=max_it, initial_guess_nonzero=self.ksp.getInitialGuessNonzero())
+        self.ksp.destroy()
+        self.ksp = self._create(settings)
 
     def solve(self, b, x, trial=False) -> int:
         """Solve operator x = b (x holds the initial guess); returns iterations or raises SolverError. trial:
