@@ -176,9 +176,9 @@ class Simulation:
 # Memory model of estimate_resources, its constants from the peaks runs reach (summary.json's peak_memory_mib;
 # run_scripts/bench_memory.py prints the model against them)
 BASE_BYTES = 256 * 2**20  # per rank before any particle: Python, numpy, numba's kernels, PETSc, MPI, h5py
-LIST_ENTRY_BYTES = 40  # per neighbour-list entry: its index (4), the search's work copies, pair caches
-AIJ_ENTRY_BYTES = 20  # per assembled-matrix nonzero: value and column (12), its slot (4), the build's copies
-AIJ_SPLIT_ENTRY_BYTES = 40  # the same on several ranks, whose build also splits the pattern into two blocks
+LIST_ENTRY_BYTES = 20  # per neighbour-list entry: its index (4), the search's work copies, pair caches
+AIJ_ENTRY_BYTES = 18  # per assembled-matrix nonzero: value and column (12), its slot (4), the build's copies
+AIJ_SPLIT_ENTRY_BYTES = 30  # the same on several ranks, whose build also splits the pattern into two blocks
 FIELD_DOUBLES = {True: 64, False: 16}  # per local particle, fluid runs (fields, Runge-Kutta stages) or not
 WALLS_FACTOR = 1.5  # per lattice point with bodies: their solid particles, solid fields and clone terms
 
@@ -209,9 +209,8 @@ def estimate_resources(scene, ranks=1, assembled=False) -> tuple:
     4-byte column each) and vectors, or the assembled matrix's d^2 entries per list entry and its own
     d^2 (AIJ_ENTRY_BYTES each, AIJ_SPLIT_ENTRY_BYTES on several ranks); with bodies the particle's part
     times WALLS_FACTOR. The particles are the domain's lattice points (a scene whose fluid fills part of
-    its domain is overestimated). The constants make it an upper estimate, within 1.5 times of the peaks
-    run_scripts/bench_memory.py measures (1.63 in the dam break, whose lattice includes the air; 1.61-1.77
-    for 2-D runs of 160 000 particles, kept so that 3-D runs stay above their peaks).
+    its domain is overestimated). The constants make it an upper estimate, 1.06-1.45 times the peaks
+    run_scripts/bench_memory.py measures (48 runs: 12 cases, 2-D and 3-D, 1 and 2 ranks).
     """
     import math
 

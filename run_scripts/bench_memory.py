@@ -31,6 +31,8 @@ CASES = {
     "tgv": ("taylor_green", FLOW, (1 / 200, 1 / 400)),
     "tgv_riemann": ("taylor_green", FLOW + ["physics.scheme=riemann_ale"], (1 / 200, 1 / 400)),
     "tgv_iips": ("taylor_green", FLOW[:2] + ["iips.update=mls2", "shifting.method=iips"], (1 / 200, 1 / 400)),
+    # a 3-D delta-ALE flow (the fluid at rest in the periodic cube: the memory is the flow's whatever it does)
+    "flow_3d": ("taylor_green", D3 + FLOW + ["initial.velocity=zero"], (1 / 32, 1 / 40)),
     # walls and bodies, each with its own shifting: IIPS + NFTS in the cavity and the moving square (Procedure
     # A, so that it runs within these few steps), delta+ in the dam break and the jet
     "cavity": ("lid_driven_cavity", FLOW[:2] + ["iips.procedure=A"], (0.01, 0.005)),

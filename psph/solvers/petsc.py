@@ -50,9 +50,38 @@ def initialize(options=()) -> None:
         petsc4py.init(argv)
         _state["argv"] = argv
         _ignore_sigpipe()
+        release_freed_memory()
         atexit.register(_destroy_live)
     elif _state["argv"] != argv:
         raise RuntimeError("PETSc is already initialised with other options")
+
+
+# glibc's mallopt parameters
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD, M_MMAP_MAX = -1, -3, -4
+MMAP_THRESHOLD = 32 * 2**20  # the largest threshold glibc's own dynamic rule reaches on 64-bit machines
+TRIM_THRESHOLD = 64 * 2**20
+
+
+def release_freed_memory() -> bool:
+    """Let glibc give freed memory back to the system again, after PETSc's libraries were loaded; returns
+    whether it could (False without glibc).
+
+    Debian's PETSc links SuperLU_DIST, whose library constructor calls mallopt(M_MMAP_MAX, 0) and
+    mallopt(M_TRIM_THRESHOLD, -1) (found with gdb, `break mallopt`, while petsc4py loads): from then on
+    every allocation of the process comes from the heap and nothing freed is returned, so the resident size
+    only grows, and a large array that replaces a slightly smaller one cannot reuse its place (a 3-D static
+    IIPS run of 64 000 particles kept the pair storage of its first Newton iteration, 380 MiB, beside the
+    second's). Blocks of MMAP_THRESHOLD and more are mapped on their own again, and given back when freed;
+    the heap is trimmed when TRIM_THRESHOLD is free at its top. Calling mallopt at all turns glibc's
+    dynamic thresholds off, which SuperLU_DIST's calls have already done."""
+    import ctypes
+    import platform
+
+    if platform.libc_ver()[0] != "glibc":
+        return False
+    mallopt = ctypes.CDLL(None).mallopt
+    return all(mallopt(param, value) == 1 for param, value in (
+        (M_MMAP_THRESHOLD, MMAP_THRESHOLD), (M_MMAP_MAX, 65536), (M_TRIM_THRESHOLD, TRIM_THRESHOLD)))
 
 
 def _ignore_sigpipe() -> None:
