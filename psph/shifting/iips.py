@@ -61,9 +61,8 @@ COINCIDENT = 1e-6
 NUDGE = 1e-3
 # Linf(grad C) below this is round-off (a perfect lattice gives ~1e-14): growth from there is not divergence
 DIVERGENCE_FLOOR = 1e-6
-
-
 PREFIX = "iips_"  # the options prefix of the IIPS solver and matrix
+
 
 class ImplicitShifting(Shifting):
     name = "iips"
@@ -114,7 +113,7 @@ class ImplicitShifting(Shifting):
             # the previous vectors and operator first, the solver's hold on it included: their memory can serve
             # the new ones (an assembled matrix the KSP still held stayed alive through the build: 1536 MiB
             # peak for 160 000 particles in 2-D, one rank, instead of 1083)
-            self._free_vectors()
+            self._free_structure()
             self.operator.build(system, free)
         self.mat = self.operator.mat
         self.rhs, self.dx = self.mat.createVecs()
@@ -203,8 +202,9 @@ class ImplicitShifting(Shifting):
         if self.spec.beta > 0:
             self.threshold = self.spec.beta * linf
 
-    def _free_vectors(self) -> None:
-        """Free the vectors of the last structure, if any (petsc4py keeps them alive). Collective."""
+    def _free_structure(self) -> None:
+        """Free the vectors of the last structure, if any (petsc4py keeps them alive), and make the solver let
+        go of its operator (LinearSolver.release_operator). Collective."""
         if self._structure_of is not None:
             for obj in (self.rhs, self.dx, self.residual):
                 obj.destroy()
@@ -232,7 +232,7 @@ class ImplicitShifting(Shifting):
 
     def destroy(self) -> None:
         """Free the PETSc operator, vectors and solver now. Collective."""
-        self._free_vectors()
+        self._free_structure()
         self.operator.destroy()
         self.solver.destroy()
 
