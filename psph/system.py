@@ -8,9 +8,10 @@ migrate, sort, halo, lists).
 
 import numpy as np
 
+from psph.compute import neighbours
 from psph.compute.neighbours import build_neighbour_lists, coincident_rows, max_displacement, spatial_order
 from psph.compute.random import gaussian_by_gid
-from psph.errors import NumericalError
+from psph.errors import NumericalError, UsageError
 from psph.parallel.comm import allreduce_max, allreduce_sum, exclusive_scan, raise_if_any
 from psph.parallel.decomposition import recursive_bisection
 from psph.parallel.halo import attach_halo, build_halo_pattern, halo_exchange, migrate
@@ -108,10 +109,21 @@ class ParticleSystem:
             self.pattern = build_halo_pattern(self.comm, p.owned("position"), self.decomposition, self.domain,
                                               self.list_radius)
             attach_halo(self.comm, p, self.pattern, self.halo_fields)
+        self._check_index_range()
         with phase("neighbour_search"):
             self.nbr_ptr, self.nbr_idx = build_neighbour_lists(p["position"], p.n_owned, self.list_radius)
         self._reference = p.owned("position").copy()
         self.rebuilds += 1
+
+    def _check_index_range(self) -> None:
+        """Stop every rank if some rank holds, halo included, more particles than the lists' 32-bit indices
+        address (`compute.neighbours.INDEX_LIMIT`), before the search would raise on that rank alone. Collective."""
+        largest = int(allreduce_max(self.comm, np.array([self.particles.n_local]))[0])
+        if largest > neighbours.INDEX_LIMIT:
+            error = UsageError(f"a rank holds {largest} particles with its halo, more than the neighbour lists' 32-bit "
+                               f"indices address ({neighbours.INDEX_LIMIT}): run on more ranks")
+            error.collective = True
+            raise error
 
     def update(self) -> bool:
         """Call after owned positions changed: refresh halo positions or rebuild. Collective.

@@ -161,6 +161,20 @@ def test_rebalance_on_demand(comm):
     assert comm.allgather(s.n_owned) == counts
 
 
+def test_a_rank_beyond_the_lists_index_range_stops_every_rank(comm, monkeypatch):
+    """A rank holding more particles than the lists' indices address stops all ranks with one message
+    before the search, not that rank alone inside a collective rebuild."""
+    from psph.compute import neighbours
+    from psph.errors import UsageError, is_collective
+
+    s = build_system(periodic_scene(dim=2, n=20), comm)
+    counts = comm.allgather(s.particles.n_local)
+    monkeypatch.setattr(neighbours, "INDEX_LIMIT", max(counts) - 1)  # exceeded on the fullest rank(s) only
+    with pytest.raises(UsageError, match=f"a rank holds {max(counts)} particles with its halo") as caught:
+        s.rebuild(rebalance=False)
+    assert is_collective(caught.value)
+
+
 def test_tiny_system_leaves_ranks_empty(comm):
     """Two particles on up to three ranks: ranks without particles take part and stay consistent."""
     from psph.compute.smoothing import make_kernel
