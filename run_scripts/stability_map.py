@@ -4,7 +4,7 @@ state saved) or blew up undiagnosed (NaN in the output of a finished run, a trac
 
     .venv/bin/python run_scripts/stability_map.py [--t-end 0.5] [--dx 0.05] [--out results/stability_map]
         [--sigmas 0 0.5] [--ratios 1.2 2.0 2.5] [--c0 5 50] [--reynolds 10 10000]
-        [--methods none delta_plus iips]
+        [--methods none delta_plus iips] [--set KEY=VALUE ...] [PETSc options]
 
 Writes map.md (one row per case: outcome, the stopping message or L2|v_x - v_xA| at t_end) and map.png,
 and exits 1 if any case blew up undiagnosed. Bi-periodic unit box, U = 1, delta-ALE-SPH, C6, RK3.
@@ -23,13 +23,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from psph.studies import CASES, last_snapshot, write_table  # noqa: E402
+from psph.studies import CASES, last_snapshot, parse_args, write_table  # noqa: E402
 
 SCENE = CASES / "taylor_green.toml"
 OUTCOMES = {"ran": "tab:green", "stopped (diagnosed)": "tab:orange", "BLEW UP (undiagnosed)": "tab:red"}
 
 
-def run_case(out, sigma, ratio, c0, reynolds, method, dx, t_end):
+def run_case(out, sigma, ratio, c0, reynolds, method, dx, t_end, extra=(), petsc=()):
     sets = [f"domain.dx={dx}", f"domain.h_over_dx={ratio}", f"initial.sigma_over_dx={sigma}",
             f"physics.sound_speed={c0}", f"physics.reynolds={reynolds}", f"shifting.method={method}",
             f"time.t_end={t_end}", "output.every=0", "output.history_every=20"]
@@ -38,8 +38,9 @@ def run_case(out, sigma, ratio, c0, reynolds, method, dx, t_end):
     else:
         sets += ["iips.update=none"]
     cmd = [sys.executable, "-m", "psph", "run", str(SCENE), "--out", str(out), "--overwrite", "--quiet"]
-    for s in sets:
+    for s in [*sets, *extra]:  # the command line's --set after the map's own, as in the other studies
         cmd += ["--set", s]
+    cmd += list(petsc)
     res = subprocess.run(cmd, capture_output=True, text=True)
     lines = res.stderr.strip().splitlines()
     if res.returncode == 0:
@@ -49,6 +50,8 @@ def run_case(out, sigma, ratio, c0, reynolds, method, dx, t_end):
             return "BLEW UP (undiagnosed)", "non-finite fields in the final snapshot"
         final = json.loads((out / "summary.json").read_text())["final"]
         return "ran", f"L2|v_x - v_xA| = {final['L2_vx_error']:.3g}"
+    if res.returncode == 2:  # the scene or the command line is wrong: no outcome of the case, stop the map
+        sys.exit(f"stability_map: {out}: {(lines or ['(no message)'])[-1]}")
     if res.returncode == 3 and len(lines) == 1 and lines[0].startswith("psph: error:") \
             and list(out.glob("snapshot_*.h5")):
         return "stopped (diagnosed)", lines[0].removeprefix("psph: error: ")[:110]
@@ -65,12 +68,13 @@ def main():
     parser.add_argument("--c0", type=float, nargs="+", default=[5.0, 50.0])
     parser.add_argument("--reynolds", type=float, nargs="+", default=[10.0, 1e4])
     parser.add_argument("--methods", nargs="+", default=["none", "delta_plus", "iips"])
-    args = parser.parse_args()
+    args = parse_args(parser)
     rows = []
     cases = list(itertools.product(args.methods, args.sigmas, args.ratios, args.c0, args.reynolds))
     for k, (method, sigma, ratio, c0, reynolds) in enumerate(cases, 1):
         out = args.out / "runs" / f"{method}_s{sigma}_h{ratio}_c{c0:g}_Re{reynolds:g}"
-        outcome, detail = run_case(out, sigma, ratio, c0, reynolds, method, args.dx, args.t_end)
+        outcome, detail = run_case(out, sigma, ratio, c0, reynolds, method, args.dx, args.t_end, args.set,
+                                   args.petsc)
         rows.append([method, sigma, ratio, c0, reynolds, outcome, detail])
         print(f"[{k}/{len(cases)}] {method:10s} sigma/dx={sigma} h/dx={ratio} c0/U={c0:g} Re={reynolds:g}: "
               f"{outcome}; {detail}", flush=True)

@@ -836,7 +836,8 @@ class Scene:
         if fluid and self.time.t_end <= 0.0:
             raise SceneError("time.t_end", "a fluid run needs t_end > 0")
         if self.iips.update != "none" and not (fluid and method == "iips"):
-            raise SceneError("iips.update", "field updates apply to fluid runs with shifting.method = iips")
+            raise SceneError("iips.update", f"{self.iips.update!r}: field updates apply to fluid runs with "
+                             f"shifting.method = iips, not {method!r} (set iips.update = \"none\")")
         if self.iips.update == "nfts" and self.physics.scheme not in ("delta_ale", "riemann_ale"):
             raise SceneError("iips.update", "nfts updates masses and volumes: it needs physics.scheme = delta_ale "
                              "or riemann_ale")

@@ -66,6 +66,7 @@ def test_minimal_scene_gets_defaults():
     ("physics.muscl_limiter", "none", "physics.muscl_limiter", "belong to physics.scheme = riemann_ale"),
     ("physics.riemann_dissipation", "low", "physics.riemann_dissipation", "belong to physics.scheme = riemann_ale"),
     ("physics.muscl_limiter", "superbee", "physics.muscl_limiter", "not one of"),
+    ("iips.update", "nfts", "iips.update", 'not \'none\' (set iips.update = "none")'),
 ])
 def test_bad_values_name_their_key(path, value, key, words):
     with pytest.raises(SceneError) as info:
