@@ -401,8 +401,27 @@ def main(argv=None) -> int:
         if comm.size > 1:
             comm.Abort(128 + signum)
         return 128 + signum
+    except MemoryError as err:  # numpy's names the array: "Unable to allocate 74.5 GiB for an array ..."
+        return _machine_error(comm, f"out of memory: {err}")
+    except OSError as err:  # a read or write the system refused mid-run: a full disk, a file taken away
+        return _machine_error(comm, f"input/output failed: {err}")
     except Exception:
         return _internal_error(comm)
+
+
+def _machine_error(comm, message: str) -> int:
+    """Not a bug: the machine refused (memory, disk). One line from each rank that met it, no traceback; with
+    several ranks the job is aborted, since the others may be waiting in a collective."""
+    try:
+        sys.stdout.flush()
+    except OSError:  # standard output is what failed (psph keys > /dev/full): the exit's flush would fail again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    line = "psph: error" + (f" on rank {comm.rank}" if comm.size > 1 else "") + f": {' '.join(message.split())}"
+    print(line, file=sys.stderr, flush=True)
+    _append_log(line)
+    if comm.size > 1:
+        comm.Abort(1)
+    return 1
 
 
 def _internal_error(comm) -> int:

@@ -213,12 +213,37 @@ def test_petsc_options_that_nothing_read_are_named_in_a_warning(tmp_path):
                                                            "use iips.operator = \"assembled\""), res.stderr
 
 
+def test_what_the_machine_refuses_is_one_line_not_a_bug(tmp_path):
+    """A full disk (here /dev/full as standard output) or an allocation the machine cannot give (a scene
+    admitted with --allow-large) ends with one line and exit 1, not a traceback called a bug."""
+    import subprocess
+    import sys
+
+    from tests.helpers import ROOT, mpi_environment
+
+    with open("/dev/full", "w") as full:
+        res = subprocess.run([sys.executable, "-m", "psph", "keys"], stdout=full, stderr=subprocess.PIPE, text=True,
+                             cwd=ROOT, env=mpi_environment(), timeout=120)
+    assert res.returncode == 1, res.stderr
+    assert res.stderr.strip() == "psph: error: input/output failed: [Errno 28] No space left on device"
+    res = run_psph("run", CASES / "taylor_green.toml", "--out", tmp_path / "big", "--quiet", "--allow-large",
+                   "--set", "domain.dx=1e-6", "--set", "time.t_end=0.001")
+    assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr
+    assert res.stderr.strip().startswith("psph: error: out of memory: Unable to allocate"), res.stderr
+
+
 @pytest.mark.parametrize("ranks, options, message", [
     (1, ["-iips_pc_type", "nonexistent"], "Unable to find requested PC type nonexistent"),
     (1, ["-iips_mat_type", "baij", "-iips_pc_type", "gamg"], "No method creategraph for Mat of type seqbaij"),
     (2, ["-iips_mat_type", "baij", "-iips_pc_type", "gamg"], "No method creategraph for Mat of type mpibaij"),
     # with iips.on_failure = "stop" a capped solve would stop the run (test below for "reject")
-    (1, ["-iips_ksp_max_it", "1"], "max_it 1) fails on a small well-posed test system: iips linear solve diverged")])
+    (1, ["-iips_ksp_max_it", "1"], "max_it 1) fails on a small well-posed test system: iips linear solve diverged"),
+    # stored unchecked by setFromOptions, checked when a rebuild's fresh KSP copied it: a crash mid-run
+    (1, ["-iips_ksp_rtol", "1.5"], "Relative tolerance 1.5 must be non-negative and less than 1.0"),
+    # a type outside AIJ / BAIJ gets no trial solve; an unknown one failed at the first call, after the output
+    (1, ["-iips_mat_type", "nonsense"], "Unknown Mat type given: nonsense"),
+    # PETSC_ERR_MISSING_FACTOR: was one rank's error, each rank printing it and aborting the job
+    (2, ["-iips_pc_type", "ilu"], "Could not locate a solver type for factorization type ILU")])
 def test_a_bad_iips_option_keeps_the_results_overwrite_would_replace(tmp_path, ranks, options, message):
     """--overwrite cleared the directory before the solver read its options: a misspelt preconditioner
     lost the previous run. The -iips_ options are now checked first, and the solver solves a small test

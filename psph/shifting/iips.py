@@ -43,8 +43,8 @@ from psph.particles import FieldSpec
 from psph.profiling import phase
 from psph.shifting.base import Shifting, ShiftReport, measure
 from psph.shifting.iips_operator import AssembledOperator, iips_operator
-from psph.solvers.aij import chain_matrix, family_of
-from psph.solvers.linear import LinearSolver
+from psph.solvers.aij import chain_matrix, check_mat_type, family_of
+from psph.solvers.linear import LinearSolver, petsc_errors
 from psph.solvers.petsc import destroy_at_exit, petsc
 
 SHIFT_FIELD = FieldSpec("iips_shift", ("d",))
@@ -223,6 +223,8 @@ class ImplicitShifting(Shifting):
         matrix. Collective."""
         assembled = isinstance(self.operator, AssembledOperator)
         if assembled and family_of(self.solver.prefix) is None:
+            with petsc_errors("creating the IIPS matrix"):
+                check_mat_type(self.solver.comm, self.solver.prefix)
             return
         matrix = chain_matrix(self.solver.comm, TRIAL_ROWS, dim, self.solver.prefix if assembled else "psph_trial_")
         try:

@@ -292,6 +292,20 @@ def family_of(prefix) -> str:
             "mpibaij": "baij"}.get(requested)
 
 
+def check_mat_type(comm, prefix) -> None:
+    """Raise PETSc's error now if `-<prefix>mat_type` names no matrix type PETSc has: a type outside
+    family_of's gets no trial solve, and would otherwise fail at the first IIPS call, after the run has
+    written its output. Collective."""
+    PETSc = petsc()
+    mat = PETSc.Mat().create(comm=petsc_comm(comm))
+    try:
+        mat.setSizes(((1, comm.size), (1, comm.size)))
+        mat.setOptionsPrefix(prefix)
+        mat.setFromOptions()
+    finally:
+        mat.destroy()
+
+
 def chain_matrix(comm, rows_per_rank, bsize, prefix) -> FixedPatternMatrix:
     """A small well-posed test matrix: `rows_per_rank` block rows on every rank, each coupled to the block
     rows before and after it (a chain over the ranks), diagonal blocks 4 I and off-diagonal blocks -I

@@ -17,9 +17,10 @@ from psph.profiling import phase
 from psph.solvers.petsc import petsc, petsc_comm
 
 # PETSc's error codes an option can cause (petscerror.h): PETSC_ERR_SUP, _ARG_WRONG, _ARG_OUTOFRANGE,
-# _ARG_INCOMP, _USER (hypre's unknown option values), _ARG_UNKNOWN_TYPE: raised by collective set-up calls
-# from the options every rank shares, so on every rank
-OPTION_ERRORS = (56, 62, 63, 75, 83, 86)
+# _ARG_INCOMP, _USER (hypre's unknown option values), _ARG_UNKNOWN_TYPE, _MISSING_FACTOR (a factorization no
+# installed package provides: -pc_type ilu on 2 ranks, an unknown -pc_factor_mat_solver_type): raised by
+# collective set-up calls from the options every rank shares, so on every rank
+OPTION_ERRORS = (56, 62, 63, 75, 83, 86, 92)
 # PETSC_ERR_FILE_OPEN, _FILE_READ, _FILE_WRITE: an option's file (-iips_ksp_monitor ascii:PATH), which only
 # some ranks may open
 FILE_ERRORS = (65, 66, 67)
@@ -108,6 +109,10 @@ class LinearSolver:
                 ksp.setTolerances(rtol=d["rtol"], atol=d["atol"], max_it=d["max_it"])
                 ksp.setInitialGuessNonzero(d["initial_guess_nonzero"])
                 ksp.setFromOptions()
+                # setFromOptions stores -<prefix>ksp_rtol 1.5 or -1 as given; set again, PETSc checks them now
+                # (else the first set-up that copies them, _renew, fails mid-run)
+                rtol, atol, divtol, max_it = ksp.getTolerances()
+                ksp.setTolerances(rtol=rtol, atol=atol, divtol=divtol, max_it=max_it)
         except PsphError:  # now, not when the error's traceback is collected (petsc.petsc_comm)
             ksp.destroy()
             raise
@@ -140,6 +145,7 @@ class LinearSolver:
         settings = dict(ksp_type=self.ksp.getType(), pc_type=self.ksp.getPC().getType(), rtol=rtol,
                         atol=atol, max_it=max_it, initial_guess_nonzero=self.ksp.getInitialGuessNonzero())
         self.ksp.destroy()
+        self.ksp = None  # (if _create fails, destroy must not touch the destroyed KSP: PETSc would crash)
         self.ksp = self._create(settings)
 
     def solve(self, b, x, trial=False) -> int:

@@ -178,6 +178,18 @@ def test_an_inconsistent_checkpoint_is_one_line_naming_what_is_wrong(finished, t
     assert str(err.value) == f"cannot restart from {str(bad)!r}: {words}"
 
 
+def test_a_checkpoint_with_damaged_metadata_is_one_line(finished, tmp_path):
+    """HDF5 metadata overwritten by 256 random bytes (a damaged disk or copy): h5py raises RuntimeError
+    ("bad local heap signature" and the like), which was a traceback called a bug."""
+    bad = tmp_path / "damaged.h5"
+    shutil.copy(finished / CHECKPOINT, bad)
+    with open(bad, "r+b") as f:
+        f.seek(600)
+        f.write(np.random.default_rng(7).bytes(256))
+    with pytest.raises(UsageError, match=rf"^cannot restart from {re.escape(repr(str(bad)))}: "):
+        read_checkpoint(MPI.COMM_SELF, bad)
+
+
 @pytest.mark.parametrize("case,expected", [("dam_break.toml", True), ("taylor_green.toml", False)])
 def test_a_checkpoint_older_than_wall_adhesion_keeps_the_walls_it_ran_with(finished, tmp_path, case, expected):
     """A checkpoint's scene lists every key of its day: one written before physics.wall_adhesion has none,
