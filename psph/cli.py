@@ -21,6 +21,16 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(message)
 
 
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="psph", description="Distributed SPH with implicit iterative particle shifting.",
                      epilog="Unknown options starting with a single dash are passed to PETSc.")
@@ -50,8 +60,8 @@ def _parser() -> argparse.ArgumentParser:
                      "afresh); messages and errors are appended")
     info = sub.add_parser("info", help="print the resolved scene, its model terms and estimated size")
     scene_args(info)
-    info.add_argument("--ranks", type=int, help="estimate the memory for this many ranks (default: the ranks "
-                      "psph info runs on)")
+    info.add_argument("--ranks", type=_positive_int, metavar="N",
+                      help="estimate the memory for this many ranks (default: the ranks psph info runs on)")
     sub.add_parser("keys", help="list every scene key with its type, default and meaning")
     plot = sub.add_parser("plot", help="PNG figures of a run (fields, history) or of a study directory of runs")
     plot.add_argument("out_dir", help="a run's output directory, or a directory of runs")
@@ -357,7 +367,10 @@ def cmd_plot(args, petsc_options, comm) -> int:
     from psph.plot import plot
 
     if comm.rank == 0:
-        for path in plot(args.out_dir, args.figures):
+        def warn(line):
+            print(f"psph: warning: {line}", file=sys.stderr, flush=True)
+
+        for path in plot(args.out_dir, args.figures, warn):
             print(f"psph: wrote {path}")
     return 0
 

@@ -37,29 +37,50 @@ def _save(plt, fig, path: Path, title=None) -> Path:
 
 
 def _summary(run_dir: Path) -> dict:
-    return json.loads((run_dir / "summary.json").read_text())
+    path = run_dir / "summary.json"
+    try:
+        return json.loads(path.read_text())
+    except ValueError as exc:  # JSONDecodeError, or bytes that are not UTF-8
+        raise UsageError(f"{str(path)!r} is not a psph summary: {exc}") from None
 
 
-def plot(out_dir, fig_dir=None) -> list:
+def _history(path: Path) -> list:
+    from psph.io.history import read_history
+
+    try:
+        return read_history(path)
+    except ValueError as exc:  # a cell that is not a number
+        raise UsageError(f"{str(path)!r} is not a psph history: {exc}") from None
+
+
+def plot(out_dir, fig_dir=None, warn=print) -> list:
     """Write the figures for a run or a study directory; returns the PNG paths. A file that cannot be read
-    (a truncated snapshot) or written (a full disk, --figures naming a file) is a UsageError naming it."""
+    (a truncated snapshot, a damaged summary or history) or written (a full disk, --figures naming a file) is
+    a UsageError naming it; a run's figure that has nothing to show is left out with a line to `warn`, and a
+    run with no figure at all is a UsageError."""
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
         raise UsageError(f"{str(out_dir)!r} is not a directory")
     fig_dir = Path(fig_dir) if fig_dir else out_dir / "figures"
     try:
-        return _plot(out_dir, fig_dir)
+        return _plot(out_dir, fig_dir, warn)
     except OSError as exc:
         where = f" ({exc.filename})" if exc.filename and str(exc.filename) not in str(exc) else ""
         raise UsageError(f"psph plot {str(out_dir)!r}: {' '.join(str(exc).split())}{where}") from None
 
 
-def _plot(out_dir: Path, fig_dir: Path) -> list:
+def _plot(out_dir: Path, fig_dir: Path, warn) -> list:
     runs = sorted(d for d in out_dir.iterdir() if (d / "summary.json").is_file())
     if (out_dir / "history.csv").is_file():
         fig_dir.mkdir(parents=True, exist_ok=True)
-        return [p for p in (plot_history(out_dir, fig_dir), plot_fields(out_dir, fig_dir),
-                            plot_probes(out_dir, fig_dir)) if p]
+        history = plot_history(out_dir, fig_dir)
+        written = [p for p in (history, plot_fields(out_dir, fig_dir), plot_probes(out_dir, fig_dir)) if p]
+        if not written:
+            raise UsageError(f"nothing to plot in {str(out_dir)!r}: its history.csv holds no diagnostics row and it "
+                             f"holds no 1-D or 2-D snapshot")
+        if history is None:
+            warn(f"{str(out_dir / 'history.csv')!r} holds no diagnostics row: no history.png")
+        return written
     if runs:
         fig_dir.mkdir(parents=True, exist_ok=True)
         return plot_study(runs, fig_dir)
@@ -67,9 +88,7 @@ def _plot(out_dir: Path, fig_dir: Path) -> list:
 
 
 def plot_history(run_dir: Path, fig_dir: Path):
-    from psph.io.history import read_history
-
-    rows = read_history(run_dir / "history.csv")
+    rows = _history(run_dir / "history.csv")
     columns = [c for c in HISTORY_COLUMNS if rows and c in rows[0] and any(r[c] is not None for r in rows)]
     if not columns:
         return None
@@ -92,12 +111,11 @@ def plot_history(run_dir: Path, fig_dir: Path):
 
 def plot_probes(run_dir: Path, fig_dir: Path):
     """probes.png: pressure and speed at every probe (output.probes) against time; None without probes."""
-    from psph.io.history import read_history
     from psph.probes import NAME
 
     if not (run_dir / NAME).is_file():
         return None
-    rows = read_history(run_dir / NAME)
+    rows = _history(run_dir / NAME)
     if not rows:
         return None
     plt = _pyplot()

@@ -140,6 +140,14 @@ def test_info_estimates_the_time_step():
     assert "estimated time step: 0.001818 (cfl h / (c0 + U)" in res.stdout and "about 550 steps" in res.stdout
 
 
+@pytest.mark.parametrize("ranks,words", [("-1", "must be >= 1, got -1"), ("0", "must be >= 1, got 0"),
+                                         ("two", "expected an integer, got 'two'")])
+def test_info_refuses_a_rank_count_below_one(ranks, words):
+    """--ranks -1 printed a negative memory estimate, and 0 was taken as 1."""
+    res = run_psph("info", CASES / "taylor_green.toml", "--ranks", ranks)
+    assert res.returncode == 2 and res.stderr.strip() == f"psph: error: argument --ranks: {words}", res.stderr
+
+
 def test_quiet_run_logs_to_file_and_plots(tmp_path):
     runs = tmp_path / "study"
     for dx in (0.1, 0.05):
@@ -182,6 +190,36 @@ def test_plot_of_a_broken_or_failed_run_is_one_line_or_leaves_out_what_is_not_fi
         lines = res.stderr.strip().splitlines()
         assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
         assert len(lines) == 1 and lines[0].startswith("psph: error: psph plot") and words in lines[0], lines
+
+
+def test_plot_names_a_damaged_summary_or_history_and_says_what_it_left_out(tmp_path):
+    """A study's damaged summary.json was a JSONDecodeError traceback; a history.csv that is not numbers, or
+    has no row, was passed over in silence (exit 0, nothing written and nothing said)."""
+    from psph.errors import UsageError
+    from psph.plot import plot
+
+    study = tmp_path / "study"
+    (study / "a").mkdir(parents=True)
+    (study / "a" / "summary.json").write_text("{")
+    with pytest.raises(UsageError, match=r"summary.json' is not a psph summary: Expecting"):
+        plot(study)
+    garbage = tmp_path / "garbage"
+    garbage.mkdir()
+    (garbage / "history.csv").write_text("time,step\nabc,1\n")
+    with pytest.raises(UsageError, match=r"history.csv' is not a psph history: could not convert string to float"):
+        plot(garbage)
+    (garbage / "history.csv").write_text("")
+    with pytest.raises(UsageError, match=r"^nothing to plot in .*: its history.csv holds no diagnostics row"):
+        plot(garbage)
+    run = tmp_path / "run"  # a run whose history lost its rows: the fields are plotted, and the history said missing
+    res = run_psph("run", CASES / "taylor_green.toml", "--out", run, "--quiet", "--set", "domain.dx=0.1",
+                   "--set", "time.t_end=0.01")
+    assert res.returncode == 0, res.stderr
+    history = run / "history.csv"
+    history.write_text(history.read_text().splitlines()[0] + "\n")
+    warnings = []
+    assert [p.name for p in plot(run, warn=warnings.append)] == ["fields.png"]
+    assert warnings == [f"{str(history)!r} holds no diagnostics row: no history.png"]
 
 
 def test_an_output_directory_that_cannot_be_made_is_one_line(tmp_path):
