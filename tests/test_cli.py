@@ -78,6 +78,19 @@ def test_run_writes_the_output_contract(tmp_path):
     assert sorted(out.glob("snapshot_0*.h5")) == snapshots
 
 
+def test_a_scene_argument_that_is_no_scene_file_says_what_it_is(tmp_path):
+    """A directory or a device was "not found"; a checkpoint given as the scene was only "not UTF-8 text"."""
+    snapshot = tmp_path / "s.h5"
+    with h5py.File(snapshot, "w") as f:
+        f["x"] = 1
+    for scene, words in ((CASES, "is a directory"), ("/dev/null", "is not a regular file"),
+                         (snapshot, "is not UTF-8 text (invalid start byte); to continue a run from a checkpoint: "
+                                    "psph run --restart FILE")):
+        res = run_psph("run", scene, "--out", tmp_path / "out")
+        assert res.returncode == 2 and res.stderr.strip() == f"psph: error: scene file {str(scene)!r} {words}"
+    assert not (tmp_path / "out").exists()
+
+
 def test_info_lists_the_model_terms():
     res = run_psph("info", SCENE, "--set", "domain.dx=0.0125")
     assert res.returncode == 0, res.stderr

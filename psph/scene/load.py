@@ -55,17 +55,25 @@ def apply_overrides(table: dict, overrides) -> dict:
     return table
 
 
+def _is_hdf5(path) -> bool:
+    """Whether the file starts with HDF5's signature (a checkpoint or a snapshot)."""
+    with open(path, "rb") as f:
+        return f.read(8) == b"\x89HDF\r\n\x1a\n"
+
+
 def read_table(path) -> dict:
     """Parse a TOML scene file (data only; nothing in it is executed)."""
     path = Path(path)
     if not path.is_file():
-        raise UsageError(f"scene file {str(path)!r} not found")
+        what = ("is a directory" if path.is_dir() else "is not a regular file" if path.exists() else "not found")
+        raise UsageError(f"scene file {str(path)!r} {what}")
     if path.stat().st_size > MAX_SCENE_BYTES:
         raise SceneError("", f"scene file {str(path)!r} is larger than {MAX_SCENE_BYTES} bytes")
     try:
         text = path.read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise SceneError("", f"scene file {str(path)!r} is not UTF-8 text ({exc.reason})") from None
+        hint = "; to continue a run from a checkpoint: psph run --restart FILE" if _is_hdf5(path) else ""
+        raise SceneError("", f"scene file {str(path)!r} is not UTF-8 text ({exc.reason}){hint}") from None
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
