@@ -283,7 +283,8 @@ def cmd_run(args, petsc_options, comm) -> int:
                     "convergence, where round-off grows and the results differ between rank counts (thesis: 0.02 "
                     "with a free surface, 0.08 in bounded flows, 0.001 in Taylor-Green)")
     kwargs = {"restart": restart} if restart else {}  # static runs write no checkpoints
-    stop.install(comm)
+    stop.install(comm, after="iteration with a snapshot" if scene.physics.scheme == "none" else
+                 "step with a checkpoint")
     try:
         with driver_for(scene)(scene, comm, out, log=log, progress=not args.quiet, **kwargs) as driver:
             summary = driver.run()

@@ -33,11 +33,13 @@ class NumericalError(PsphError):
 
     exit_code = 3
 
-    def __init__(self, message: str, *, step=None, time=None, gid=None, position=None):
-        self.step, self.time, self.gid, self.position = step, time, gid, position
+    def __init__(self, message: str, *, step=None, time=None, gid=None, position=None, iteration=None):
+        self.step, self.time, self.gid, self.position, self.iteration = step, time, gid, position, iteration
         where = []
         if step is not None:
             where.append(f"step {step}")
+        if iteration is not None:  # a static run's (its snapshots' step)
+            where.append(f"iteration {iteration}")
         if time is not None:
             where.append(f"t = {time:.6g}")
         if gid is not None:
@@ -63,7 +65,7 @@ def is_collective(err) -> bool:
 
 
 # what a NumericalError says about where it happened (its keyword arguments)
-WHERE = ("step", "time", "gid", "position")
+WHERE = ("step", "time", "gid", "position", "iteration")
 
 
 def rebuild_error(cls, message: str, where=None) -> PsphError:

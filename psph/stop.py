@@ -18,7 +18,7 @@ from psph.errors import PsphError
 
 SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGUSR1)
 
-_state = {"installed": False, "signum": 0, "rank": 0, "previous": {}}
+_state = {"installed": False, "signum": 0, "rank": 0, "previous": {}, "after": "step with a checkpoint"}
 
 
 class Stopped(PsphError):
@@ -45,15 +45,16 @@ def _handler(signum, frame):
         raise ForcedStop(signum)
     _state["signum"] = signum
     if _state["rank"] == 0:  # os.write: print() may be in the middle of a progress line
-        os.write(2, f"\npsph: {signal.Signals(signum).name} received: stopping after this step with a checkpoint "
+        os.write(2, f"\npsph: {signal.Signals(signum).name} received: stopping after this {_state['after']} "
                     "(send it again to stop at once)\n".encode())
 
 
-def install(comm) -> None:
-    """Catch SIGNALS in this process (main thread only; elsewhere, nothing). Call on every rank."""
+def install(comm, after="step with a checkpoint") -> None:
+    """Catch SIGNALS in this process (main thread only; elsewhere, nothing). Call on every rank. `after`: what
+    the first signal's line says the run stops after (a static run: "iteration with a snapshot")."""
     if threading.current_thread() is not threading.main_thread():
         return
-    _state.update(installed=True, signum=0, rank=comm.rank)
+    _state.update(installed=True, signum=0, rank=comm.rank, after=after)
     _state["previous"] = {sig: signal.signal(sig, _handler) for sig in SIGNALS}
 
 

@@ -88,6 +88,7 @@ def test_sigterm_stops_after_the_step_with_a_checkpoint_the_restart_equals_the_w
     assert done.returncode == 128 + 15, done.stderr
     assert "Traceback" not in done.stderr
     checkpoint = out / "checkpoint_000006.h5"
+    assert "psph: SIGTERM received: stopping after this step with a checkpoint (send it again" in done.stderr
     assert last_line(done.stderr).startswith("psph: stopped by SIGTERM: state at step 6, t = ")
     assert last_line(done.stderr).endswith(f"saved in {checkpoint}; continue with: psph run --restart {checkpoint}")
     assert [p.name for p in out.glob("checkpoint_*")] == [checkpoint.name]
@@ -136,6 +137,8 @@ def test_sigterm_stops_a_static_run_after_the_iteration(tmp_path):
     out = tmp_path / "stopped"
     done = run_signalling(tmp_path, ["run", *STATIC, "--out", out], "SIGTERM", at=2, static=True)
     assert done.returncode == 128 + 15, done.stderr
+    # (it said "stopping after this step with a checkpoint")
+    assert "psph: SIGTERM received: stopping after this iteration with a snapshot (send it again" in done.stderr
     assert last_line(done.stderr) == (f"psph: stopped by SIGTERM: the state after iteration 2 is in "
                                       f"{out / 'snapshot_000001.h5'} (static runs write no checkpoint)")
     assert [row["iteration"] for row in read_history(out / "history.csv")] == [0, 1, 2]

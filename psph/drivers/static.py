@@ -67,10 +67,13 @@ class StaticDriver(Driver):
             sim.log(f"iteration {info['newton']}: L2(grad C) = {report['L2_grad_c']:.4e}, "
                     f"L2(df/dx) = {report['L2_dfdx']:.4e}, KSP iterations {info['ksp_iterations']}")
             stopped.append(sim.stop_requested())
+            system.where = {"iteration": info["newton"] + 1}  # a failure's label (check_escaped, IIPS's errors)
             return stopped[-1] or (stop_ratio > 0 and report["L2_dfdx"] <= stop_ratio * reference)
 
+        system.where = {"iteration": 1}
         with sim.diagnose_failures(lambda: (len(sim.history.rows), float(len(sim.history.rows)))):
             result = self.shifting.correct(system, on_iteration, iterations=scene.shifting.max_iterations)
+        system.where = {}
         iterations = len(sim.history.rows) - 1  # an iteration iips.backtrack undid has no row, nor a state
         if result.message:
             sim.log(result.message)

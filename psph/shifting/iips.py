@@ -278,6 +278,7 @@ class ImplicitShifting(Shifting):
                 its = self.newton_iteration(system, grad, first=report.iterations == 0)
             except SolverError as err:
                 failure = err
+                where = self._place(system, grad, where)
                 break
             previous = l2
             grad, l2, linf = self.measure(system)
@@ -293,6 +294,7 @@ class ImplicitShifting(Shifting):
                 best_linf = linf
                 p.owned(BEST_FIELD.name)[:] = p.owned(SHIFT_FIELD.name)
             if not np.isfinite(linf) or linf > self.spec.divergence_factor * max(start_linf, DIVERGENCE_FLOOR):
+                where = self._place(system, grad, where)
                 failure = NumericalError(f"IIPS Newton iteration diverged: Linf(grad C) grew from "
                                          f"{start_linf:.3e} to {linf:.3e}", **where)
                 break
@@ -304,6 +306,7 @@ class ImplicitShifting(Shifting):
         if failure is None and threshold is not None and linf > threshold and (report.iterations >= max_newton
                                                                                or stuck):
             mode = self.spec.on_stall
+            where = self._place(system, grad, where, last=report.iterations)  # the last iterate, as described
             failure = NumericalError(f"IIPS Newton stalled: Linf(grad C) = {linf:.3e} above the threshold "
                                      f"{threshold:.3e} after {report.iterations} iterations"
                                      + (f" (no descent in {self.spec.backtrack} halvings)" if stuck else ""),
@@ -319,6 +322,24 @@ class ImplicitShifting(Shifting):
                      f"{self.spec.backtrack} halvings")
             report.message = f"{report.message}; {ended}" if report.message else ended
         return report
+
+    def _place(self, system, grad, where, last=None) -> dict:
+        """A failure's place: the call's `where` (a flow's step and time), else the system's (a static run's
+        iteration in progress, which its driver keeps there; `last`: a failure of the last completed one), and
+        the unknown of largest |grad C| over all ranks (the lowest gid of equals; a non-finite value counts as
+        the largest): {"gid", "position"}. Collective."""
+        p = system.particles
+        rows = np.flatnonzero(self.surface.unknowns(system))
+        local = (-1.0, 0, None)
+        if rows.size:
+            size = np.nan_to_num(np.linalg.norm(grad[rows], axis=1), nan=np.inf)
+            k = rows[int(np.argmax(size))]
+            local = (float(size.max()), int(p.owned("gid")[k]), p.owned("position")[k].copy())
+        _, gid, position = max(system.comm.allgather(local), key=lambda item: (item[0], -item[1]))
+        place = {**system.where, **where, **({} if position is None else {"gid": gid, "position": position})}
+        if last is not None and "iteration" in place:
+            place["iteration"] = last
+        return place
 
     def measure(self, system):
         """(grad C, L2, Linf) over the unknowns. Collective."""

@@ -88,11 +88,29 @@ def test_failure_stops_with_step_and_saves_state(tmp_path):
     res = run_psph("run", CASES / "kinematic_tgv.toml", "--out", out, *KINEMATIC, "--set", "iips.beta=1.0001",
                    "--set", "iips.max_newton=1", "--set", "iips.on_stall=stop")
     assert res.returncode == 3
-    assert "psph: error: IIPS Newton stalled" in res.stderr and "[step " in res.stderr
-    assert "Traceback" not in res.stderr
+    assert "psph: error: IIPS Newton stalled" in res.stderr and "Traceback" not in res.stderr
+    # the place: the particle of largest |grad C| (the saved state is the stalled iterate)
+    place = re.search(r"\[step \d+, t = \S+, particle gid (\d+), at \(([^,]+), ([^)]+)\)\]$", res.stderr.strip())
+    assert place, res.stderr
     snaps = sorted(out.glob("snapshot_*.h5"))
     with h5py.File(snaps[-1]) as f:
         assert "grad_c" in f["particles"] and f.attrs["step"] >= 1
+        gid, pos, grad = (f[f"particles/{name}"][()] for name in ("gid", "position", "grad_c"))
+    worst = int(np.argmax(np.linalg.norm(grad, axis=1)))
+    assert int(place[1]) == gid[worst]
+    assert np.allclose([float(place[2]), float(place[3])], pos[worst], rtol=1e-5, atol=1e-6)
+
+
+def test_a_static_runs_failure_names_its_iteration_and_place(tmp_path):
+    """A static run's failures said neither which iteration nor, for IIPS's own, which particle."""
+    static = ["run", CASES / "static_perturbed.toml", "--set", "domain.dx=0.05", "--set", "shifting.method=iips"]
+    escaped = run_psph(*static, "--out", tmp_path / "a", "--set", "domain.periodic=[false,false]")
+    assert escaped.returncode == 3, escaped.stderr
+    assert re.search(r"left the domain \[iteration 1, particle gid \d+, at \(", escaped.stderr), escaped.stderr
+    stalled = run_psph(*static, "--out", tmp_path / "b", "--set", "iips.threshold=1e-12", "--set",
+                       "iips.max_newton=2", "--set", "iips.on_stall=stop")
+    assert stalled.returncode == 3, stalled.stderr
+    assert re.search(r"after 2 iterations \[iteration 2, particle gid \d+, at \(", stalled.stderr), stalled.stderr
 
 
 @pytest.mark.long
