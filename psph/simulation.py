@@ -244,7 +244,8 @@ def estimate_time_step(scene) -> str:
     """The time step a run of `scene` starts with and its number of steps, as a line (empty for static runs).
 
     Fluid: cfl h / (c0 + U) (thesis eq. 5.52, U the reference velocity; the run adapts it to the actual
-    speed) and at most 0.125 h^2 / nu; kinematic: cfl dx / c0."""
+    speed) and at most the viscous operator's limit on the lattice (psph.schemes.viscous_limit; disorder
+    lowers it in the run); kinematic: cfl dx / c0."""
     import math
 
     d, ph, t = scene.domain, scene.physics, scene.time
@@ -259,9 +260,16 @@ def estimate_time_step(scene) -> str:
         scheme = make_scheme(scene)
         dt = t.cfl * d.h / (scheme.c0 + ph.reference_velocity)
         how = f"cfl h / (c0 + U) = {t.cfl:g} x {d.h:g} / ({scheme.c0:g} + {ph.reference_velocity:g})"
-        if scheme.nu > 0 and 0.125 * d.h**2 / scheme.nu < dt:
-            dt = 0.125 * d.h**2 / scheme.nu
-            how = f"viscous limit 0.125 h^2 / nu = 0.125 x {d.h:g}^2 / {scheme.nu:g}"
+        if scheme.nu > 0:
+            from psph.compute.smoothing import make_kernel
+            from psph.schemes.viscous_limit import ViscousLimit
+
+            limit = ViscousLimit(make_kernel(d.kernel, d.dimension, d.h), d.dimension, d.dx, scheme.nu, scheme.morris,
+                                 t.integrator)
+            if limit.step < dt:
+                dt = limit.step
+                how = (f"viscous limit {limit.step * scheme.nu / d.h**2:.3g} h^2 / nu on the lattice, h = {d.h:g}, "
+                       f"nu = {scheme.nu:g}")
     return f"estimated time step: {dt:.4g} ({how}), about {math.ceil(t.t_end / dt)} steps to t_end = {t.t_end:g}"
 
 

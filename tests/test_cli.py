@@ -149,8 +149,13 @@ def test_a_run_whose_reader_left_ends_quietly(tmp_path):
 def test_info_estimates_the_time_step():
     res = run_psph("info", CASES / "taylor_green.toml", "--set", "domain.dx=0.05")
     assert res.returncode == 0, res.stderr
-    # cfl h / (c0 + U) = 0.2 x 0.1 / (10 + 1); nu = U L / Re = 0.01 gives 0.125 h^2 / nu = 0.125, not limiting
+    # cfl h / (c0 + U) = 0.2 x 0.1 / (10 + 1); nu = U L / Re = 0.01: the viscous limit (0.0666 h^2 / nu =
+    # 0.0666) does not bind
     assert "estimated time step: 0.001818 (cfl h / (c0 + U)" in res.stdout and "about 550 steps" in res.stdout
+    res = run_psph("info", CASES / "taylor_green.toml", "--set", "domain.dx=0.05", "--set", "physics.reynolds=0.01")
+    # nu = 100: pi_ij with Wendland C6 at h/dx = 2 has lambda_max h^2 = 30.17 on the lattice; RK3 reaches
+    # 2.5127 along the real axis; with the safety 0.8: 0.8 x 2.5127 / 30.17 = 0.0666 h^2 / nu = 6.66e-6
+    assert "estimated time step: 6.663e-06 (viscous limit 0.0666 h^2 / nu on the lattice" in res.stdout, res.stdout
 
 
 @pytest.mark.parametrize("ranks,words", [("-1", "must be >= 1, got -1"), ("0", "must be >= 1, got 0"),

@@ -175,6 +175,21 @@ def divergence(pos, vol, ptr, idx, kp, u, out):
 
 
 @njit(cache=True)
+def largest_kernel_factor_sum(pos, vol, ptr, idx, kp):
+    """max_i sum_j F_ij V_j over the rows (F_ij = -W'(r)/r >= 0, seed 001 eq. 14's factor): the diagonal of
+    Morris' Laplacian over 2, whose excess over the lattice's scales the viscous operators' largest eigenvalue
+    (psph.schemes.viscous_limit). 0 without rows."""
+    largest = 0.0
+    for i in range(ptr.size - 1):
+        s = 0.0
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            s -= kernel_f(pair(pos, i, j, pos.shape[1])[3], kp) * vol[j]
+        largest = max(largest, s)
+    return largest
+
+
+@njit(cache=True)
 def laplacian_morris(pos, vol, ptr, idx, kp, phi, out):
     """Morris Laplacian of a scalar: 2 sum_j (phi_j - phi_i) F_ij V_j, F_ij = x_ji.grad_i W_ij / r^2.
 

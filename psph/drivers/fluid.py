@@ -2,8 +2,8 @@
 scheme or IIPS after each step (thesis 000 ch. 9: Procedure B, then the scene's field update).
 
 Each step: dt from the CFL condition (thesis eq. 5.52, with the reference c0 where the thesis has each
-particle's sound speed: 3% apart at 1% compression with Tait) and the viscous limit 0.125 h^2 / nu (Morris
-et al. 1997, not in the seeds); a neighbour rebuild if the step could outrun the skin; the integrator's
+particle's sound speed: 3% apart at 1% compression with Tait) and the viscous operator's stability limit
+(psph.schemes.viscous_limit); a neighbour rebuild if the step could outrun the skin; the integrator's
 stages; the shifting law's end-of-step update;
 the open boundaries' rows emitted, joined and removed (psph.boundaries.open); IIPS and its field update
 when the scene asks; checks (NaN, density outside the weakly compressible range,
@@ -35,6 +35,7 @@ from psph.probes import Probes
 from psph.profiling import phase
 from psph.schemes import make_scheme
 from psph.schemes.integrators import INTEGRATORS, STAGE_REACH
+from psph.schemes.viscous_limit import ViscousLimit
 from psph.shifting.field_update import make_field_update
 from psph.shifting.iips import pre_procedure
 from psph.simulation import Simulation
@@ -232,6 +233,8 @@ class FluidDriver(Driver):
         self.scheme.initialize(self.system, t=self.resumed["time"] if restart else 0.0, fresh=restart is None)
         self.open = make_open_boundaries(scene, self.system)
         self.integrate = INTEGRATORS[scene.time.integrator]
+        self.viscous_limit = ViscousLimit(self.system.kernel, scene.domain.dimension, scene.domain.dx, self.scheme.nu,
+                                          self.scheme.morris, scene.time.integrator)
         self.reach = STAGE_REACH[scene.time.integrator]
         self.iips = None
         self.update = make_field_update(scene)
@@ -393,10 +396,16 @@ class FluidDriver(Driver):
             if err.gid is not None:
                 # the first stage that can catch it is half a step in (RK3 and RK4): a step goes twice as far
                 needed = 4.0 * err.moved / system.kernel.support
-                error = NumericalError(f"a particle moved {err.moved:.3g} within one time step, more than half "
-                                       f"the neighbour-list skin ({0.5 * system.skin:.3g}); a neighbours.skin "
-                                       f"of {needed:.2g} would hold the step", step=step, time=t, gid=err.gid,
-                                       position=err.position)
+                speed, c0 = 2.0 * err.moved / dt, self.scene.physics.sound_speed
+                if speed > c0:  # faster than sound: no skin holds this, the flow is blowing up
+                    what = (f"a particle moved {err.moved:.3g} within half a time step of {dt:.3g}, at about "
+                            f"{speed:.3g}, {speed / c0:.3g} times the speed of sound c0 = {c0:g}: the flow is "
+                            f"blowing up")
+                else:
+                    what = (f"a particle moved {err.moved:.3g} within one time step, more than half the "
+                            f"neighbour-list skin ({0.5 * system.skin:.3g}); a neighbours.skin of {needed:.2g} "
+                            f"would hold the step")
+                error = NumericalError(what, step=step, time=t, gid=err.gid, position=err.position)
             raise_if_any(self.sim.comm, error)
         return 1
 
@@ -416,9 +425,7 @@ class FluidDriver(Driver):
         h = self.system.kernel.h
         vmax = allreduce_max(self.sim.comm, scheme.max_transport_speed(self.system))
         dt = s.time.cfl * h / (scheme.c0 + vmax)
-        if scheme.nu > 0:
-            dt = min(dt, 0.125 * h * h / scheme.nu)
-        return dt, vmax
+        return min(dt, self.viscous_limit(self.system, dt)), vmax
 
     def _min_spacing(self, mask, row_group, col_group) -> float:
         """The smallest distance, in dx, from an owned particle in `mask` to a neighbour j with col_group[j] ==

@@ -464,7 +464,8 @@ class IIPSSpec:
 class TimeSpec:
     t_end: float = option(0.0, doc="end time of the simulation", ge=0.0)
     cfl: float = option(0.2, doc="CFL number: kinematic dt = cfl dx / c0 (thesis 8.3.2); fluid "
-                        "dt = cfl min h / (c0 + |u + du|) (thesis eq. 5.52), also kept under 0.125 h^2 / nu",
+                        "dt = cfl min h / (c0 + |u + du|) (thesis eq. 5.52), also kept under the viscous "
+                        "operator's stability limit (psph.schemes.viscous_limit)",
                         gt=0.0, le=2.0)
     integrator: str = option("rk3", doc="fluid time integrator: rk3 (Kutta, thesis eq. 5.51) or rk4",
                              choices=("rk3", "rk4"))
