@@ -175,17 +175,38 @@ def divergence(pos, vol, ptr, idx, kp, u, out):
 
 
 @njit(cache=True)
-def largest_kernel_factor_sum(pos, vol, ptr, idx, kp):
-    """max_i sum_j F_ij V_j over the rows (F_ij = -W'(r)/r >= 0, seed 001 eq. 14's factor): the diagonal of
-    Morris' Laplacian over 2, whose excess over the lattice's scales the viscous operators' largest eigenvalue
-    (psph.schemes.viscous_limit). 0 without rows."""
+def largest_kernel_factor_sum(pos, vol, ptr, idx, kp, rows, directional):
+    """The largest over `rows` of sum_j F_ij V_j (F_ij = -W'(r)/r >= 0, seed 001 eq. 14's factor: the diagonal
+    of Morris' Laplacian over 2) or, with `directional`, of the largest eigenvalue of the d x d matrix
+    sum_j F_ij V_j e_ij e_ij^T (e_ij = x_ij / r, the pi_ij operator's weighting: particles packed closer along one
+    direction widen its spectrum in that direction). Their excess over the lattice's scales the viscous
+    operators' largest eigenvalue (psph.schemes.viscous_limit). 0 without rows."""
+    d = pos.shape[1]
     largest = 0.0
-    for i in range(ptr.size - 1):
-        s = 0.0
+    a = np.zeros((d, d))
+    for i in rows:
+        a[:] = 0.0
         for k in range(ptr[i], ptr[i + 1]):
             j = idx[k]
-            s -= kernel_f(pair(pos, i, j, pos.shape[1])[3], kp) * vol[j]
-        largest = max(largest, s)
+            r0, r1, r2, r = pair(pos, i, j, d)
+            w = -kernel_f(r, kp) * vol[j]
+            if not directional:
+                a[0, 0] += w
+                continue
+            if r == 0.0:  # no direction: pi_ij leaves the pair out
+                continue
+            e = (r0 / r, r1 / r, r2 / r)
+            for p in range(d):
+                for q in range(d):
+                    a[p, q] += w * e[p] * e[q]
+        if not directional or d == 1:
+            top = a[0, 0]
+        elif d == 2:
+            half = 0.5 * (a[0, 0] + a[1, 1])
+            top = half + np.sqrt(0.25 * (a[0, 0] - a[1, 1]) ** 2 + a[0, 1] * a[1, 0])
+        else:
+            top = np.linalg.eigvalsh(a)[-1]
+        largest = max(largest, top)
     return largest
 
 

@@ -43,7 +43,8 @@ def warm_up(dim: int, kernel_name: str) -> None:
     sums.gradient_difference(pos, vol, ptr, idx, kp, field, vector)
     sums.divergence(pos, vol, ptr, idx, kp, vector, scalar)
     sums.laplacian_morris(pos, vol, ptr, idx, kp, field, scalar)
-    sums.largest_kernel_factor_sum(pos, vol, ptr, idx, kp)
+    for directional in (False, True):
+        sums.largest_kernel_factor_sum(pos, vol, ptr, idx, kp, np.arange(n), directional)
     sums.viscous_pi(pos, vol, ptr, idx, kp, vector, vector)
     sums.renormalisation_matrix(pos, vol, ptr, idx, kp, tensor)
     sums.smallest_eigenvalue(tensor, scalar)

@@ -9,16 +9,20 @@ before is unstable with the pi_ij operator (seed 001 eq. 11) and Wendland C6 at 
 lambda_max h^2 = 30.2 on the lattice, so RK3 needs dt nu / h^2 <= 0.083, and a Taylor-Green at Re = 0.01
 blew up in its first steps. lambda_max is taken here from the operator's Fourier symbol on the Cartesian
 lattice of the scene's spacing (exact for the lattice: it equals the eigenvalues of the assembled operator
-on a periodic lattice, which the test checks), scaled by how much the particles' largest diagonal
-sum_j V_j F_ij exceeds the lattice's (disorder makes the spectrum wider: by up to 1.85 times at a
-perturbation of 0.8 dx). Against the assembled operator on perturbed lattices (sigma = 0.1-0.8 dx, h/dx =
-1.2-2.5, 2-D and 3-D, both operators) that estimate lies within 0.86-1.32 of the true lambda_max; SAFETY =
-0.8 covers the low side.
+on a periodic lattice, which the test checks), scaled by how much the particles' largest diagonal weight
+exceeds the lattice's: for Morris' operator sum_j V_j F_ij, for pi_ij the largest eigenvalue of
+sum_j V_j F_ij e_ij e_ij^T, whose direction matters (a lattice stretched 2 times along x and squeezed along y
+raises pi_ij's lambda_max more than the scalar sum shows). Disorder and stretching widen the spectrum (up to
+3.6 times the lattice's in the checks). Against the assembled operator on perturbed (sigma up to 0.8 dx)
+and stretched (up to 2 times) periodic lattices, with Wendland C2, C4, C6 and the cubic spline at h/dx =
+1.2-2.5 and both operators, the estimate lies within 0.96-1.58 of the true lambda_max (224 cases, 2-D;
+tests/schemes/test_viscous_limit.py checks a subset and 3-D); SAFETY = 0.8 covers the low side.
 """
 
 import numpy as np
 
 from psph.compute.sums import largest_kernel_factor_sum
+from psph.diagnostics import fluid_mask
 from psph.parallel.comm import allreduce_max
 
 # -z where |R(z)| = 1 on the negative real axis, R the integrator's stability polynomial (its Taylor
@@ -27,42 +31,47 @@ REAL_AXIS_REACH = {"rk3": 2.5127453266183286, "rk4": 2.785293563405282}
 SAFETY = 0.8
 
 
-def lattice_symbol(kernel, dim: int, dx: float, morris: bool) -> tuple:
-    """(lambda_max, D): the largest eigenvalue, per unit nu, of the viscous operator on the Cartesian lattice
-    of spacing dx, from its Fourier symbol over the Brillouin zone, and the lattice's diagonal sum
-    D = sum_j V_j F_ij (F = -W'(r)/r >= 0 for the Wendland kernels and the cubic spline).
-
-    Morris: 2 sum_j V F_j (1 - cos k.x_j); pi_ij: the largest eigenvalue of 2 (d + 2) sum_j V F_j
-    (1 - cos k.x_j) e_j e_j^T (e_j = x_j / |x_j|), over k in [0, pi / dx]^d (the symbols are even in each
-    component of k)."""
+def _lattice_offsets(kernel, dim: int, dx: float) -> tuple:
+    """The Cartesian lattice's neighbour offsets within the support, their lengths and weights V F_j."""
     reach = int(np.ceil(kernel.support / dx))
     axis = np.arange(-reach, reach + 1)
     offsets = np.stack(np.meshgrid(*[axis] * dim, indexing="ij"), axis=-1).reshape(-1, dim) * dx
     r = np.linalg.norm(offsets, axis=1)
     keep = (r > 0.0) & (r < kernel.support)
-    offsets, r = offsets[keep], r[keep]
-    weight = -kernel.radial(r) * dx ** dim  # V F_j
+    return offsets[keep], r[keep], -kernel.radial(r[keep]) * dx ** dim  # F = -W'(r)/r >= 0
+
+
+def lattice_symbol(kernel, dim: int, dx: float, morris: bool) -> tuple:
+    """(lambda_max, D): the largest eigenvalue, per unit nu, of the viscous operator on the Cartesian lattice
+    of spacing dx, from its Fourier symbol over the Brillouin zone, and the lattice's diagonal weight D (what
+    sums.largest_kernel_factor_sum gives there): Morris' sum_j V F_j; pi_ij's largest eigenvalue of
+    sum_j V F_j e_j e_j^T (F = -W'(r)/r >= 0 for the Wendland kernels and the cubic spline).
+
+    Morris: 2 sum_j V F_j (1 - cos k.x_j); pi_ij: the largest eigenvalue of 2 (d + 2) sum_j V F_j
+    (1 - cos k.x_j) e_j e_j^T (e_j = x_j / |x_j|), over k in [0, pi / dx]^d (the symbols are even in each
+    component of k)."""
+    offsets, r, weight = _lattice_offsets(kernel, dim, dx)
     waves = np.linspace(0.0, np.pi / dx, 33 if dim < 3 else 17)
     k = np.stack(np.meshgrid(*[waves] * dim, indexing="ij"), axis=-1).reshape(-1, dim)
     c = (1.0 - np.cos(k @ offsets.T)) * weight  # (wave, neighbour)
     if morris:
-        largest = 2.0 * c.sum(axis=1).max()
-    else:
-        e = offsets / r[:, None]
-        symbol = 2.0 * (dim + 2) * np.einsum("kj,ja,jb->kab", c, e, e)
-        largest = np.linalg.eigvalsh(symbol)[:, -1].max()
-    return float(largest), float(weight.sum())
+        return float(2.0 * c.sum(axis=1).max()), float(weight.sum())
+    e = offsets / r[:, None]
+    symbol = 2.0 * (dim + 2) * np.einsum("kj,ja,jb->kab", c, e, e)
+    diagonal = np.einsum("j,ja,jb->ab", weight, e, e)
+    return float(np.linalg.eigvalsh(symbol)[:, -1].max()), float(np.linalg.eigvalsh(diagonal)[-1])
 
 
 class ViscousLimit:
-    """dt <= SAFETY reach / (nu lambda), lambda = the lattice's lambda_max scaled by max_i D_i / D_lattice
-    over the particles (all ranks). The scaling costs one pass over the pairs, made only when the lattice's
-    own limit comes within BOTHER of the CFL step (a flow at moderate Reynolds number never pays it)."""
+    """dt <= SAFETY reach / (nu lambda), lambda = the lattice's lambda_max scaled by the fluid particles'
+    largest diagonal weight over the lattice's (all ranks). The scaling costs one pass over the pairs, made
+    only when the lattice's own limit comes within BOTHER of the CFL step (a flow at moderate Reynolds number
+    never pays it)."""
 
-    BOTHER = 4.0  # disorder widened the spectrum by at most 1.85 times in the checks
+    BOTHER = 4.0
 
     def __init__(self, kernel, dim: int, dx: float, nu: float, morris: bool, integrator: str):
-        self.nu = nu
+        self.nu, self.morris = nu, morris
         self.lattice, self.diagonal = lattice_symbol(kernel, dim, dx, morris)
         self.step = SAFETY * REAL_AXIS_REACH[integrator] / (nu * self.lattice) if nu > 0.0 else np.inf
 
@@ -72,6 +81,7 @@ class ViscousLimit:
             return np.inf
         p = system.particles
         local = largest_kernel_factor_sum(p["position"], p["volume"], system.nbr_ptr, system.nbr_idx,
-                                          system.kernel.params)
+                                          system.kernel.params, np.flatnonzero(fluid_mask(system)),
+                                          not self.morris)
         spread = max(1.0, allreduce_max(system.comm, local) / self.diagonal)
         return self.step / spread
