@@ -8,6 +8,7 @@ untouched (`-iips_pc_type hypre -log_view`). Errors print one line `psph: error:
 
 import argparse
 import os
+import re
 import signal
 import sys
 import traceback
@@ -160,6 +161,7 @@ def _toml_value(v):
     return repr(v)
 
 
+SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")  # a scene name that makes a default ./NAME_out
 RESTART_KEYS = ("time.", "output.", "neighbours.")  # skin and balance: results change as with the rank count
 
 
@@ -233,6 +235,9 @@ def cmd_run(args, petsc_options, comm) -> int:
     node_ranks = node.Get_size()
     node.Free()
     check_resources(scene, allow_large=args.allow_large, ranks=comm.size, node_ranks=node_ranks)
+    if not (restart or args.out or SAFE_NAME.fullmatch(scene.name)):  # "../x" or "a/b" would write elsewhere
+        raise SceneError("name", f"{scene.name!r} names no output directory ./NAME_out: give --out, or a name of "
+                         f"letters, digits, '.', '_' and '-' that starts with a letter or digit")
     default_out = os.path.dirname(os.path.abspath(args.restart)) if restart else f"{scene.name}_out"
     out = os.path.abspath(args.out or default_out)
     continuing = restart is not None and os.path.realpath(out) == os.path.dirname(os.path.realpath(args.restart))
@@ -424,15 +429,16 @@ def main(argv=None) -> int:
 
 
 def _machine_error(comm, message: str) -> int:
-    """Not a bug: the machine refused (memory, disk). One line from each rank that met it, no traceback; with
-    several ranks the job is aborted, since the others may be waiting in a collective."""
+    """Not a bug: the machine refused (memory, disk). One line from each rank that met it, no traceback on the
+    terminal (the log file gets it, should it have been a bug after all); with several ranks the job is
+    aborted, since the others may be waiting in a collective."""
     try:
         sys.stdout.flush()
     except OSError:  # standard output is what failed (psph keys > /dev/full): the exit's flush would fail again
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     line = "psph: error" + (f" on rank {comm.rank}" if comm.size > 1 else "") + f": {' '.join(message.split())}"
     print(line, file=sys.stderr, flush=True)
-    _append_log(line)
+    _append_log(traceback.format_exc().rstrip() + "\n" + line)  # where it happened, for a report if it was a bug
     if comm.size > 1:
         comm.Abort(1)
     return 1

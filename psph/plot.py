@@ -39,9 +39,12 @@ def _save(plt, fig, path: Path, title=None) -> Path:
 def _summary(run_dir: Path) -> dict:
     path = run_dir / "summary.json"
     try:
-        return json.loads(path.read_text())
+        summary = json.loads(path.read_text())
     except ValueError as exc:  # JSONDecodeError, or bytes that are not UTF-8
         raise UsageError(f"{str(path)!r} is not a psph summary: {exc}") from None
+    if not isinstance(summary, dict):
+        raise UsageError(f"{str(path)!r} is not a psph summary: a JSON {type(summary).__name__}, not an object")
+    return summary
 
 
 def _history(path: Path) -> list:
@@ -49,7 +52,7 @@ def _history(path: Path) -> list:
 
     try:
         return read_history(path)
-    except ValueError as exc:  # a cell that is not a number
+    except (ValueError, TypeError) as exc:  # a cell that is not a number; a row longer than the header
         raise UsageError(f"{str(path)!r} is not a psph history: {exc}") from None
 
 
@@ -76,10 +79,11 @@ def _plot(out_dir: Path, fig_dir: Path, warn) -> list:
         history = plot_history(out_dir, fig_dir)
         written = [p for p in (history, plot_fields(out_dir, fig_dir), plot_probes(out_dir, fig_dir)) if p]
         if not written:
-            raise UsageError(f"nothing to plot in {str(out_dir)!r}: its history.csv holds no diagnostics row and it "
+            raise UsageError(f"nothing to plot in {str(out_dir)!r}: its history.csv holds no diagnostics and it "
                              f"holds no 1-D or 2-D snapshot")
         if history is None:
-            warn(f"{str(out_dir / 'history.csv')!r} holds no diagnostics row: no history.png")
+            warn(f"{str(out_dir / 'history.csv')!r} holds no diagnostics (no row, or none of the columns plotted): "
+                 f"no history.png")
         return written
     if runs:
         fig_dir.mkdir(parents=True, exist_ok=True)

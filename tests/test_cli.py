@@ -91,6 +91,20 @@ def test_a_scene_argument_that_is_no_scene_file_says_what_it_is(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_scene_name_that_makes_no_directory_name_needs_out(tmp_path):
+    """The default output directory ./NAME_out: name = "../x" wrote outside the working directory, "" to ./_out.
+    Such a name is refused unless --out is given (a run of an older name can still be restarted or plotted)."""
+    for name in ("../elsewhere", "a/b", ""):
+        res = run_psph("run", SCENE, "--set", f'name="{name}"', "--set", "domain.dx=0.1", cwd=tmp_path)
+        assert res.returncode == 2 and res.stderr.strip() == (
+            f"psph: error: name: {name!r} names no output directory ./NAME_out: give --out, or a name of letters, "
+            f"digits, '.', '_' and '-' that starts with a letter or digit"), res.stderr
+    assert list(tmp_path.iterdir()) == [] and not (tmp_path.parent / "elsewhere_out").exists()
+    res = run_psph("run", SCENE, "--set", 'name="a b"', "--set", "domain.dx=0.1", "--out", tmp_path / "out",
+                   "--quiet")
+    assert res.returncode == 0, res.stderr
+
+
 def test_info_lists_the_model_terms():
     res = run_psph("info", SCENE, "--set", "domain.dx=0.0125")
     assert res.returncode == 0, res.stderr
@@ -227,7 +241,7 @@ def test_plot_names_a_damaged_summary_or_history_and_says_what_it_left_out(tmp_p
     with pytest.raises(UsageError, match=r"history.csv' is not a psph history: could not convert string to float"):
         plot(garbage)
     (garbage / "history.csv").write_text("")
-    with pytest.raises(UsageError, match=r"^nothing to plot in .*: its history.csv holds no diagnostics row"):
+    with pytest.raises(UsageError, match=r"^nothing to plot in .*: its history.csv holds no diagnostics and"):
         plot(garbage)
     run = tmp_path / "run"  # a run whose history lost its rows: the fields are plotted, and the history said missing
     res = run_psph("run", CASES / "taylor_green.toml", "--out", run, "--quiet", "--set", "domain.dx=0.1",
@@ -237,7 +251,14 @@ def test_plot_names_a_damaged_summary_or_history_and_says_what_it_left_out(tmp_p
     history.write_text(history.read_text().splitlines()[0] + "\n")
     warnings = []
     assert [p.name for p in plot(run, warn=warnings.append)] == ["fields.png"]
-    assert warnings == [f"{str(history)!r} holds no diagnostics row: no history.png"]
+    assert warnings == [f"{str(history)!r} holds no diagnostics (no row, or none of the columns plotted): no "
+                        f"history.png"]
+    (run / "summary.json").write_text("[]")  # JSON, not an object: the study's plot read it as one
+    with pytest.raises(UsageError, match=r"summary.json' is not a psph summary: a JSON list, not an object"):
+        plot(tmp_path)
+    history.write_text("time,step\n0,1,2\n")  # a row longer than the header: DictReader gives a list
+    with pytest.raises(UsageError, match=r"history.csv' is not a psph history"):
+        plot(run)
 
 
 def test_an_output_directory_that_cannot_be_made_is_one_line(tmp_path):

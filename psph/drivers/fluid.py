@@ -396,11 +396,11 @@ class FluidDriver(Driver):
             if err.gid is not None:
                 # the first stage that can catch it is half a step in (RK3 and RK4): a step goes twice as far
                 needed = 4.0 * err.moved / system.kernel.support
-                speed, c0 = 2.0 * err.moved / dt, self.scene.physics.sound_speed
+                # (a stage half a step in, or a whole step in, caught it: the speed is at least moved / dt)
+                speed, c0 = err.moved / dt, self.scene.physics.sound_speed
                 if speed > c0:  # faster than sound: no skin holds this, the flow is blowing up
-                    what = (f"a particle moved {err.moved:.3g} within half a time step of {dt:.3g}, at about "
-                            f"{speed:.3g}, {speed / c0:.3g} times the speed of sound c0 = {c0:g}: the flow is "
-                            f"blowing up")
+                    what = (f"a particle moved {err.moved:.3g} within a time step of {dt:.3g}, at {speed:.3g} or "
+                            f"more, {speed / c0:.3g} times the speed of sound c0 = {c0:g}: the flow is blowing up")
                 else:
                     what = (f"a particle moved {err.moved:.3g} within one time step, more than half the "
                             f"neighbour-list skin ({0.5 * system.skin:.3g}); a neighbours.skin of {needed:.2g} "

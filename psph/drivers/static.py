@@ -71,9 +71,11 @@ class StaticDriver(Driver):
             return stopped[-1] or (stop_ratio > 0 and report["L2_dfdx"] <= stop_ratio * reference)
 
         system.where = {"iteration": 1}
-        with sim.diagnose_failures(lambda: (len(sim.history.rows), float(len(sim.history.rows)))):
-            result = self.shifting.correct(system, on_iteration, iterations=scene.shifting.max_iterations)
-        system.where = {}
+        try:
+            with sim.diagnose_failures(lambda: (len(sim.history.rows), float(len(sim.history.rows)))):
+                result = self.shifting.correct(system, on_iteration, iterations=scene.shifting.max_iterations)
+        finally:
+            system.where = {}
         iterations = len(sim.history.rows) - 1  # an iteration iips.backtrack undid has no row, nor a state
         if result.message:
             sim.log(result.message)

@@ -201,8 +201,11 @@ def read_checkpoint(comm, path) -> tuple:
         particles.set_owned(arrays)
         same = len(counts) == comm.size
         result = state, particles, (_decomposition(state["decomposition"]) if same else None)
-    # RuntimeError: h5py's for damaged HDF5 metadata ("bad local heap signature")
+    # RuntimeError: h5py's for damaged HDF5 metadata ("bad local heap signature"); not its subclasses
+    # (RecursionError, NotImplementedError: bugs)
     except (OSError, RuntimeError, KeyError, ValueError, TypeError, IndexError, UnicodeDecodeError) as exc:
+        if isinstance(exc, RuntimeError) and type(exc) is not RuntimeError:
+            raise
         reason = str(exc) if not isinstance(exc, KeyError) else f"{exc} missing"
         error = f"cannot restart from {str(path)!r}: {' '.join(reason.split())}"  # HDF5's text has newlines
     errors = comm.allgather(error)

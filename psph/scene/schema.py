@@ -4,7 +4,6 @@ Key paths are part of psph's interface (scripts set them with --set): keep them 
 """
 
 import math
-import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,7 +13,6 @@ from psph.errors import SceneError
 from psph.scene.validate import option
 
 OUTFLOW_FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
-SCENE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 
 
 def _overlap(lo, hi, other_lo, other_hi, margin=0.0) -> bool:
@@ -775,9 +773,6 @@ class Scene:
         return None
 
     def check(self, path):
-        if not SCENE_NAME.fullmatch(self.name):  # "../x" or "a/b" would put ./NAME_out elsewhere
-            raise SceneError("name", f"{self.name!r}: use letters, digits, '.', '_' and '-', starting with a letter "
-                             f"or digit (the default output directory is ./NAME_out)")
         fluid = self.physics.scheme in FLUID_SCHEMES
         if self.bodies:
             if self.domain.dimension != 2:
