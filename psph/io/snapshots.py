@@ -34,6 +34,24 @@ def snapshot_name(index: int) -> str:
     return f"snapshot_{index:06d}.h5"
 
 
+def _write_rows(ds, start, arr) -> None:
+    """Write `arr` to rows [start, start + len(arr)) of `ds` in one collective MPI-IO call, which every rank
+    must make: h5py's ds[a:a] = arr returns without one for an empty block (a rank holding no particle, as
+    when there are fewer particles than ranks), and the other ranks then waited in it for ever."""
+    dxpl = h5py.h5p.create(h5py.h5p.DATASET_XFER)
+    dxpl.set_dxpl_mpio(h5py.h5fd.MPIO_COLLECTIVE)
+    file_space = ds.id.get_space()
+    if len(arr):
+        file_space.select_hyperslab((start,) + (0,) * (arr.ndim - 1), arr.shape)
+        memory_space = h5py.h5s.create_simple(arr.shape)
+    else:  # nothing to write, but the call all the same
+        file_space.select_none()
+        arr = np.zeros((1,) + arr.shape[1:], dtype=arr.dtype)
+        memory_space = h5py.h5s.create_simple(arr.shape)
+        memory_space.select_none()
+    ds.id.write(memory_space, file_space, arr, dxpl=dxpl)
+
+
 def write_particle_file(comm, path, start, total, data, attrs, extra=None) -> None:
     """HDF5 file with /particles/<name> datasets (this rank's rows of `data` at [start, start + len)),
     file attributes `attrs` and root datasets `extra` (rank 0's values: every rank must create the same
@@ -45,8 +63,7 @@ def write_particle_file(comm, path, start, total, data, attrs, extra=None) -> No
             grp = f.create_group("particles")
             for name, arr in data.items():
                 ds = grp.create_dataset(name, shape=(total,) + arr.shape[1:], dtype=arr.dtype)
-                with ds.collective:
-                    ds[start:start + len(arr)] = arr
+                _write_rows(ds, start, np.ascontiguousarray(arr))
             for name, arr in extra.items():
                 ds = f.create_dataset(name, shape=arr.shape, dtype=arr.dtype)
                 if comm.rank == 0:

@@ -194,6 +194,27 @@ def test_tiny_system_leaves_ranks_empty(comm):
     assert np.isfinite(report["L2_grad_c"]) and report["L2_grad_c"] > 0.0
 
 
+def test_a_snapshot_with_fewer_particles_than_ranks_is_written(comm, tmp_path):
+    """Two particles on three ranks give one rank an empty block of the snapshot: h5py skipped its part of the
+    collective write, and the other ranks waited in theirs for ever (a hang, found by an audit)."""
+    import h5py
+
+    from psph.io.snapshots import SnapshotWriter
+    from psph.particles import ParticleSet
+
+    p = ParticleSet(2)
+    mine = np.array([comm.rank]) if comm.rank < 2 else np.zeros(0, dtype=np.int64)  # 1 or 2 particles
+    p.set_owned({"gid": mine, "position": np.array([[0.25 + 0.5 * comm.rank, 0.5]])[: len(mine)],
+                 "kind": np.zeros(len(mine), np.int8), "volume": np.full(len(mine), 1e-3)})
+    out = comm.bcast(tmp_path, root=0)
+    path = SnapshotWriter(comm, out, Domain((0.0, 0.0), (1.0, 1.0), (False, False))).write(p, step=0, time=0.0)
+    if comm.rank == 0:
+        with h5py.File(path) as f:
+            n = min(comm.size, 2)
+            assert list(f["particles/gid"][()]) == list(range(n))
+            assert np.allclose(f["particles/position"][()], [[0.25 + 0.5 * k, 0.5] for k in range(n)])
+
+
 def test_rcb_splits_weights_evenly(comm):
     rng = np.random.default_rng(comm.rank)
     pos = rng.uniform(0.0, 1.0, (1000 + 100 * comm.rank, 2))
