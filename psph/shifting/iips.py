@@ -19,8 +19,9 @@ Triggering and stopping (thesis Algorithms 1-3, eq. 8.34-8.35):
   beta times the value after a static pre-procedure of `iips.pre_newton` iterations (`iips.beta`);
 - Procedure A: at least one Newton iteration per call, then more while above the threshold;
   Procedure B: iterate only while above the threshold;
-- at most `iips.max_newton` iterations per call. With a threshold, not reaching it is a stall: by default
-  (`iips.on_stall = "best"`) the call keeps its iterate of lowest Linf(grad C) (with
+- at most `iips.max_newton` iterations per call, and none from a distribution level to round-off
+  (Linf(grad C) <= ROUNDOFF_LINF = 1e-12, whatever the procedure). With a threshold, not reaching it is a
+  stall: by default (`iips.on_stall = "best"`) the call keeps its iterate of lowest Linf(grad C) (with
   `iips.stall_max_shift = c`, of those that move no particle farther than c h; the start qualifies) and
   the stall is reported and counted, as the thesis caps the iterations for cost (section 10.1.1). The
   printed operator is not the exact Jacobian (seeds/README.md), so near the threshold the iteration can
@@ -61,6 +62,10 @@ COINCIDENT = 1e-6
 NUDGE = 1e-3
 # Linf(grad C) below this is round-off (a perfect lattice gives ~1e-14): growth from there is not divergence
 DIVERGENCE_FLOOR = 1e-6
+# Linf(grad C) at which a distribution is level to round-off (sums of ~50 terms of O(1) carry ~1e-14): no
+# Newton step is taken from there, whatever the procedure or threshold. Its right-hand side is noise, which
+# the solve cannot reduce by rtol (BCGS ended DIVERGED_DTOL or BREAKDOWN, on some rank counts and not others)
+ROUNDOFF_LINF = 1e-12
 PREFIX = "iips_"  # the options prefix of the IIPS solver and matrix
 
 
@@ -269,7 +274,7 @@ class ImplicitShifting(Shifting):
             p.add_field(STEP_FIELD)
         best_linf = linf
         stuck = False
-        while report.iterations < max_newton:
+        while report.iterations < max_newton and linf > ROUNDOFF_LINF:
             above = threshold is None or linf > threshold
             if not (above or (at_least_one and report.iterations == 0)):
                 break

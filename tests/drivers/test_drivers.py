@@ -113,6 +113,23 @@ def test_a_static_runs_failure_names_its_iteration_and_place(tmp_path):
     assert re.search(r"after 2 iterations \[iteration 2, particle gid \d+, at \(", stalled.stderr), stalled.stderr
 
 
+def test_a_static_run_level_to_round_off_takes_no_further_newton_step(tmp_path):
+    """From a distribution level to round-off a Newton step solves for noise: on 2 and 3 ranks BCGS ended
+    DIVERGED_DTOL (1-D, cubic spline, after converging) or BREAKDOWN (2-D, from the lattice), and the run
+    stopped as a numerical failure. Now the call ends there, converged."""
+    one_d = ["--set", "domain.dimension=1", "--set", "domain.lower=[0.0]", "--set", "domain.upper=[1.0]", "--set",
+             "domain.periodic=[true]", "--set", "domain.kernel=cubic_spline", "--set", "shifting.method=iips"]
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "a", "--quiet", *one_d, "--set",
+                   "domain.dx=0.05", "--set", "initial.sigma_over_dx=0.5", "--set", "iips.max_newton=15")
+    assert res.returncode == 0, res.stderr
+    rows = read_history(tmp_path / "a" / "history.csv")
+    assert len(rows) - 1 < 15 and rows[-1]["Linf_grad_c"] <= 1e-12 < rows[-2]["Linf_grad_c"]
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "b", "--quiet", "--set",
+                   "domain.dx=0.05", "--set", "initial.sigma_over_dx=0", "--set", "shifting.method=iips")
+    assert res.returncode == 0, res.stderr
+    assert json.loads((tmp_path / "b" / "summary.json").read_text())["steps"] == 0  # the lattice: nothing to do
+
+
 @pytest.mark.long
 def test_relaxed_start_keeps_procedure_b_from_stalling(tmp_path):
     """The frozen Taylor-Green field strains a lattice into a distribution IIPS cannot level: Procedure B stalls
