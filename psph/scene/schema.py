@@ -419,7 +419,7 @@ class IIPSSpec:
     beta: float = option(0.0, doc="threshold = beta x Linf(grad C) after the pre-procedure (thesis eq. 8.34; "
                          "0: unused)", ge=0.0)
     max_newton: int = option(20, doc="Newton iterations per call at most (a static run: exactly, without "
-                             "threshold)", ge=1, le=100000)
+                             "threshold, unless Linf(grad C) reaches round-off, 1e-12)", ge=1, le=100000)
     pre_newton: int = option(0, doc="Newton iterations of the static pre-procedure before a time-dependent "
                              "run, whatever the shifting method (thesis: 100); from a perturbed lattice "
                              "(initial.sigma_over_dx) it gives a relaxed start", ge=0)
@@ -774,6 +774,9 @@ class Scene:
 
     def check(self, path):
         fluid = self.physics.scheme in FLUID_SCHEMES
+        if self.physics.scheme == "none" and self.iips.pre_newton > 0:  # ran silently without either
+            raise SceneError("iips.pre_newton", "a static run is itself the pre-procedure (its iterations are "
+                             "iips.max_newton); pre_newton and beta apply to kinematic and fluid runs")
         if self.bodies:
             if self.domain.dimension != 2:
                 raise SceneError("bodies", "solid bodies are 2-D (seed 004 gives the 2-D clone particles)")

@@ -67,6 +67,7 @@ def test_minimal_scene_gets_defaults():
     ("physics.riemann_dissipation", "low", "physics.riemann_dissipation", "belong to physics.scheme = riemann_ale"),
     ("physics.muscl_limiter", "superbee", "physics.muscl_limiter", "not one of"),
     ("iips.update", "nfts", "iips.update", 'not \'none\' (set iips.update = "none")'),
+    ("iips.pre_newton", 5, "iips.pre_newton", "a static run is itself the pre-procedure"),
 ])
 def test_bad_values_name_their_key(path, value, key, words):
     with pytest.raises(SceneError) as info:
