@@ -79,6 +79,11 @@ class StaticDriver(Driver):
         iterations = len(sim.history.rows) - 1  # an iteration iips.backtrack undid has no row, nor a state
         if result.message:
             sim.log(result.message)
+        if result.failed:  # kept: the best iterate, the start (reject) or a diverged step (warn)
+            report = distribution_report(system, wavelength)
+            sim.log(f"the state kept: L2(grad C) = {report['L2_grad_c']:.4e}, Linf(grad C) = "
+                    f"{report['Linf_grad_c']:.4e}, L2(df/dx) = {report['L2_dfdx']:.4e} (the last snapshot's and "
+                    f"summary.json's final values)")
         if iterations:
             path = sim.snapshots.write(system.particles, step=iterations, time=float(iterations),
                                        extra={"grad_c": grad_c(system)})

@@ -312,14 +312,13 @@ class ImplicitShifting(Shifting):
                                                                                or stuck):
             mode = self.spec.on_stall
             where = self._place(system, grad, where, last=report.iterations)  # the last iterate, as described
-            failure = NumericalError(f"IIPS Newton stalled: Linf(grad C) = {linf:.3e} above the threshold "
-                                     f"{threshold:.3e} after {report.iterations} iterations"
-                                     + (f" (no descent in {self.spec.backtrack} halvings)" if stuck else ""),
-                                     **where)
+            stalled = (f"IIPS Newton stalled: Linf(grad C) = {linf:.3e} above the threshold {threshold:.3e} after "
+                       f"{report.iterations} iterations"
+                       + (f" (no descent in {self.spec.backtrack} halvings)" if stuck else ""))
             if mode == "best":
                 self._restore(system, p.owned(BEST_FIELD.name), report)
-                failure = NumericalError(f"{failure}; kept the iterate of Linf(grad C) = "
-                                         f"{report.Linf_grad_c:.3e}", **where)
+                stalled += f"; kept the iterate of Linf(grad C) = {report.Linf_grad_c:.3e}"
+            failure = NumericalError(stalled, **where)
         if failure is not None:
             self._fail(system, report, failure, where, mode)
         elif stuck:
@@ -395,7 +394,8 @@ class ImplicitShifting(Shifting):
             report.rejected = True
             self.rejections += 1
         report.failed = True
-        report.message = f"IIPS call {'rejected' if mode == 'reject' else 'kept despite'}: {failure}"
+        prefix = {"reject": "IIPS call rejected: ", "warn": "IIPS call kept despite: "}.get(mode, "")
+        report.message = f"{prefix}{failure}"  # (best: the failure says what was kept)
         self.failures += 1
 
     def max_shift(self, system) -> float:

@@ -113,6 +113,21 @@ def test_a_static_runs_failure_names_its_iteration_and_place(tmp_path):
     assert re.search(r"after 2 iterations \[iteration 2, particle gid \d+, at \(", stalled.stderr), stalled.stderr
 
 
+def test_a_static_runs_summary_describes_the_state_it_kept(tmp_path):
+    """A stalled static call that undoes its displacements (iips.on_stall = "reject") kept the start, while
+    summary.json gave the last iterate's Linf(grad C): the final values now are the kept state's."""
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path, "--quiet", "--set", "domain.dx=0.05",
+                   "--set", "shifting.method=iips", "--set", "initial.sigma_over_dx=0.5", "--set",
+                   "iips.threshold=1e-12", "--set", "iips.max_newton=3", "--set", "iips.on_stall=reject")
+    assert res.returncode == 0, res.stderr
+    start = read_history(tmp_path / "history.csv")[0]
+    final = json.loads((tmp_path / "summary.json").read_text())["final"]
+    assert np.isclose(final["Linf_grad_c"], start["Linf_grad_c"], rtol=1e-9)
+    with h5py.File(sorted(tmp_path.glob("snapshot_*.h5"))[-1]) as f:
+        grad = f["particles/grad_c"][()]
+    assert np.isclose(np.linalg.norm(grad, axis=1).max() * 0.05 * 2.0, start["Linf_grad_c"], rtol=1e-9)
+
+
 def test_a_static_run_level_to_round_off_takes_no_further_newton_step(tmp_path):
     """From a distribution level to round-off a Newton step solves for noise: on 2 and 3 ranks BCGS ended
     DIVERGED_DTOL (1-D, cubic spline, after converging) or BREAKDOWN (2-D, from the lattice), and the run
