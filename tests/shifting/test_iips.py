@@ -128,8 +128,12 @@ def test_procedures_a_and_b():
     assert 0 < t.iterations < 20 and t.Linf_grad_c <= 1e-3
 
 
+# a time-dependent scene: a pre-procedure (iips.pre_newton) precedes only those (a static run refuses it)
+KINEMATIC = {"physics": {"scheme": "kinematic"}, "time": {"t_end": 0.1}, "shifting": {"method": "iips"}}
+
+
 def test_beta_threshold_from_pre_procedure():
-    scene = periodic_scene(n=20, sigma=0.1, iips={"max_newton": 30, "pre_newton": 10, "beta": 5.0})
+    scene = periodic_scene(n=20, sigma=0.1, iips={"max_newton": 30, "pre_newton": 10, "beta": 5.0}, **KINEMATIC)
     system = build_system(scene, MPI.COMM_SELF)
     shifting = ImplicitShifting(scene.iips, MPI.COMM_SELF)
     init = shifting.prepare(system)
@@ -526,7 +530,8 @@ def test_a_guess_worse_than_zero_is_not_used():
     took 40% more KSP iterations here, and diverged at iteration 0 in the kinematic case at dx = 0.025)."""
 
     def prepare_and_correct(**options):
-        scene = periodic_scene(n=24, sigma=0.1, iips={"max_newton": 3, "pre_newton": 30, "procedure": "A"})
+        scene = periodic_scene(n=24, sigma=0.1, iips={"max_newton": 3, "pre_newton": 30, "procedure": "A"},
+                               **KINEMATIC)
         system = build_system(scene, MPI.COMM_SELF)
         with petsc_options(**options):
             shifting = ImplicitShifting(scene.iips, MPI.COMM_SELF)
