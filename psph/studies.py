@@ -375,6 +375,47 @@ def iips_pair_defects(pos, vol, h_over_dx, newton=3) -> dict:
             "linf": linf, "max_step": max_step}
 
 
+def viscous_operator_on_lattice(n, dim, h_over_dx, morris, sigma, rng, kernel="wendland_c6", stretch=1.0):
+    """The viscous operator (per unit nu; pi_ij of seed 001 eq. 11, or Morris' with `morris`) of psph's sums on
+    a periodic lattice of spacing dx = 1/16, n^dim particles (in 2-D with `stretch` a: spacing a dx along x and
+    dx / a along y, n / a by n a particles), perturbed by sigma dx (Gaussian, from `rng`), as a dense matrix,
+    with dx, the kernel and the largest diagonal weight (sums.largest_kernel_factor_sum): what
+    psph.schemes.viscous_limit's estimate is checked against (tests/schemes/test_viscous_limit.py,
+    run_scripts/viscous_limit_check.py)."""
+    from psph.compute import sums
+    from psph.compute.neighbours import build_neighbour_lists
+    from psph.compute.smoothing import make_kernel
+
+    dx = 1.0 / 16
+    spacing = np.array([stretch, 1.0 / stretch] if dim == 2 else [1.0] * dim) * dx
+    counts = np.array([max(4, round(n / stretch)), max(4, round(n * stretch))] if dim == 2 else [n] * dim)
+    box = counts * spacing
+    axes = [np.arange(c) * s for c, s in zip(counts, spacing)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, dim)
+    grid = (grid + sigma * dx * rng.standard_normal(grid.shape)) % box
+    kern = make_kernel(kernel, dim, h_over_dx * dx)
+    shifts = np.stack(np.meshgrid(*[[-1.0, 0.0, 1.0]] * dim, indexing="ij"), axis=-1).reshape(-1, dim)
+    shifts = shifts[np.argsort(np.abs(shifts).sum(axis=1), kind="stable")] * box  # the unshifted copy first
+    pos = np.ascontiguousarray(np.concatenate([grid + s for s in shifts]))
+    m = len(grid)
+    ptr, idx = build_neighbour_lists(pos, m, kern.support)
+    vol = np.full(len(pos), dx ** dim)
+    matrix = np.zeros((m * dim, m * dim))
+    for column in range(m * dim):
+        u = np.zeros((m, dim))
+        u.flat[column] = 1.0
+        images = np.tile(u, (len(shifts), 1))
+        out = np.zeros((m, dim))
+        if morris:
+            for a in range(dim):
+                sums.laplacian_morris(pos, vol, ptr, idx, kern.params, np.ascontiguousarray(images[:, a]), out[:, a])
+        else:
+            sums.viscous_pi(pos, vol, ptr, idx, kern.params, images, out)
+        matrix[:, column] = out.ravel()
+    diagonal = sums.largest_kernel_factor_sum(pos, vol, ptr, idx, kern.params, np.arange(m), not morris)
+    return matrix, dx, kern, diagonal
+
+
 def tgv_operator_errors(pos, vol, h_over_dx, morris=False) -> dict:
     """How well the delta-ALE-SPH operators (psph.compute.fluid, the kernels every run uses) reproduce the
     analytic Taylor-Green vortex on a given 2-D particle distribution of the bi-periodic unit box (e.g.

@@ -15,8 +15,9 @@ sum_j V_j F_ij e_ij e_ij^T, whose direction matters (a lattice stretched 2 times
 raises pi_ij's lambda_max more than the scalar sum shows). Disorder and stretching widen the spectrum (up to
 3.6 times the lattice's in the checks). Against the assembled operator on perturbed (sigma up to 0.8 dx)
 and stretched (up to 2 times) periodic lattices, with Wendland C2, C4, C6 and the cubic spline at h/dx =
-1.2-2.5 and both operators, the estimate lies within 0.96-1.58 of the true lambda_max (224 cases, 2-D;
-tests/schemes/test_viscous_limit.py checks a subset and 3-D); SAFETY = 0.8 covers the low side.
+1.2-2.5 and both operators, the estimate lies within 0.96-1.58 of the true lambda_max (224 cases, 2-D:
+run_scripts/viscous_limit_check.py; tests/schemes/test_viscous_limit.py checks a subset and 3-D); SAFETY =
+0.8 covers the low side.
 """
 
 import numpy as np

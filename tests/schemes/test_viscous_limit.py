@@ -6,10 +6,9 @@ import json
 import numpy as np
 import pytest
 
-from psph.compute import sums
-from psph.compute.neighbours import build_neighbour_lists
-from psph.compute.smoothing import KERNEL_NAMES, make_kernel
+from psph.compute.smoothing import KERNEL_NAMES
 from psph.schemes.viscous_limit import REAL_AXIS_REACH, SAFETY, lattice_symbol
+from psph.studies import viscous_operator_on_lattice
 from tests.helpers import CASES, run_psph
 
 
@@ -25,48 +24,13 @@ def test_the_reach_is_where_the_stability_polynomial_leaves_the_unit_disc(integr
     assert abs(abs(r(-reach)) - 1.0) < 1e-12 and abs(r(-reach * (1.0 + 1e-6))) > 1.0
 
 
-def periodic_operator(n, dim, h_over_dx, morris, sigma, rng, kernel="wendland_c6", stretch=1.0):
-    """The viscous operator (per unit nu) of psph's sums on a periodic lattice of spacing dx = 1/16, n^dim
-    particles (in 2-D with `stretch` a: spacing a dx along x and dx / a along y, n / a by n a particles),
-    perturbed by sigma dx, as a dense matrix, with dx, the kernel and the largest diagonal weight
-    (sums.largest_kernel_factor_sum)."""
-    dx = 1.0 / 16
-    spacing = np.array([stretch, 1.0 / stretch] if dim == 2 else [1.0] * dim) * dx
-    counts = np.array([max(4, round(n / stretch)), max(4, round(n * stretch))] if dim == 2 else [n] * dim)
-    box = counts * spacing
-    axes = [np.arange(c) * s for c, s in zip(counts, spacing)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, dim)
-    grid = (grid + sigma * dx * rng.standard_normal(grid.shape)) % box
-    kern = make_kernel(kernel, dim, h_over_dx * dx)
-    shifts = np.stack(np.meshgrid(*[[-1.0, 0.0, 1.0]] * dim, indexing="ij"), axis=-1).reshape(-1, dim)
-    shifts = shifts[np.argsort(np.abs(shifts).sum(axis=1), kind="stable")] * box  # the unshifted copy first
-    pos = np.ascontiguousarray(np.concatenate([grid + s for s in shifts]))
-    m = len(grid)
-    ptr, idx = build_neighbour_lists(pos, m, kern.support)
-    vol = np.full(len(pos), dx ** dim)
-    matrix = np.zeros((m * dim, m * dim))
-    for column in range(m * dim):
-        u = np.zeros((m, dim))
-        u.flat[column] = 1.0
-        images = np.tile(u, (len(shifts), 1))
-        out = np.zeros((m, dim))
-        if morris:
-            for a in range(dim):
-                sums.laplacian_morris(pos, vol, ptr, idx, kern.params, np.ascontiguousarray(images[:, a]), out[:, a])
-        else:
-            sums.viscous_pi(pos, vol, ptr, idx, kern.params, images, out)
-        matrix[:, column] = out.ravel()
-    diagonal = sums.largest_kernel_factor_sum(pos, vol, ptr, idx, kern.params, np.arange(m), not morris)
-    return matrix, dx, kern, diagonal
-
-
 @pytest.mark.parametrize("morris", [False, True])
 @pytest.mark.parametrize("h_over_dx", [1.5, 2.0])
 def test_the_lattice_symbol_is_the_assembled_operators_largest_eigenvalue(morris, h_over_dx):
     """On a periodic lattice the operator is a convolution: its eigenvalues are its symbol's values (pi_ij with
     Wendland C6 at h/dx = 2: lambda_max h^2 = 30.17, where RK3 is stable up to 2.51 / 0.125 = 20.1 under the
     old limit 0.125 h^2 / nu)."""
-    matrix, dx, kernel, diagonal = periodic_operator(12, 2, h_over_dx, morris, 0.0, np.random.default_rng(0))
+    matrix, dx, kernel, diagonal = viscous_operator_on_lattice(12, 2, h_over_dx, morris, 0.0, np.random.default_rng(0))
     eigenvalues = np.linalg.eigvals(matrix)
     largest, lattice_diagonal = lattice_symbol(kernel, 2, dx, morris)
     assert np.abs(eigenvalues.imag).max() < 1e-9 * largest and eigenvalues.real.max() < 1e-9 * largest
@@ -86,7 +50,7 @@ def test_the_estimate_on_disordered_or_stretched_particles_keeps_the_step_stable
     directional: with the scalar sum, a lattice stretched 2 times got 0.62-0.76 of the true eigenvalue."""
     rng = np.random.default_rng(5)
     for sigma, stretch in ((0.5, 1.0), (0.0, 2.0), (0.3, 1.5)):
-        matrix, dx, kern, diagonal = periodic_operator(12, 2, h_over_dx, morris, sigma, rng, kernel, stretch)
+        matrix, dx, kern, diagonal = viscous_operator_on_lattice(12, 2, h_over_dx, morris, sigma, rng, kernel, stretch)
         true = -np.linalg.eigvals(matrix).real.min()
         largest, lattice_diagonal = lattice_symbol(kern, 2, dx, morris)
         estimate = largest * max(1.0, diagonal / lattice_diagonal)
@@ -95,7 +59,7 @@ def test_the_estimate_on_disordered_or_stretched_particles_keeps_the_step_stable
 
 @pytest.mark.parametrize("morris", [False, True])
 def test_the_estimate_holds_in_3d(morris):
-    matrix, dx, kern, diagonal = periodic_operator(5, 3, 2.0, morris, 0.3, np.random.default_rng(2))
+    matrix, dx, kern, diagonal = viscous_operator_on_lattice(5, 3, 2.0, morris, 0.3, np.random.default_rng(2))
     true = -np.linalg.eigvals(matrix).real.min()
     largest, lattice_diagonal = lattice_symbol(kern, 3, dx, morris)
     assert SAFETY * true < largest * max(1.0, diagonal / lattice_diagonal) < 1.7 * true
