@@ -274,7 +274,7 @@ class ImplicitShifting(Shifting):
             p.add_field(STEP_FIELD)
         best_linf = linf
         stuck = False
-        while report.iterations < max_newton and linf > ROUNDOFF_LINF:
+        while report.iterations < max_newton and not linf <= ROUNDOFF_LINF:  # (NaN iterates, and fails)
             above = threshold is None or linf > threshold
             if not (above or (at_least_one and report.iterations == 0)):
                 break

@@ -760,3 +760,13 @@ def test_a_script_that_keeps_its_solver_until_exit_ends_cleanly(operator, ending
     assert proc.stdout.strip() == "done"
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "SEGV" not in proc.stderr
+
+
+def test_a_non_finite_concentration_gradient_fails_and_is_not_taken_for_round_off():
+    """A call stops taking Newton steps once Linf(grad C) is at round-off (ROUNDOFF_LINF); NaN is not below it:
+    the call still fails, naming a particle, instead of returning the NaN state as converged."""
+    scene = periodic_scene(n=12, sigma=0.1, iips={"max_newton": 3})
+    system = build_system(scene, MPI.COMM_SELF)
+    system.particles.owned("volume")[5] = np.nan
+    with pytest.raises(NumericalError, match=r"DIVERGED_NANORINF.*\[particle gid \d+, at \("):
+        ImplicitShifting(scene.iips, MPI.COMM_SELF).correct(system)
