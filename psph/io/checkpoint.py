@@ -6,6 +6,7 @@
         /state                 JSON (uint8): scene table, step, time, driver counters, history rows,
                                snapshot index, field specs, rank counts, the decomposition
         attrs: format, step, time
+        every dataset with a Fletcher32 checksum per chunk: a restart refuses a damaged one, naming it
 
 Written to a temporary name, fsynced and renamed; the run's previous checkpoint (or, on a restart, the
 continued run's ones up to the restart) is removed only once the new one is complete, so a run killed at
@@ -126,7 +127,7 @@ def _check_rows(f, arrays, start, gids=False) -> None:
     row `start`), and, with `gids`, for gids that are not unique over the whole file (read by one rank:
     read_checkpoint passes every rank's error to all)."""
     if gids:
-        every = f["particles"]["gid"][:]
+        every = _read(f["particles"]["gid"], np.s_[:], "particles/gid")
         unique, counts = np.unique(every, return_counts=True)
         if len(unique) < len(every):
             raise ValueError(f"particles/gid repeats gid {unique[np.argmax(counts)]}")
@@ -138,6 +139,15 @@ def _check_rows(f, arrays, start, gids=False) -> None:
         if name in arrays and (arrays[name] <= 0.0).any():
             row = int(np.argmax(arrays[name] <= 0.0))
             raise ValueError(f"particles/{name} holds {arrays[name][row]:g} in row {start + row}, not > 0")
+
+
+def _read(ds, selection, what) -> np.ndarray:
+    """ds[selection]; ValueError naming `what` if HDF5 cannot read it (a chunk failing its checksum)."""
+    try:
+        return ds[selection]
+    except OSError as exc:
+        reason = "its Fletcher32 checksum fails" if "fletcher32" in str(exc).lower() else " ".join(str(exc).split())
+        raise ValueError(f"{what} is damaged: {reason}") from None
 
 
 def _read_rows(f, state, name, start, stop, dim) -> np.ndarray:
@@ -154,7 +164,7 @@ def _read_rows(f, state, name, start, stop, dim) -> np.ndarray:
         raise ValueError(f"particles/{name} has shape {ds.shape}, expected {(total,) + tail}")
     if ds.dtype != dtype:
         raise ValueError(f"particles/{name} holds {ds.dtype}, expected {dtype}")
-    rows = ds[start:stop]
+    rows = _read(ds, np.s_[start:stop], f"particles/{name}")
     if dtype.kind in "fc":
         bad = ~np.isfinite(rows)
         if bad.any():
@@ -182,7 +192,7 @@ def read_checkpoint(comm, path) -> tuple:
         with h5py.File(path, "r") as f:
             if f.attrs.get("format") != FORMAT or "state" not in f:
                 raise OSError("not a psph checkpoint")
-            state = json.loads(bytes(f["state"][()]).decode())
+            state = json.loads(bytes(_read(f["state"], (), "its state")).decode())
             _check_state(state)
             _keep_old_walls(state["scene"])
             boxes = state["decomposition"]["boxes"]

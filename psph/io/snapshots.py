@@ -4,9 +4,11 @@ Output contract (read by tools and tests; keep stable):
     OUT/snapshot_NNNNNN.h5   /particles/position (n x d, rows in ascending gid), /particles/gid,
                              /particles/kind, one dataset per field; attributes `time`, `step`
     OUT/psph.xdmf            temporal collection of the snapshots in OUT (ParaView: File > Open, Xdmf Reader)
-Each file is written to a temporary name and renamed once complete. The XDMF lists only snapshot files in
-its own directory: a run continued from a checkpoint into another directory starts its series there at
-the checkpoint (the earlier snapshots stay in the original directory, listed by its own psph.xdmf).
+Every dataset carries HDF5's Fletcher32 checksum (any HDF5 reader checks it, and fails on a damaged chunk
+rather than return its bytes). Each file is written to a temporary name and renamed once complete. The
+XDMF lists only snapshot files in its own directory: a run continued from a checkpoint into another
+directory starts its series there at the checkpoint (the earlier snapshots stay in the original directory,
+listed by its own psph.xdmf).
 """
 
 import os
@@ -52,22 +54,37 @@ def _write_rows(ds, start, arr) -> None:
     ds.id.write(memory_space, file_space, arr, dxpl=dxpl)
 
 
+CHUNK_BYTES = 1 << 20  # a checksummed dataset's chunks: about 1 MiB each
+
+
+def _checksummed(shape, dtype) -> dict:
+    """create_dataset's arguments for a dataset with a Fletcher32 checksum per chunk (chunks of whole rows, at
+    most about CHUNK_BYTES, equal so that the last holds no unused rows: HDF5 stores every chunk whole), or
+    none for an empty one (HDF5 chunks only non-empty shapes)."""
+    if 0 in shape:
+        return {}
+    row = max(1, int(np.prod(shape[1:], dtype=np.int64)) * np.dtype(dtype).itemsize)
+    chunks = -(-shape[0] * row // CHUNK_BYTES)
+    return {"chunks": (-(-shape[0] // chunks),) + tuple(shape[1:]), "fletcher32": True}
+
+
 def write_particle_file(comm, path, start, total, data, attrs, extra=None) -> None:
     """HDF5 file with /particles/<name> datasets (this rank's rows of `data` at [start, start + len)),
     file attributes `attrs` and root datasets `extra` (rank 0's values: every rank must create the same
-    datasets). Collective: parallel HDF5, or, for an h5py without MPI, rank 0 gathers the blocks (in rank
-    order) and writes."""
+    datasets), each with a Fletcher32 checksum. Collective: parallel HDF5 (whose writes to a filtered
+    dataset must be collective: rank 0 writes `extra`, the others an empty block), or, for an h5py without
+    MPI, rank 0 gathers the blocks (in rank order) and writes."""
     extra = comm.bcast(extra or {}, root=0)
     if h5py_has_mpi():
         with h5py.File(path, "w", driver="mpio", comm=comm) as f:
             grp = f.create_group("particles")
             for name, arr in data.items():
-                ds = grp.create_dataset(name, shape=(total,) + arr.shape[1:], dtype=arr.dtype)
+                shape = (total,) + arr.shape[1:]
+                ds = grp.create_dataset(name, shape=shape, dtype=arr.dtype, **_checksummed(shape, arr.dtype))
                 _write_rows(ds, start, np.ascontiguousarray(arr))
             for name, arr in extra.items():
-                ds = f.create_dataset(name, shape=arr.shape, dtype=arr.dtype)
-                if comm.rank == 0:
-                    ds[...] = arr
+                ds = f.create_dataset(name, shape=arr.shape, dtype=arr.dtype, **_checksummed(arr.shape, arr.dtype))
+                _write_rows(ds, 0, np.ascontiguousarray(arr if comm.rank == 0 else arr[:0]))
             for k, v in attrs.items():
                 f.attrs[k] = v
         return
@@ -76,9 +93,10 @@ def write_particle_file(comm, path, start, total, data, attrs, extra=None) -> No
         with h5py.File(path, "w") as f:
             grp = f.create_group("particles")
             for name, blocks in parts.items():
-                grp.create_dataset(name, data=np.concatenate(blocks))
+                arr = np.concatenate(blocks)
+                grp.create_dataset(name, data=arr, **_checksummed(arr.shape, arr.dtype))
             for name, arr in extra.items():
-                f.create_dataset(name, data=arr)
+                f.create_dataset(name, data=arr, **_checksummed(arr.shape, arr.dtype))
             for k, v in attrs.items():
                 f.attrs[k] = v
 

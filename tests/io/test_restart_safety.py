@@ -190,6 +190,50 @@ def test_a_checkpoint_with_damaged_metadata_is_one_line(finished, tmp_path):
         read_checkpoint(MPI.COMM_SELF, bad)
 
 
+def flip_a_bit(path, dataset, row):
+    """Flip one bit of `dataset`'s stored bytes in the chunk holding `row` (a disk or copy error that leaves
+    the file's structure whole: the values read back would be plausible and wrong)."""
+    with h5py.File(path, "r") as f:
+        ds = f[dataset]
+        chunk = ds.id.get_chunk_info_by_coord((row - row % ds.chunks[0],) + (0,) * (ds.ndim - 1))
+    with open(path, "r+b") as raw:
+        raw.seek(chunk.byte_offset + 5)
+        byte = raw.read(1)[0]
+        raw.seek(chunk.byte_offset + 5)
+        raw.write(bytes([byte ^ 0x04]))
+
+
+@pytest.mark.parametrize("ranks", [1, 2])
+@pytest.mark.parametrize("dataset,what", [("particles/position", "particles/position"),
+                                          ("particles/gid", "particles/gid"), ("state", "its state")])
+def test_a_checkpoint_damaged_within_a_dataset_is_refused_naming_it(finished, tmp_path, ranks, dataset, what):
+    """Every dataset has a Fletcher32 checksum: one flipped bit in the stored values (which the checks of
+    structure, finiteness and range need not see) refuses the restart, naming the dataset, on every rank
+    (the position's damaged rows are rank 0's of two)."""
+    bad = tmp_path / "flipped.h5"
+    shutil.copy(finished / CHECKPOINT, bad)
+    flip_a_bit(bad, dataset, 0)
+    done = run_psph("run", "--restart", bad, "--out", tmp_path / "out", ranks=ranks, timeout=120)
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert done.stderr.splitlines()[0] == (f"psph: error: cannot restart from {str(bad)!r}: {what} is damaged: "
+                                           "its Fletcher32 checksum fails")
+    assert not (tmp_path / "out").exists()
+
+
+def test_every_dataset_of_a_snapshot_and_a_checkpoint_is_checksummed(finished):
+    def datasets(f):
+        found = []
+        f.visititems(lambda name, obj: found.append((name, obj.fletcher32)) if isinstance(obj, h5py.Dataset) else None)
+        return found
+
+    names = []
+    for path in sorted(finished.glob("*.h5")):
+        with h5py.File(path, "r") as f:
+            names += [(path.name, name, checked) for name, checked in datasets(f)]
+    assert len(names) > 20 and {n[0] for n in names} == {p.name for p in finished.glob("*.h5")}
+    assert [n[:2] for n in names if not n[2]] == []
+
+
 @pytest.mark.parametrize("case,expected", [("dam_break.toml", True), ("taylor_green.toml", False)])
 def test_a_checkpoint_older_than_wall_adhesion_keeps_the_walls_it_ran_with(finished, tmp_path, case, expected):
     """A checkpoint's scene lists every key of its day: one written before physics.wall_adhesion has none,
