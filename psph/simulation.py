@@ -264,8 +264,7 @@ def estimate_time_step(scene) -> str:
             from psph.compute.smoothing import make_kernel
             from psph.schemes.viscous_limit import ViscousLimit
 
-            limit = ViscousLimit(make_kernel(d.kernel, d.dimension, d.h), d.dimension, d.dx, scheme.nu, scheme.morris,
-                                 t.integrator)
+            limit = ViscousLimit.of_scene(scene, scheme, make_kernel(d.kernel, d.dimension, d.h))
             if limit.step < dt:
                 dt = limit.step
                 how = (f"viscous limit {limit.step * scheme.nu / d.h**2:.3g} h^2 / nu on the lattice, h = {d.h:g}, "

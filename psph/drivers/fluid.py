@@ -233,8 +233,7 @@ class FluidDriver(Driver):
         self.scheme.initialize(self.system, t=self.resumed["time"] if restart else 0.0, fresh=restart is None)
         self.open = make_open_boundaries(scene, self.system)
         self.integrate = INTEGRATORS[scene.time.integrator]
-        self.viscous_limit = ViscousLimit(self.system.kernel, scene.domain.dimension, scene.domain.dx, self.scheme.nu,
-                                          self.scheme.morris, scene.time.integrator)
+        self.viscous_limit = ViscousLimit.of_scene(scene, self.scheme, self.system.kernel)
         self.reach = STAGE_REACH[scene.time.integrator]
         self.iips = None
         self.update = make_field_update(scene)

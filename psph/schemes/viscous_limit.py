@@ -76,6 +76,11 @@ class ViscousLimit:
         self.lattice, self.diagonal = lattice_symbol(kernel, dim, dx, morris)
         self.step = SAFETY * REAL_AXIS_REACH[integrator] / (nu * self.lattice) if nu > 0.0 else np.inf
 
+    @classmethod
+    def of_scene(cls, scene, scheme, kernel):
+        """The limit of `scene` run with `scheme` (its nu and operator) and `kernel`."""
+        return cls(kernel, scene.domain.dimension, scene.domain.dx, scheme.nu, scheme.morris, scene.time.integrator)
+
     def __call__(self, system, dt_cfl: float) -> float:
         """The viscous limit on the step of `system` now, or inf where it cannot bind. Collective."""
         if self.step >= self.BOTHER * dt_cfl:
