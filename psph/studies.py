@@ -52,14 +52,9 @@ def parse_args(parser, argv=None):
     return args
 
 
-def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, only_finished=False) -> Run:
-    """`psph run scene --out out --set ... [PETSc options]` on `ranks` MPI ranks; raises on failure.
-
-    With reuse (default: the PSPH_STUDY_REUSE environment variable is set), a directory holding a
-    complete run of exactly this command is read instead of run again (to resume or extend a study), and
-    one that psph stopped with a numerical diagnosis (exit code 3) raises that diagnosis again.
-    only_finished: reuse, and raise NotRun instead of running (a study's table from the runs it has).
-    The study's command line's --set and PETSc options (parse_args) follow `sets` and `petsc`."""
+def study_command(scene, out, sets=(), petsc=(), ranks=1, quiet=True) -> list:
+    """The command line of `psph run scene --out out --overwrite --set ... [PETSc options]` on `ranks` MPI
+    ranks, the study's command line's --set and PETSc options (parse_args) after `sets` and `petsc`."""
     cmd = [sys.executable, "-m", "psph", "run", str(scene), "--out", str(out), "--overwrite"]
     for s in [*sets, *_EVERY_RUN["sets"]]:
         cmd += ["--set", s]
@@ -68,6 +63,18 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, on
     cmd += [*petsc, *_EVERY_RUN["petsc"]]
     if ranks > 1:
         cmd = ["mpiexec", "-n", str(ranks), "--oversubscribe"] + cmd
+    return cmd
+
+
+def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, only_finished=False) -> Run:
+    """`psph run scene --out out --set ... [PETSc options]` on `ranks` MPI ranks; raises on failure.
+
+    With reuse (default: the PSPH_STUDY_REUSE environment variable is set), a directory holding a
+    complete run of exactly this command is read instead of run again (to resume or extend a study), and
+    one that psph stopped with a numerical diagnosis (exit code 3) raises that diagnosis again.
+    only_finished: reuse, and raise NotRun instead of running (a study's table from the runs it has).
+    The study's command line's --set and PETSc options (parse_args) follow `sets` and `petsc`."""
+    cmd = study_command(scene, out, sets, petsc, ranks, quiet)
     out = Path(out)
     stamp = out / "study_command.json"
     if only_finished:

@@ -23,13 +23,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from psph.studies import CASES, last_snapshot, parse_args, write_table  # noqa: E402
+from psph.studies import CASES, last_snapshot, parse_args, study_command, write_table  # noqa: E402
 
 SCENE = CASES / "taylor_green.toml"
 OUTCOMES = {"ran": "tab:green", "stopped (diagnosed)": "tab:orange", "BLEW UP (undiagnosed)": "tab:red"}
 
 
-def run_case(out, sigma, ratio, c0, reynolds, method, dx, t_end, extra=(), petsc=()):
+def run_case(out, sigma, ratio, c0, reynolds, method, dx, t_end):
     sets = [f"domain.dx={dx}", f"domain.h_over_dx={ratio}", f"initial.sigma_over_dx={sigma}",
             f"physics.sound_speed={c0}", f"physics.reynolds={reynolds}", f"shifting.method={method}",
             f"time.t_end={t_end}", "output.every=0", "output.history_every=20"]
@@ -37,11 +37,7 @@ def run_case(out, sigma, ratio, c0, reynolds, method, dx, t_end, extra=(), petsc
         sets += ["iips.update=nfts", "iips.threshold=0.001"]
     else:
         sets += ["iips.update=none"]
-    cmd = [sys.executable, "-m", "psph", "run", str(SCENE), "--out", str(out), "--overwrite", "--quiet"]
-    for s in [*sets, *extra]:  # the command line's --set after the map's own, as in the other studies
-        cmd += ["--set", s]
-    cmd += list(petsc)
-    res = subprocess.run(cmd, capture_output=True, text=True)
+    res = subprocess.run(study_command(SCENE, out, sets), capture_output=True, text=True)
     lines = res.stderr.strip().splitlines()
     if res.returncode == 0:
         data, _ = last_snapshot(out)
@@ -73,13 +69,13 @@ def main():
     cases = list(itertools.product(args.methods, args.sigmas, args.ratios, args.c0, args.reynolds))
     for k, (method, sigma, ratio, c0, reynolds) in enumerate(cases, 1):
         out = args.out / "runs" / f"{method}_s{sigma}_h{ratio}_c{c0:g}_Re{reynolds:g}"
-        outcome, detail = run_case(out, sigma, ratio, c0, reynolds, method, args.dx, args.t_end, args.set,
-                                   args.petsc)
+        outcome, detail = run_case(out, sigma, ratio, c0, reynolds, method, args.dx, args.t_end)
         rows.append([method, sigma, ratio, c0, reynolds, outcome, detail])
         print(f"[{k}/{len(cases)}] {method:10s} sigma/dx={sigma} h/dx={ratio} c0/U={c0:g} Re={reynolds:g}: "
               f"{outcome}; {detail}", flush=True)
     counts = {o: sum(r[5] == o for r in rows) for o in OUTCOMES}
-    note = (f"dx = {args.dx}, t_end = {args.t_end}; " + ", ".join(f"{o}: {n}" for o, n in counts.items()))
+    given = "".join(f", then --set {s}" for s in args.set) + (f", {' '.join(args.petsc)}" if args.petsc else "")
+    note = (f"dx = {args.dx}, t_end = {args.t_end}{given}; " + ", ".join(f"{o}: {n}" for o, n in counts.items()))
     print(write_table(args.out / "map.md", ["method", "sigma/dx", "h/dx", "c0/U", "Re", "outcome", "detail"], rows,
                       title="Stability map: Taylor-Green runs at the extremes", note=note))
     # one panel per method: x = (h/dx, sigma/dx), y = (c0/U, Re), colour = outcome
