@@ -36,6 +36,8 @@ def test_numeric_field_matches_formula_and_energy():
     cosines = np.cos(4 * np.pi * pos[:, 0]) + np.cos(4 * np.pi * pos[:, 1])
     assert np.allclose(p, -decay**2 * cosines)
     assert np.allclose(vel[:, 1], 2.0 * decay * np.sin(2 * np.pi * pos[:, 0]) * np.cos(2 * np.pi * pos[:, 1]))
+    # u's sign is the one eq. 3.1 misprints (above): the energy below cannot see it
+    assert np.allclose(vel[:, 0], -2.0 * decay * np.cos(2 * np.pi * pos[:, 0]) * np.sin(2 * np.pi * pos[:, 1]))
     # kinetic energy: 1/2 rho |u|^2 integrated over the unit square (Monte Carlo on a fine lattice)
     g = (np.arange(400) + 0.5) / 400
     lattice = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)

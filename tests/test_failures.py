@@ -3,7 +3,6 @@
 import subprocess
 import sys
 import textwrap
-import time
 
 import numpy as np
 import pytest
@@ -33,32 +32,28 @@ INJECT = textwrap.dedent("""
 @pytest.mark.parametrize("kind,words", [("bug", "injected failure"), ("numerical", "injected numerical failure")])
 def test_failure_on_rank_1_of_3_ends_the_job_within_seconds(tmp_path, kind, words):
     """Without the abort the other ranks would wait forever in the next collective (the run asks for
-    t_end = 100, thousands of steps); the job must end within seconds of the failure."""
+    t_end = 100, thousands of steps); the job must end soon after the failure (it takes 2-4 s; the timeout,
+    120 s, fails the test: a hang, not a slow start-up under load)."""
     script = tmp_path / "inject.py"
     script.write_text(INJECT)
-    start = time.monotonic()
     proc = subprocess.run(["mpiexec", "-n", "3", "--oversubscribe", sys.executable, str(script), kind,
                            str(CASES / "taylor_green.toml"), str(tmp_path / "out")],
                           capture_output=True, text=True, timeout=120, cwd=ROOT, env=mpi_environment())
-    elapsed = time.monotonic() - start
     assert proc.returncode != 0
     assert words in proc.stderr and "rank 1" in proc.stderr, proc.stderr
-    assert elapsed < 60, elapsed  # start-up (imports, numba cache, PETSc) is most of it
 
 
 def test_a_petsc_option_file_only_rank_0_opens_ends_every_rank_with_exit_2(tmp_path):
     """-iips_ksp_monitor ascii:PATH is opened by rank 0 alone: a bad PATH fails there only. The error is bad
     input (exit 2) and the job ends at once; when it was taken for an error of every rank, rank 0 left alone
-    and rank 1 waited in a collective until killed."""
+    and rank 1 waited in a collective until killed (here: the timeout, 120 s, fails the test)."""
     from tests.helpers import run_psph
 
-    start = time.monotonic()
     proc = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "out", "--quiet",
                     "--set", "shifting.method=iips", "--set", "domain.dx=0.1",
                     "-iips_ksp_monitor", f"ascii:{tmp_path}/missing/monitor.txt", ranks=2, timeout=120)
     assert proc.returncode == 2, proc.stderr
     assert "Cannot open PetscViewer file" in proc.stderr and "rank 0" in proc.stderr, proc.stderr
-    assert time.monotonic() - start < 60
 
 
 @pytest.mark.parametrize("ranks", [1, 2])

@@ -178,22 +178,31 @@ def test_a_rank_beyond_the_lists_index_range_stops_every_rank(comm, monkeypatch)
     assert is_collective(caught.value)
 
 
+@pytest.mark.mpi(min_size=3)
 def test_tiny_system_leaves_ranks_empty(comm):
-    """Two particles on up to three ranks: ranks without particles take part and stay consistent."""
+    """Two particles on three ranks or more: the ranks without particles take part, and the distribution's
+    report is the serial one."""
     from psph.compute.smoothing import make_kernel
     from psph.particles import ParticleSet
     from psph.system import ParticleSystem
 
-    p = ParticleSet(2)
-    mine = np.array([0, 1]) if comm.rank == 0 else np.zeros(0, dtype=np.int64)
-    p.set_owned({"gid": mine, "position": np.array([[0.5, 0.5], [0.52, 0.5]])[: len(mine)],
-                 "kind": np.zeros(len(mine), np.int8), "volume": np.full(len(mine), 1e-3)})
-    s = ParticleSystem(comm, Domain((0.0, 0.0), (1.0, 1.0), (False, False)), make_kernel("wendland_c2", 2, 0.02), p)
-    assert s.n_global == 2
+    def tiny(on):
+        p = ParticleSet(2)
+        mine = np.array([0, 1]) if on.rank == 0 else np.zeros(0, dtype=np.int64)
+        p.set_owned({"gid": mine, "position": np.array([[0.5, 0.5], [0.52, 0.5]])[: len(mine)],
+                     "kind": np.zeros(len(mine), np.int8), "volume": np.full(len(mine), 1e-3)})
+        domain = Domain((0.0, 0.0), (1.0, 1.0), (False, False))
+        return ParticleSystem(on, domain, make_kernel("wendland_c2", 2, 0.02), p)
+
+    s = tiny(comm)
+    assert s.n_global == 2 and comm.allreduce(int(s.particles.n_owned == 0)) == comm.size - 2
     report = distribution_report(s, 0.5)
-    assert np.isfinite(report["L2_grad_c"]) and report["L2_grad_c"] > 0.0
+    serial = distribution_report(tiny(MPI.COMM_SELF), 0.5)
+    assert report["L2_grad_c"] > 0.0
+    assert report == pytest.approx(serial, rel=1e-12, abs=0.0)
 
 
+@pytest.mark.mpi(min_size=3)
 def test_a_snapshot_with_fewer_particles_than_ranks_is_written(comm, tmp_path):
     """Two particles on three ranks give one rank an empty block of the snapshot: h5py skipped its part of the
     collective write, and the other ranks waited in theirs for ever (a hang, found by an audit)."""

@@ -57,16 +57,19 @@ def test_static_case_grad_c_falls_by_orders_of_magnitude(n, sigma, iterations, d
     assert shifting.newton_iterations == iterations
 
 
-@pytest.mark.parametrize("dim,n,sigma,drop", [(1, 40, 0.10, 1000), (1, 40, 0.25, 1000), (3, 12, 0.10, 200),
-                                              (3, 12, 0.25, 100)])
-def test_static_case_in_1d_and_3d(dim, n, sigma, drop):
+@pytest.mark.parametrize("dim,n,sigma,drop,wavelength", [(1, 40, 0.10, 1000, 0.5), (1, 40, 0.25, 1000, 0.5),
+                                                         (3, 12, 0.10, 200, 1.0), (3, 12, 0.25, 100, 1.0)])
+def test_static_case_in_1d_and_3d(dim, n, sigma, drop, wavelength):
     """The static case in 1-D (eq. 8.11) and 3-D (the analogue of eq. 8.32), 5 Newton iterations: L2(grad C)
     falls by `drop` (3-D converges more slowly after the third iteration at the default rtol 1e-2) and
-    L2(d f/dx) comes within 5% of the Cartesian lattice's."""
+    L2(d f/dx), which the perturbation spoils by more than 10% (5.2-14 times in 1-D, 1.43-2.6 in 3-D, whose
+    test function spans the box: at half the box, 6 particles per wavelength, the kernel's own error hides
+    the perturbation's, 0.2-5%), comes within 5% of the Cartesian lattice's."""
     scene = periodic_scene(dim=dim, n=n, sigma=sigma, iips={"max_newton": 5})
-    _, _, reports = run_iips(scene)
-    cartesian = distribution_report(build_system(unperturbed(scene), MPI.COMM_SELF), 0.5)["L2_dfdx"]
+    _, _, reports = run_iips(scene, wavelength=wavelength)
+    cartesian = distribution_report(build_system(unperturbed(scene), MPI.COMM_SELF), wavelength)["L2_dfdx"]
     assert reports[0]["L2_grad_c"] / reports[-1]["L2_grad_c"] > drop
+    assert reports[0]["L2_dfdx"] > 1.1 * cartesian
     assert abs(reports[-1]["L2_dfdx"] / cartesian - 1.0) < 0.05
 
 

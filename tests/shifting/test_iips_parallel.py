@@ -90,6 +90,7 @@ def test_explicit_shifting_independent_of_rank_count(comm):
     assert np.abs(parallel.domain.minimum_image(pos - expect)).max() < 1e-12
 
 
+@pytest.mark.mpi(min_size=2)
 @pytest.mark.parametrize("operator", ["assembled", "matrix_free"])
 def test_iips_with_an_empty_rank(comm, operator):
     """A tiny fluid patch in walls, all of it on rank 0 of a non-periodic box whose other ranks own empty
