@@ -271,6 +271,44 @@ def test_impinging_jet_matches_serial(comm, mpi_tmp_path, buffer):
 
 
 
+@pytest.mark.mpi(min_size=2)
+def test_open_boundary_restart_on_other_rank_counts_matches_the_whole_run(comm, mpi_tmp_path):
+    """The jet checkpointed after rows were emitted, continued on one rank fewer (2 -> 1, 3 -> 2) and on one
+    more (1 -> 2, 2 -> 3) through the removal of fluid at the outflow: the emitted rows, the next gid and the
+    mass budget carry over, and the end equals the uninterrupted run on all ranks (gids and kinds exactly,
+    fields to round-off)."""
+    sc = coarse_jet(0.9, "domain.lower=[-1.6,-1.0]", "domain.upper=[1.6,3.8]", "bodies.0.size=[4.2,1.0]",
+                    "output.checkpoint_every=60")
+    fewer = comm.Split(0 if comm.rank < comm.size - 1 else MPI.UNDEFINED, comm.rank)
+
+    def run(on, name, restart=None):
+        with FluidDriver(sc, on, mpi_tmp_path / name, restart=read_checkpoint(on, restart) if restart else None) as d:
+            d.run()
+            p = d.system.particles
+            state = {k: gather_by_gid(on, p.owned("gid"), p.owned(k)) for k in ("position", "velocity", "kind")}
+            return state, dict(d.open.totals), dict(d.open.mass)
+
+    whole = run(comm, "whole")
+    if fewer != MPI.COMM_NULL:
+        run(fewer, "fewer")
+    comm.Barrier()
+    checkpoint = latest_checkpoint(mpi_tmp_path / "whole")
+    assert read_checkpoint(comm, checkpoint)[0]["driver"]["open"]["emitted"][0] > 0
+    continued = {"more": run(comm, "more", latest_checkpoint(mpi_tmp_path / "fewer"))}
+    if fewer != MPI.COMM_NULL:
+        continued["less"] = run(fewer, "less", checkpoint)
+        fewer.Free()
+    comm.Barrier()
+    assert whole[1]["emitted"] > 0 and whole[1]["removed"] > 0
+    for name, (state, totals, mass) in continued.items():
+        assert totals == whole[1], name
+        assert mass == pytest.approx(whole[2], rel=1e-12), name
+        for k in ("position", "velocity", "kind"):
+            assert np.array_equal(state[k][0], whole[0][k][0]), (name, k)
+            scale = max(1.0, np.abs(whole[0][k][1]).max())
+            assert np.abs(state[k][1] - whole[0][k][1]).max() <= 1e-10 * scale, (name, k)
+
+
 @pytest.mark.mpi
 def test_outflow_buffer_matches_serial(comm, mpi_tmp_path):
     """A 2-D jet with a density ripple through an outflow buffer, to t = 0.6 (fluid turned buffer, buffer
