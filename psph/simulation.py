@@ -134,7 +134,9 @@ class Simulation:
         """On a NumericalError inside the block, write a diagnostic snapshot (the state at failure, with
         grad C) before letting the error end the run. It is labelled with the error's step and time (a
         failure within a step: that step and the time it started from), else with `where()`'s (step, time)
-        (the last completed step). Collective: the error is every rank's (raise_if_any), with its WHERE."""
+        (the last completed step). Collective: the error is every rank's (raise_if_any), with its WHERE.
+        Any other error (a full disk, a bug) leaves the history's rows so far written (rank 0, no
+        collective), unless writing them fails too."""
         from psph.diagnostics import grad_c
         from psph.errors import NumericalError
 
@@ -148,6 +150,12 @@ class Simulation:
             path = self.snapshots.write(self.system.particles, step=step, time=t,
                                         extra={"grad_c": grad_c(self.system)})
             self.log(f"psph: state at the failure written to {path}")
+            raise
+        except Exception:
+            try:
+                self.history.flush()
+            except Exception:  # the error being raised says more
+                pass
             raise
 
     def summary(self, steps: int, final: dict, **extra) -> dict:

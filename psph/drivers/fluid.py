@@ -232,6 +232,7 @@ class FluidDriver(Driver):
             self.pre = self.pre_procedure()
         self.scheme.initialize(self.system, t=self.resumed["time"] if restart else 0.0, fresh=restart is None)
         self.open = make_open_boundaries(scene, self.system)
+        self.emptied = False  # all the fluid has left (logged once)
         self.integrate = INTEGRATORS[scene.time.integrator]
         self.viscous_limit = ViscousLimit.of_scene(scene, self.scheme, self.system.kernel)
         self.reach = STAGE_REACH[scene.time.integrator]
@@ -338,7 +339,13 @@ class FluidDriver(Driver):
         step = state["step"]
         if self.open.active:  # inflow particles join the fluid, rows are emitted, outflow removed
             with phase("open_boundaries"):
-                self.open.apply(system, t)
+                change = self.open.apply(system, t)
+            # (collective: `change` and the inflows are every rank's)
+            if change["removed"] and not self.open.inflows and not self.emptied \
+                    and allreduce_sum(system.comm, int(fluid_mask(system).sum())) == 0:
+                self.emptied = True
+                self.sim.log(f"step {step}, t = {t:.6g}: all the fluid has left through the outflow; the run "
+                             "goes on, empty, to time.t_end")
         if self.iips is not None:
             t0 = time.perf_counter()
             with phase("iips"):

@@ -81,7 +81,8 @@ def write_particle_file(comm, path, start, total, data, attrs, extra=None) -> No
             for name, arr in data.items():
                 shape = (total,) + arr.shape[1:]
                 ds = grp.create_dataset(name, shape=shape, dtype=arr.dtype, **_checksummed(shape, arr.dtype))
-                _write_rows(ds, start, np.ascontiguousarray(arr))
+                if total:  # HDF5 refuses a write to a dataset of no rows (every rank knows `total`)
+                    _write_rows(ds, start, np.ascontiguousarray(arr))
             for name, arr in extra.items():
                 ds = f.create_dataset(name, shape=arr.shape, dtype=arr.dtype, **_checksummed(arr.shape, arr.dtype))
                 _write_rows(ds, 0, np.ascontiguousarray(arr if comm.rank == 0 else arr[:0]))
@@ -150,7 +151,12 @@ class SnapshotWriter:
         path = self.out_dir / name
         tmp = path.with_name(name + ".tmp")
         attrs = {"time": float(time), "step": int(step)}
-        write_particle_file(self.comm, str(tmp), start, total, ordered, attrs)
+        try:
+            write_particle_file(self.comm, str(tmp), start, total, ordered, attrs)
+        except BaseException:
+            if self.comm.rank == 0:
+                tmp.unlink(missing_ok=True)
+            raise
         self.comm.Barrier()
         meta = {n: (a.shape[1:], a.dtype) for n, a in ordered.items()}
         self.entries.append((name, float(time), int(step), total, meta))

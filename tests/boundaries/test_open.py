@@ -411,6 +411,33 @@ def channel():
             "shifting": {"method": "delta_plus"}, "time": {"t_end": 0.5}, "output": {"history_every": 20}}
 
 
+@pytest.mark.parametrize("ranks,buffer", [(1, False), (2, True)])
+def test_a_domain_all_its_fluid_leaves_runs_on_empty(tmp_path, ranks, buffer):
+    """No inflow, and gravity along the channel: all the fluid leaves by t = 0.45. The snapshots after that
+    hold no particle (writing one failed in HDF5, 'addr overflow', and the run ended as an input/output
+    failure with its history unwritten); the run logs when the domain empties and ends at t_end."""
+    import h5py
+
+    from tests.helpers import run_psph
+    from tests.scene.test_fuzz import toml_document
+
+    table = apply_overrides(channel(), ["inflow=[]", "initial.velocity=zero", "initial.fill_upper=[1.5,1.0]",
+                                        "domain.dx=0.1", "physics.gravity=[20.0,0.0]", "time.t_end=0.6",
+                                        "output.every=0.3", "output.history_every=5",
+                                        f"domain.outflow_buffer={str(buffer).lower()}"])
+    scene = tmp_path / "empties.toml"
+    scene.write_text(toml_document(table))
+    done = run_psph("run", scene, "--out", tmp_path / "out", "--quiet", ranks=ranks, timeout=300)
+    assert done.returncode == 0, done.stderr
+    log = (tmp_path / "out" / "psph.log").read_text()
+    assert len(re.findall(r"all the fluid has left through the outflow", log)) == 1, log
+    with h5py.File(tmp_path / "out" / "snapshot_000002.h5") as f:
+        assert f["particles/position"].shape == (0, 2) and f.attrs["time"] == pytest.approx(0.6)
+    rows = read_history(tmp_path / "out" / "history.csv")
+    assert rows[-1]["time"] == pytest.approx(0.6) and rows[-1]["kinetic_energy"] == 0.0
+    assert not list((tmp_path / "out").glob("*.tmp"))
+
+
 def test_an_inflow_into_a_closed_full_domain_is_refused():
     """Without the outflow face the channel's fluid fills the domain and has no free surface: what the buffer
     brings in would only compress it."""

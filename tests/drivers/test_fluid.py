@@ -214,6 +214,37 @@ def test_failed_step_is_retried_with_half_the_time_step_when_the_scene_allows(tm
     assert any("injected" in m and "retrying with dt x 0.5" in m for m in messages)
 
 
+def test_an_output_failure_leaves_the_history_written_and_no_temporary_file(tmp_path, monkeypatch):
+    """A snapshot write that fails half-way (a full disk: OSError) ends the run; the history's rows so far
+    are written (they were kept in memory, written every 2 s of wall time, and lost), and the half-written
+    snapshot's temporary file is removed."""
+    from mpi4py import MPI
+
+    import psph.io.snapshots as snapshots
+    from psph.drivers.fluid import FluidDriver
+    from tests.conftest import periodic_scene
+
+    original, calls = snapshots.write_particle_file, []
+
+    def failing(comm, path, start, total, data, attrs, extra=None):
+        calls.append(path)
+        if len(calls) == 3:
+            original(comm, path, start, total, dict(list(data.items())[:2]), {})
+            raise OSError(28, "No space left on device")
+        original(comm, path, start, total, data, attrs, extra)
+
+    monkeypatch.setattr(snapshots, "write_particle_file", failing)
+    scene = periodic_scene(n=16, initial={"velocity": "taylor_green"}, physics={"scheme": "delta_ale"},
+                           time={"t_end": 0.05}, output={"every": 0.01, "history_every": 1},
+                           shifting={"method": "delta_plus"}, iips={"update": "none"})
+    with pytest.raises(OSError, match="No space left"):
+        with FluidDriver(scene, MPI.COMM_SELF, tmp_path, log=lambda message: None) as driver:
+            driver.run()
+    assert len(calls) == 3 and not list(tmp_path.glob("*.tmp"))
+    rows = read_history(tmp_path / "history.csv")
+    assert len(rows) > 5 and rows[-1]["time"] >= 0.02 - 1e-12
+
+
 def test_a_rejected_iips_call_leaves_particles_and_fields_as_without_iips(tmp_path):
     """iips.on_stall = "reject" with an unreachable threshold: every call moves the particles back, and no
     field update follows (an MLS remap would smooth the fields at the restored positions)."""
