@@ -110,3 +110,16 @@ def test_the_snapshot_at_a_failure_is_labelled_with_the_failed_step(tmp_path, ra
         assert (int(f.attrs["step"]), float(f.attrs["time"])) == (1, 0.0)
     grids = [line for line in (out / "psph.xdmf").read_text().splitlines() if "<Grid Name=\"step_" in line]
     assert len(grids) == 2 and len(set(grids)) == 2, grids
+
+
+def test_a_blow_up_near_a_wall_is_reported_by_its_density_not_as_a_wall_crossing(tmp_path):
+    """The free stream switched on within 1e-6 time units: after step 1 the velocity is 2e7 and the density
+    -50 to 52. The check named the first thing it tests, a fluid particle past the ellipse's wall; the
+    density comes first now."""
+    from tests.helpers import run_psph
+
+    proc = run_psph("run", CASES / "inclined_ellipse.toml", "--out", tmp_path / "out", "--quiet", "--set",
+                    "domain.dx=0.2", "--set", "time.t_end=1.5", "--set", "physics.free_stream_ramp=1e-6")
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 3 and len(lines) == 1, proc.stderr
+    assert lines[0].startswith("psph: error: density left the weakly compressible range") and "[step 1," in lines[0]

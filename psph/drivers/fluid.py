@@ -62,7 +62,9 @@ class TaylorGreenReference:
         err = (p.owned("velocity")[:, 0] - vel[:, 0])[mask]
         l2, _ = norms(system.comm, err, np.ones(len(err), bool))
         exact = taylor_green_kinetic_energy(t, **self.kw)
-        return {"L2_vx_error": l2, "kinetic_energy_exact": exact, "kinetic_energy_error": kinetic / exact - 1.0}
+        # a vortex decayed to nothing (E_k underflows at Re ~ 1e-4) has no relative error
+        return {"L2_vx_error": l2, "kinetic_energy_exact": exact,
+                "kinetic_energy_error": float(kinetic) / exact - 1.0 if exact > 0.0 else math.nan}
 
 
 class EllipticalDropReference:
@@ -483,39 +485,38 @@ class FluidDriver(Driver):
         return out
 
     def check(self, step, t, dt) -> None:
-        """Stop all ranks, naming step, time, particle and position, on a broken state. Collective."""
+        """Stop all ranks, naming step, time, particle and position, on a broken state (step 0: the initial
+        state, before any step). The density comes before a wall crossing: a blow-up crosses walls too.
+        Collective."""
         p = self.system.particles
-        error = None
+        problem, k = None, None  # what is wrong, and at which owned particle
         bad = ~np.isfinite(p.owned("velocity")).all(axis=1) | ~np.isfinite(p.owned("density")) \
             | ~np.isfinite(p.owned("position")).all(axis=1)
-        where = dict(step=step, time=t)
+        dev = np.abs(p.owned("density") / self.scheme.rho0 - 1.0)
+        limit = self.scene.physics.max_density_variation
         if bad.any():
-            k = int(np.flatnonzero(bad)[0])
-            error = NumericalError("non-finite field (NaN/Inf)", gid=int(p.owned("gid")[k]),
-                                   position=p.owned("position")[k], **where)
+            problem, k = "non-finite field (NaN/Inf)", int(np.flatnonzero(bad)[0])
+        elif dev.size and dev.max() > limit:
+            k = int(np.argmax(dev))
+            problem = (f"density left the weakly compressible range: |rho/rho0 - 1| = {dev[k]:.3g} > {limit:g} "
+                       "(physics.max_density_variation)")
         elif self.scheme.walls is not None and (hit := self.scheme.walls.trespassers(
                 p.owned("position")[fluid_mask(self.system)], t, 0.5 * self.scene.domain.dx)) is not None:
-            k = int(np.flatnonzero(fluid_mask(self.system))[hit[0]])
-            error = NumericalError(f"a fluid particle crossed the wall of body {hit[1]!r}",
-                                   gid=int(p.owned("gid")[k]), position=p.owned("position")[k], **where)
-        else:
-            dev = np.abs(p.owned("density") / self.scheme.rho0 - 1.0)
-            limit = self.scene.physics.max_density_variation
-            if dev.size and dev.max() > limit:
-                k = int(np.argmax(dev))
-                error = NumericalError(f"density left the weakly compressible range: |rho/rho0 - 1| = "
-                                       f"{dev[k]:.3g} > {limit:g} (physics.max_density_variation)",
-                                       gid=int(p.owned("gid")[k]), position=p.owned("position")[k], **where)
-            elif self.scheme.variant == 0 and p.n_owned:
-                drift = np.abs(p.owned("volume") / p.owned("volume0") - 1.0)
-                limit = self.scene.physics.max_volume_variation
-                if drift.max() > limit:
-                    k = int(np.argmax(drift))
-                    error = NumericalError(f"particle volume drifted by {drift[k]:.3g} (> {limit:g}, "
-                                           "physics.max_volume_variation)", gid=int(p.owned("gid")[k]),
-                                           position=p.owned("position")[k], **where)
-        if error is None and dt < DT_COLLAPSE * self.first_dt:
-            error = NumericalError(f"time step collapsed to {dt:.3g} (first step {self.first_dt:.3g})", **where)
+            problem, k = f"a fluid particle crossed the wall of body {hit[1]!r}", \
+                int(np.flatnonzero(fluid_mask(self.system))[hit[0]])
+        elif self.scheme.variant == 0 and p.n_owned:
+            drift = np.abs(p.owned("volume") / p.owned("volume0") - 1.0)
+            if drift.max() > (limit := self.scene.physics.max_volume_variation):
+                k = int(np.argmax(drift))
+                problem = f"particle volume drifted by {drift[k]:.3g} (> {limit:g}, physics.max_volume_variation)"
+        if problem is None and self.first_dt and dt < DT_COLLAPSE * self.first_dt:
+            problem = f"time step collapsed to {dt:.3g} (first step {self.first_dt:.3g})"
+        if problem is not None and step == 0:
+            problem = (f"the initial state: {problem} (the initial density follows the initial pressure and "
+                       "gravity through the equation of state, which needs |p| << rho0 c0^2: physics.sound_speed)")
+        error = None if problem is None else NumericalError(
+            problem, step=step, time=t, **({} if k is None else {"gid": int(p.owned("gid")[k]),
+                                                                  "position": p.owned("position")[k]}))
         raise_if_any(self.sim.comm, error)
 
     # ------------------------------------------------------------------ run
@@ -531,13 +532,14 @@ class FluidDriver(Driver):
             totals.update(self.resumed["totals"])
             next_output = self.resumed["next_output"]
             sim.log(f"psph: continuing from step {state['step']}, t = {state['time']:.6g}")
-        else:
-            sim.history.append({"time": 0.0, "step": 0, "dt": 0.0, **self.diagnostics(0.0), **totals})
-            sim.snapshots.write(system.particles, step=0, time=0.0)
         last_checkpoint = time.monotonic()
-        progress = sim.progress(state["time"], t_end)
         tries, scale = 0, 1.0
         with sim.diagnose_failures(lambda: (state["step"], state["time"])):
+            if not self.resumed:
+                self.check(0, 0.0, math.inf)  # a start the scheme cannot take stops here, not at step 1
+                sim.history.append({"time": 0.0, "step": 0, "dt": 0.0, **self.diagnostics(0.0), **totals})
+                sim.snapshots.write(system.particles, step=0, time=0.0)
+            progress = sim.progress(state["time"], t_end)
             while state["time"] < t_end * (1.0 - 1e-12):
                 start = time.perf_counter()
                 dt, vmax = self.time_step()

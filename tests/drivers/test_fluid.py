@@ -180,6 +180,41 @@ def test_extremes_run_stably_or_stop_with_a_diagnosis(tmp_path, sets, outcome):
     assert last["max_density_variation"] < 0.1 and last["kinetic_energy"] <= rows[0]["kinetic_energy"] * 1.01
 
 
+@pytest.mark.parametrize("sets,words", [
+    (["physics.sound_speed=0.5"], "density left the weakly compressible range: |rho/rho0 - 1| = 2 > 0.1"),
+    (["physics.eos=tait", "physics.sound_speed=1"], "non-finite field (NaN/Inf)"),
+    (["physics.sound_speed=1e-160"], "non-finite field (NaN/Inf)"),
+], ids=["negative density", "tait below -B", "c0 underflows"])
+def test_an_initial_state_the_scheme_cannot_take_stops_at_step_0(tmp_path, sets, words):
+    """The vortex's initial pressure (+-0.5) through an equation of state whose rho0 c0^2 is not far above it:
+    densities of -0.6 to 3, NaN (Tait, p < -B) or inf. The start is checked as every step's end is: the run
+    stops at step 0 naming the initial state and the key, in one line (numpy's warnings about the NaN went
+    to stderr, and the run stopped at step 1 blaming a blow-up), with that state saved."""
+    res, out = tgv(tmp_path, "x", "shifting.method=delta_plus", "iips.update=none", *sets, dx=0.1, t_end=0.1)
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 3 and len(lines) == 1, res.stderr
+    assert lines[0].startswith(f"psph: error: the initial state: {words}") and "physics.sound_speed" in lines[0]
+    assert "[step 0, t = 0, particle gid " in lines[0]
+    assert [p.name for p in out.glob("snapshot_*.h5")] == ["snapshot_000000.h5"]
+
+
+def test_the_kinetic_energy_error_of_a_vortex_decayed_to_nothing_is_nan():
+    """At Re = 1e-4 E_k(t) underflows to 0 within steps: its relative error is undefined (it was inf, with
+    numpy's warning on stderr every history row)."""
+    from mpi4py import MPI
+
+    from psph.drivers.fluid import TaylorGreenReference
+    from psph.simulation import build_system
+    from tests.conftest import periodic_scene
+
+    scene = periodic_scene(n=8, initial={"velocity": "taylor_green"}, time={"t_end": 0.01},
+                           physics={"scheme": "delta_ale", "reynolds": 1e-4})
+    reference = TaylorGreenReference(scene)
+    system = build_system(scene, MPI.COMM_SELF)
+    assert reference.errors(system, 0.0, 0.25)["kinetic_energy_error"] == pytest.approx(0.0)
+    assert np.isnan(reference.errors(system, 0.01, 0.0)["kinetic_energy_error"])
+
+
 @pytest.mark.parametrize("retries", [0, 1])
 def test_failed_step_is_retried_with_half_the_time_step_when_the_scene_allows(tmp_path, retries):
     """A failure injected once at step 5: with time.retries = 1 the step is redone from the saved state with

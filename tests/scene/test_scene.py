@@ -68,6 +68,8 @@ def test_minimal_scene_gets_defaults():
     ("physics.muscl_limiter", "superbee", "physics.muscl_limiter", "not one of"),
     ("iips.update", "nfts", "iips.update", 'not \'none\' (set iips.update = "none")'),
     ("iips.pre_newton", 5, "iips.pre_newton", "a static run is itself the pre-procedure"),
+    # rho0 c0^2 overflowed in the equation of state (OverflowError: a traceback called a bug)
+    ("physics.sound_speed", 1e160, "physics.sound_speed", "rho0 c0^2 = 1e320 is beyond floating point"),
 ])
 def test_bad_values_name_their_key(path, value, key, words):
     with pytest.raises(SceneError) as info:
@@ -212,6 +214,13 @@ def test_a_lid_on_a_periodic_y_axis_is_refused(model):
      "bodies[1].motion",
      "within dx of the walls of bodies[0]"),
     (["bodies.1.name=' '"], "bodies[1].name", "give the body a name"),
+    # faster than sound: the run stopped at step 1 naming the body's own particle, 'the flow is blowing up'
+    (["time.t_end=0.05", "bodies.1.motion.law=constant", "bodies.1.motion.velocity=[20.0, 0.0]"],
+     "bodies[1].motion.velocity", "would move at 20, not below the speed of sound physics.sound_speed = 12"),
+    (["time.t_end=0.05", "bodies.1.motion.law=constant", "bodies.1.motion.velocity=[0.0, 0.0]",
+      "bodies.1.motion.angular_velocity=20.0"], "bodies[1].motion.angular_velocity",
+     "would move at 14.1421, not below the speed of sound"),
+    (["time.t_end=0.05", "physics.sound_speed=1.0"], "bodies[1].motion.velocity", "would move at 1, not below"),
     # a translation law with nothing to translate beside the rotation's own law
     (["bodies.1.motion.law=constant", "bodies.1.motion.velocity=[0.0, 0.0]", "bodies.1.motion.rotation_law=ramp",
       "bodies.1.motion.angular_velocity=0.1"], "bodies[1].motion.velocity", "needs a non-zero velocity (2 entries)"),
