@@ -418,3 +418,28 @@ def test_a_checkpoint_with_a_particle_outside_its_domain_is_refused(finished, tm
     assert done.stderr.splitlines()[0] == (f"psph: error: cannot restart from {str(bad)!r}: 1 particle(s) outside "
                                            f"the scene's domain (gid {gid} at (7, {y:.6g}))")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_checkpoint_with_a_fluid_particle_inside_a_wall_stops_at_its_step(tmp_path):
+    """A fluid particle moved 3 dx into the tank's wall (an edited file): the restart's first step mirrored it
+    back into the fluid and ran on, exit 0, counting a wall reflection. The checkpoint's state is checked as
+    a step's end is: the run stops at the checkpoint's step naming the particle and the wall."""
+    done = run_psph("run", CASES / "hydrostatic_tank.toml", "--out", tmp_path / "run", "--quiet", "--set",
+                    "domain.dx=0.1", "--set", "time.t_end=0.05", "--set", "output.checkpoint_every=5")
+    assert done.returncode == 0, done.stderr
+
+    def into_the_wall(f):
+        k = int(np.flatnonzero(f["particles/kind"][()] == 0)[0])
+        pos = f["particles/position"][()]
+        pos[k] = [-0.3, 0.5]
+        f["particles/position"][...] = pos
+        f.attrs["test_gid"] = int(f["particles/gid"][k])
+
+    bad = edit_checkpoint(latest_checkpoint(tmp_path / "run"), tmp_path / "wall.h5", into_the_wall)
+    with h5py.File(bad) as f:
+        gid, step = int(f.attrs["test_gid"]), int(f.attrs["step"])
+    done = run_psph("run", "--restart", bad, "--set", "time.t_end=0.1", "--out", tmp_path / "out", "--quiet")
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 3 and len(lines) == 1, done.stderr
+    assert lines[0].startswith(f"psph: error: a fluid particle crossed the wall of body 'tank' [step {step}, t = ")
+    assert f"particle gid {gid}, at (-0.3, 0.5)]" in lines[0]
