@@ -103,7 +103,7 @@ def test_the_snapshot_at_a_failure_is_labelled_with_the_failed_step(tmp_path, ra
 
     out = tmp_path / "out"
     proc = run_psph("run", CASES / "taylor_green.toml", "--out", out, "--quiet", "--set", "domain.dx=0.05",
-                    "--set", "time.t_end=0.5", "--set", "time.cfl=2.0", "--set", "physics.sound_speed=2.0",
+                    "--set", "time.t_end=0.5", "--set", "time.cfl=2.0", "--set", "physics.sound_speed=3.0",
                     "--set", "shifting.method=none", "--set", "iips.update=none", ranks=ranks)
     assert proc.returncode == 3 and "[step 1, t = 0" in proc.stderr, proc.stderr
     with h5py.File(out / "snapshot_000001.h5", "r") as f:
