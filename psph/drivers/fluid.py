@@ -43,6 +43,7 @@ from psph.stop import checkpoint_message
 from psph.system import ListsExpired
 
 DT_COLLAPSE = 1e-6  # a time step below this fraction of the first one is a breakdown
+RECOVERY_STEPS = 10  # time.retries: steps at a halved time step before it doubles again
 
 
 class TaylorGreenReference:
@@ -533,7 +534,7 @@ class FluidDriver(Driver):
             next_output = self.resumed["next_output"]
             sim.log(f"psph: continuing from step {state['step']}, t = {state['time']:.6g}")
         last_checkpoint = time.monotonic()
-        tries, scale = 0, 1.0
+        tries, scale, calm = 0, 1.0, 0  # retries in a row, the step's factor, steps since it last changed
         with sim.diagnose_failures(lambda: (state["step"], state["time"])):
             # a start the scheme cannot take stops here, not at step 1; a checkpoint's state is checked again
             # (one edited by hand: a fluid particle put inside a wall was mirrored back without a word)
@@ -555,7 +556,7 @@ class FluidDriver(Driver):
                     if saved is None or tries == scene.time.retries:
                         raise
                     tries += 1
-                    scale *= 0.5
+                    scale, calm = scale * 0.5, 0
                     sim.log(f"step {saved[0]['step'] + 1}, t = {saved[0]['time']:.6g}: {err}; retrying with "
                             f"dt x {scale:g} (time.retries: {tries} of {scene.time.retries})")
                     state.update(saved[0])
@@ -563,7 +564,9 @@ class FluidDriver(Driver):
                     self.open.restore(saved[2])
                     totals["retries"] += 1
                     continue
-                tries, scale = 0, 1.0
+                tries, calm = 0, calm + 1
+                if scale < 1.0 and calm == RECOVERY_STEPS:  # back towards the full step, a doubling at a time
+                    scale, calm = min(1.0, 2.0 * scale), 0
                 step, t = state["step"], state["time"]
                 totals["step_time_s"] += time.perf_counter() - start
                 if step % scene.output.history_every == 0 or t >= t_end * (1.0 - 1e-12):

@@ -473,7 +473,8 @@ class TimeSpec:
                              choices=("rk3", "rk4"))
     retries: int = option(0, doc="fluid runs: on a numerical failure in a step, restore the state before it and "
                           "retry with half the time step, at most this many times in a row (0: stop; costs a copy "
-                          "of the particles every step)", ge=0, le=20)
+                          "of the particles every step); the step then doubles back after every 10 steps without "
+                          "failure", ge=0, le=20)
 
 
 @dataclass(frozen=True)

@@ -218,7 +218,8 @@ def test_the_kinetic_energy_error_of_a_vortex_decayed_to_nothing_is_nan():
 @pytest.mark.parametrize("retries", [0, 1])
 def test_failed_step_is_retried_with_half_the_time_step_when_the_scene_allows(tmp_path, retries):
     """A failure injected once at step 5: with time.retries = 1 the step is redone from the saved state with
-    dt / 2 and the run finishes (the retry logged and counted); with 0 the run stops there."""
+    dt / 2 and the run finishes (the retry logged and counted); the next 9 steps keep dt / 2, then it doubles
+    back (it was back at once, so a step too long for the flow failed every time); with 0 the run stops."""
     from mpi4py import MPI
 
     from psph.drivers.fluid import FluidDriver
@@ -226,12 +227,13 @@ def test_failed_step_is_retried_with_half_the_time_step_when_the_scene_allows(tm
     from tests.conftest import periodic_scene
 
     scene = periodic_scene(n=16, initial={"velocity": "taylor_green"}, physics={"scheme": "delta_ale"},
-                           time={"t_end": 0.02, "retries": retries}, shifting={"method": "delta_plus"})
+                           time={"t_end": 0.05, "retries": retries}, shifting={"method": "delta_plus"})
     messages = []
     driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path, log=messages.append)
-    original, failed = driver.check, []
+    original, failed, steps = driver.check, [], {}
 
     def check(step, t, dt):
+        steps[step] = dt
         if step == 5 and not failed:
             failed.append(dt)
             raise NumericalError("injected", step=step, time=t)
@@ -245,8 +247,9 @@ def test_failed_step_is_retried_with_half_the_time_step_when_the_scene_allows(tm
             driver.run()
         return
     summary = driver.run()
-    assert summary["retries"] == 1 and summary["final"]["time"] == pytest.approx(0.02)
+    assert summary["retries"] == 1 and summary["final"]["time"] == pytest.approx(0.05)
     assert any("injected" in m and "retrying with dt x 0.5" in m for m in messages)
+    assert [round(steps[k] / failed[0], 2) for k in range(4, 18)] == [1.0] + [0.5] * 10 + [1.0] * 3
 
 
 def test_an_output_failure_leaves_the_history_written_and_no_temporary_file(tmp_path, monkeypatch):
