@@ -135,8 +135,8 @@ class Simulation:
         grad C) before letting the error end the run. It is labelled with the error's step and time (a
         failure within a step: that step and the time it started from), else with `where()`'s (step, time)
         (the last completed step). Collective: the error is every rank's (raise_if_any), with its WHERE.
-        Any other error (a full disk, a bug) leaves the history's rows so far written (rank 0, no
-        collective), unless writing them fails too."""
+        Any other error (a full disk, a bug, a forced stop) leaves the history's rows so far written (rank 0,
+        no collective), unless writing them fails too."""
         from psph.diagnostics import grad_c
         from psph.errors import NumericalError
 
@@ -151,7 +151,7 @@ class Simulation:
                                         extra={"grad_c": grad_c(self.system)})
             self.log(f"psph: state at the failure written to {path}")
             raise
-        except Exception:
+        except BaseException:  # a bug, a full disk, a forced stop (KeyboardInterrupt): rank 0 only, no collective
             try:
                 self.history.flush()
             except Exception:  # the error being raised says more

@@ -43,7 +43,7 @@ from psph.stop import checkpoint_message
 from psph.system import ListsExpired
 
 DT_COLLAPSE = 1e-6  # a time step below this fraction of the first one is a breakdown
-RECOVERY_STEPS = 10  # time.retries: steps at a halved time step before it doubles again
+RECOVERY_STEPS = 10  # time.retries: steps without a failure before a halved time step doubles again
 
 
 class TaylorGreenReference:
@@ -268,9 +268,13 @@ class FluidDriver(Driver):
         self.initial_volume = allreduce_sum(self.sim.comm, float(
             self.system.particles.owned("volume")[fluid_mask(self.system)].sum()))
         self.first_dt = None
+        # time.retries: the halvings of the time step in effect, and the steps since the last change (a
+        # checkpoint carries both, so a restart continues bit for bit; older ones were written at 0, 0)
+        self.halvings, self.calm = 0, 0
         if self.resumed:
             self.initial_volume = self.resumed["initial_volume"]
             self.first_dt = self.resumed["first_dt"]
+            self.halvings, self.calm = self.resumed.get("retry", (0, 0))
             if self.iips is not None:
                 self.iips.restore(self.resumed["iips"])
             self.open.restore(self.resumed.get("open"))
@@ -312,7 +316,7 @@ class FluidDriver(Driver):
             "step": step, "time": t, "totals": totals, "next_output": next_output, "first_dt": self.first_dt,
             "initial_volume": self.initial_volume,
             "iips": self.iips.checkpoint_state() if self.iips is not None else None,
-            "open": self.open.checkpoint_state()})
+            "open": self.open.checkpoint_state(), "retry": [self.halvings, self.calm]})
 
     @staticmethod
     def new_totals() -> dict:
@@ -507,14 +511,16 @@ class FluidDriver(Driver):
                 int(np.flatnonzero(fluid_mask(self.system))[hit[0]])
         elif self.scheme.variant == 0 and p.n_owned:
             drift = np.abs(p.owned("volume") / p.owned("volume0") - 1.0)
-            if drift.max() > (limit := self.scene.physics.max_volume_variation):
+            if drift.max() > (most := self.scene.physics.max_volume_variation):
                 k = int(np.argmax(drift))
-                problem = f"particle volume drifted by {drift[k]:.3g} (> {limit:g}, physics.max_volume_variation)"
+                problem = f"particle volume drifted by {drift[k]:.3g} (> {most:g}, physics.max_volume_variation)"
         if problem is None and self.first_dt and dt < DT_COLLAPSE * self.first_dt:
             problem = f"time step collapsed to {dt:.3g} (first step {self.first_dt:.3g})"
         if problem is not None and step == 0:
-            problem = (f"the initial state: {problem} (the initial density follows the initial pressure and "
-                       "gravity through the equation of state, which needs |p| << rho0 c0^2: physics.sound_speed)")
+            problem = f"the initial state: {problem}"
+            if bad.any() or dev.max() > 0.1:  # the density the initial fields gave, not a tight limit's catch
+                problem += (" (the initial density follows the initial pressure and gravity through the equation "
+                            "of state, which needs |p| << rho0 c0^2: physics.sound_speed)")
         error = None if problem is None else NumericalError(
             problem, step=step, time=t, **({} if k is None else {"gid": int(p.owned("gid")[k]),
                                                                   "position": p.owned("position")[k]}))
@@ -534,7 +540,6 @@ class FluidDriver(Driver):
             next_output = self.resumed["next_output"]
             sim.log(f"psph: continuing from step {state['step']}, t = {state['time']:.6g}")
         last_checkpoint = time.monotonic()
-        tries, scale, calm = 0, 1.0, 0  # retries in a row, the step's factor, steps since it last changed
         with sim.diagnose_failures(lambda: (state["step"], state["time"])):
             # a start the scheme cannot take stops here, not at step 1; a checkpoint's state is checked again
             # (one edited by hand: a fluid particle put inside a wall was mirrored back without a word)
@@ -547,26 +552,25 @@ class FluidDriver(Driver):
                 start = time.perf_counter()
                 dt, vmax = self.time_step()
                 self.first_dt = self.first_dt or dt
-                dt = min(dt * scale, t_end - state["time"])
+                dt = min(dt * 0.5 ** self.halvings, t_end - state["time"])
                 saved = ((dict(state), system.particles.owned_arrays(), self.open.checkpoint_state())
                          if scene.time.retries else None)
                 try:
                     self.advance(state, dt, vmax, totals)
                 except NumericalError as err:
-                    if saved is None or tries == scene.time.retries:
+                    if saved is None or self.halvings >= scene.time.retries:
                         raise
-                    tries += 1
-                    scale, calm = scale * 0.5, 0
+                    self.halvings, self.calm = self.halvings + 1, 0
                     sim.log(f"step {saved[0]['step'] + 1}, t = {saved[0]['time']:.6g}: {err}; retrying with "
-                            f"dt x {scale:g} (time.retries: {tries} of {scene.time.retries})")
+                            f"dt x {0.5 ** self.halvings:g} (time.retries: {self.halvings} of {scene.time.retries})")
                     state.update(saved[0])
                     self.restore(saved[1], state["time"])
                     self.open.restore(saved[2])
                     totals["retries"] += 1
                     continue
-                tries, calm = 0, calm + 1
-                if scale < 1.0 and calm == RECOVERY_STEPS:  # back towards the full step, a doubling at a time
-                    scale, calm = min(1.0, 2.0 * scale), 0
+                self.calm += 1
+                if self.halvings and self.calm == RECOVERY_STEPS:  # back towards the full step, a doubling at a time
+                    self.halvings, self.calm = self.halvings - 1, 0
                 step, t = state["step"], state["time"]
                 totals["step_time_s"] += time.perf_counter() - start
                 if step % scene.output.history_every == 0 or t >= t_end * (1.0 - 1e-12):

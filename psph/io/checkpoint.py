@@ -106,6 +106,9 @@ def _check_state(state) -> None:
     for key in DRIVER_KEYS + extra:
         if key not in state["driver"]:
             raise ValueError(f"its state's 'driver' lacks {key!r}")
+    retry = state["driver"].get("retry", [0, 0])  # fluid runs since time.retries' recovery (older: none)
+    if not (isinstance(retry, list) and len(retry) == 2 and all(type(v) is int and v >= 0 for v in retry)):
+        raise ValueError("its state's 'driver' 'retry' is not two counts")
     counts = state["rank_counts"]
     if not counts or not all(isinstance(c, int) and c >= 0 for c in counts):
         raise ValueError("its state's 'rank_counts' are not counts of particles")

@@ -59,9 +59,9 @@ CHUNK_BYTES = 1 << 20  # a checksummed dataset's chunks: about 1 MiB each
 
 def _checksummed(shape, dtype) -> dict:
     """create_dataset's arguments for a dataset with a Fletcher32 checksum per chunk (chunks of whole rows, at
-    most about CHUNK_BYTES, equal so that the last holds no unused rows: HDF5 stores every chunk whole), or
-    none for an empty one (HDF5 chunks only non-empty shapes)."""
-    if 0 in shape:
+    most about CHUNK_BYTES, of equal size so that the last, which HDF5 stores whole, holds fewer unused rows
+    than there are chunks), or none for an empty or 0-d one (HDF5 chunks only non-empty arrays)."""
+    if not shape or 0 in shape:
         return {}
     row = max(1, int(np.prod(shape[1:], dtype=np.int64)) * np.dtype(dtype).itemsize)
     chunks = -(-shape[0] * row // CHUNK_BYTES)
@@ -85,7 +85,11 @@ def write_particle_file(comm, path, start, total, data, attrs, extra=None) -> No
                     _write_rows(ds, start, np.ascontiguousarray(arr))
             for name, arr in extra.items():
                 ds = f.create_dataset(name, shape=arr.shape, dtype=arr.dtype, **_checksummed(arr.shape, arr.dtype))
-                _write_rows(ds, 0, np.ascontiguousarray(arr if comm.rank == 0 else arr[:0]))
+                if arr.ndim == 0:  # not chunked, so not filtered: rank 0 alone may write it
+                    if comm.rank == 0:
+                        ds[()] = arr
+                elif arr.size:
+                    _write_rows(ds, 0, np.ascontiguousarray(arr if comm.rank == 0 else arr[:0]))
             for k, v in attrs.items():
                 f.attrs[k] = v
         return

@@ -386,10 +386,9 @@ class PhysicsSpec:
     def check(self, path):
         if self.gravity and len(self.gravity) not in (1, 2, 3):
             raise SceneError(f"{path}.gravity", "expected 1 to 3 entries")
-        if math.log10(self.density) + 2.0 * math.log10(self.sound_speed) > 300.0:  # the EOS's rho0 c0^2
-            raise SceneError(f"{path}.sound_speed", f"{self.sound_speed:g}: rho0 c0^2 = 1e"
-                             f"{math.log10(self.density) + 2.0 * math.log10(self.sound_speed):.0f} is beyond "
-                             "floating point (at most 1e300)")
+        if (exponent := math.log10(self.density) + 2.0 * math.log10(self.sound_speed)) > 300.0:  # rho0 c0^2
+            raise SceneError(f"{path}.sound_speed", f"{self.sound_speed:g}: rho0 c0^2 = 10^{exponent:.4g} is "
+                             "beyond floating point (at most 1e300)")
 
 
 SHIFTING_METHODS = ("none", "iips", "explicit_iterative", "lind", "skillen", "oger", "delta_plus", "neuhauser")
@@ -472,8 +471,8 @@ class TimeSpec:
     integrator: str = option("rk3", doc="fluid time integrator: rk3 (Kutta, thesis eq. 5.51) or rk4",
                              choices=("rk3", "rk4"))
     retries: int = option(0, doc="fluid runs: on a numerical failure in a step, restore the state before it and "
-                          "retry with half the time step, at most this many times in a row (0: stop; costs a copy "
-                          "of the particles every step); the step then doubles back after every 10 steps without "
+                          "retry with half the time step, down to 2^-retries of it (0: stop; costs a copy of the "
+                          "particles every step); the step then doubles back after every 10 steps without a "
                           "failure", ge=0, le=20)
 
 

@@ -10,7 +10,15 @@ driver's check names the particle and the step.
 import numpy as np
 
 GAMMA = 7.0
-QUIET = np.errstate(over="ignore", invalid="ignore", divide="ignore")  # as a decorator: no warning inside
+
+
+def quiet(method):
+    """`method` without numpy's floating-point warnings (a fresh errstate per call: a shared one is not
+    re-entrant)."""
+    def call(*args):
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return method(*args)
+    return call
 
 
 class LinearEOS:
@@ -19,11 +27,11 @@ class LinearEOS:
     def __init__(self, c0, rho0):
         self.c0, self.rho0 = c0, rho0
 
-    @QUIET
+    @quiet
     def pressure(self, rho):
         return self.c0 ** 2 * (rho - self.rho0)
 
-    @QUIET
+    @quiet
     def density(self, p):
         return self.rho0 + p / self.c0 ** 2
 
@@ -35,11 +43,11 @@ class TaitEOS:
         self.c0, self.rho0 = c0, rho0
         self.b = c0 ** 2 * rho0 / GAMMA
 
-    @QUIET
+    @quiet
     def pressure(self, rho):
         return self.b * ((rho / self.rho0) ** GAMMA - 1.0)
 
-    @QUIET
+    @quiet
     def density(self, p):
         return self.rho0 * (1.0 + np.asarray(p) / self.b) ** (1.0 / GAMMA)
 

@@ -252,6 +252,70 @@ def test_failed_step_is_retried_with_half_the_time_step_when_the_scene_allows(tm
     assert [round(steps[k] / failed[0], 2) for k in range(4, 18)] == [1.0] + [0.5] * 10 + [1.0] * 3
 
 
+def retry_scene(retries, t_end=0.05, **output):
+    from tests.conftest import periodic_scene
+
+    return periodic_scene(n=16, initial={"velocity": "taylor_green"}, physics={"scheme": "delta_ale"},
+                          time={"t_end": t_end, "retries": retries}, shifting={"method": "delta_plus"},
+                          output=output)
+
+
+def failing_at(driver, steps):
+    """Make the first try of each of `steps` fail in `driver`'s check; returns {step: dt of its last try}."""
+    from psph.errors import NumericalError
+
+    original, tried = driver.check, {}
+
+    def check(step, t, dt):
+        first = step not in tried
+        tried[step] = dt
+        if step in steps and first:
+            raise NumericalError("injected", step=step, time=t)
+        return original(step, t, dt)
+
+    driver.check = check
+    return tried
+
+
+def test_failures_in_a_row_of_steps_use_up_the_retries(tmp_path):
+    """time.retries = 2, a failure at the first try of steps 5, 6 and 7: steps 5 and 6 are redone at dt / 2
+    and dt / 4, and step 7, which would need a third halving, stops the run (the halvings in effect count
+    against the retries, or a flow failing step after step halved its step 20 times, each a first retry)."""
+    from mpi4py import MPI
+
+    from psph.drivers.fluid import FluidDriver
+    from psph.errors import NumericalError
+
+    with FluidDriver(retry_scene(2), MPI.COMM_SELF, tmp_path, log=lambda message: None) as driver:
+        tried = failing_at(driver, {5, 6, 7})
+        with pytest.raises(NumericalError, match=r"injected \[step 7,"):
+            driver.run()
+    assert [round(tried[k] / tried[4], 2) for k in (5, 6, 7)] == [0.5, 0.25, 0.25]
+
+
+def test_a_restart_within_a_halved_stretch_continues_bit_for_bit(tmp_path):
+    """A retry at step 5, a checkpoint at step 8 (the step still halved, 4 of its 10 steps done): the restart
+    carries the halving and the count, and ends as the uninterrupted run does, bit for bit (it went back
+    to the full step at once, in fewer steps, 2e-9 apart in position: a review)."""
+    from mpi4py import MPI
+
+    from psph.drivers.fluid import FluidDriver
+    from psph.io.checkpoint import read_checkpoint
+
+    ends = {}
+    with FluidDriver(retry_scene(1, 0.025, checkpoint_every=8), MPI.COMM_SELF, tmp_path / "whole",
+                     log=lambda message: None) as driver:
+        failing_at(driver, {5})
+        ends["whole"] = (driver.run()["steps"], driver.system.particles.owned("position").copy())
+    checkpoint = read_checkpoint(MPI.COMM_SELF, tmp_path / "whole" / "checkpoint_000008.h5")
+    assert checkpoint[0]["driver"]["retry"] == [1, 4]
+    with FluidDriver(retry_scene(1, 0.025), MPI.COMM_SELF, tmp_path / "again", restart=checkpoint,
+                     log=lambda message: None) as driver:
+        ends["again"] = (driver.run()["steps"], driver.system.particles.owned("position").copy())
+    assert ends["whole"][0] == ends["again"][0] > 15  # the halved stretch (steps 5-14) ends within the run
+    assert np.array_equal(ends["whole"][1], ends["again"][1])
+
+
 def test_an_output_failure_leaves_the_history_written_and_no_temporary_file(tmp_path, monkeypatch):
     """A snapshot write that fails half-way (a full disk: OSError) ends the run; the history's rows so far
     are written (they were kept in memory, written every 2 s of wall time, and lost), and the half-written
