@@ -776,6 +776,22 @@ class Scene:
                 return a
         return None
 
+    def _check_fill_in_containers(self):
+        """A hydrostatic start whose fill region is given above the domain or an axis-aligned box container's
+        top: the fluid is cut there, and its pressure was taken from the surface given, above the cut (an
+        audit: a fill 0.3 above the tank's roof ran so, silently). A fill given wider than a container, as
+        the scenes give it, is cut by the walls by design."""
+        given = self.initial.fill_upper
+        if self.initial.pressure != "hydrostatic" or len(given) < 2:
+            return
+        tops = [("the domain's top", self.domain.upper[1])]
+        tops += [(f"the top of bodies[{k}] ({b.name!r})", b.center[1] + 0.5 * b.size[1])
+                 for k, b in enumerate(self.bodies) if b.shape == "box" and b.angle == 0.0]
+        where, top = min(tops, key=lambda item: item[1])
+        if given[1] > top + 1e-9 * self.domain.dx:
+            raise SceneError("initial.fill_upper", f"the hydrostatic pressure's free surface {given[1]:g} is above "
+                             f"{where}, {top:g}, where the fluid is cut: give at most {top:g}")
+
     def _check_subsonic(self, k, body):
         """A body (or lid) whose surface reaches the speed of sound: the weakly compressible fluid cannot follow
         it (the run stopped at step 1 blaming 'the flow'). Its peak speed: |velocity| + |angular_velocity| x
@@ -830,6 +846,7 @@ class Scene:
             if hi[a] <= lo[a]:
                 key = "initial.fill_upper" if self.initial.fill_upper else "initial.fill_lower"
                 raise SceneError(key, f"the fill region is empty along axis {a}: upper {hi[a]:g} <= lower {lo[a]:g}")
+        self._check_fill_in_containers()
         method = self.shifting.method
         self._check_drop(fluid)
         self._check_packing(fluid)

@@ -378,6 +378,11 @@ def test_packing_is_accepted_with_clone_walls_and_a_free_surface():
     ("taylor_green", ["initial.fill_lower=[0.8, 0.8]", "initial.fill_upper=[0.2, 0.2]"], "initial.fill_upper",
      "empty along axis 0: upper 0.2 <= lower 0.8"),
     ("taylor_green", ["initial.fill_lower=[1.0, 0.0]"], "initial.fill_lower", "empty along axis 0"),
+    # a hydrostatic surface above where the fluid is cut (it ran with the pressure of a column 0.3 higher)
+    ("hydrostatic_tank", ["initial.fill_upper=[2.0, 1.5]"], "initial.fill_upper",
+     "free surface 1.5 is above the domain's top, 1.2, where the fluid is cut"),
+    ("hydrostatic_tank", ["bodies.0.size=[2.0, 1.0]", "bodies.0.center=[1.0, 0.5]", "initial.fill_upper=[2.0, 1.1]"],
+     "initial.fill_upper", "above the top of bodies[0] ('tank'), 1, where"),
 ])
 def test_dam_break_keys_are_refused_where_they_do_not_apply(scene, sets, key, words):
     with pytest.raises(SceneError) as info:
