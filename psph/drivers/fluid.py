@@ -518,7 +518,7 @@ class FluidDriver(Driver):
             problem = f"time step collapsed to {dt:.3g} (first step {self.first_dt:.3g})"
         if problem is not None and step == 0:
             problem = f"the initial state: {problem}"
-            if bad.any() or dev.max() > 0.1:  # the density the initial fields gave, not a tight limit's catch
+            if bad.any() or (dev.size and dev.max() > 0.1):  # the initial fields' density, not a tight limit's
                 problem += (" (the initial density follows the initial pressure and gravity through the equation "
                             "of state, which needs |p| << rho0 c0^2: physics.sound_speed)")
         error = None if problem is None else NumericalError(
@@ -568,9 +568,10 @@ class FluidDriver(Driver):
                     self.open.restore(saved[2])
                     totals["retries"] += 1
                     continue
-                self.calm += 1
-                if self.halvings and self.calm == RECOVERY_STEPS:  # back towards the full step, a doubling at a time
-                    self.halvings, self.calm = self.halvings - 1, 0
+                if self.halvings:  # back towards the full step, a doubling at a time
+                    self.calm += 1
+                    if self.calm == RECOVERY_STEPS:
+                        self.halvings, self.calm = self.halvings - 1, 0
                 step, t = state["step"], state["time"]
                 totals["step_time_s"] += time.perf_counter() - start
                 if step % scene.output.history_every == 0 or t >= t_end * (1.0 - 1e-12):

@@ -776,7 +776,7 @@ class Scene:
                 return a
         return None
 
-    def _check_fill_in_containers(self):
+    def _check_hydrostatic_surface(self):
         """A hydrostatic start whose fill region is given above the domain or an axis-aligned box container's
         top: the fluid is cut there, and its pressure was taken from the surface given, above the cut (an
         audit: a fill 0.3 above the tank's roof ran so, silently). A fill given wider than a container, as
@@ -846,7 +846,7 @@ class Scene:
             if hi[a] <= lo[a]:
                 key = "initial.fill_upper" if self.initial.fill_upper else "initial.fill_lower"
                 raise SceneError(key, f"the fill region is empty along axis {a}: upper {hi[a]:g} <= lower {lo[a]:g}")
-        self._check_fill_in_containers()
+        self._check_hydrostatic_surface()
         method = self.shifting.method
         self._check_drop(fluid)
         self._check_packing(fluid)

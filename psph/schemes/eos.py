@@ -7,6 +7,8 @@ Out of range (Tait's density of p < -B, an overflow) they give NaN or inf withou
 driver's check names the particle and the step.
 """
 
+import functools
+
 import numpy as np
 
 GAMMA = 7.0
@@ -15,6 +17,7 @@ GAMMA = 7.0
 def quiet(method):
     """`method` without numpy's floating-point warnings (a fresh errstate per call: a shared one is not
     re-entrant)."""
+    @functools.wraps(method)
     def call(*args):
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             return method(*args)
