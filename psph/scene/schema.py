@@ -777,20 +777,36 @@ class Scene:
         return None
 
     def _check_hydrostatic_surface(self):
-        """A hydrostatic start whose fill region is given above the domain or an axis-aligned box container's
-        top: the fluid is cut there, and its pressure was taken from the surface given, above the cut (an
-        audit: a fill 0.3 above the tank's roof ran so, silently). A fill given wider than a container, as
-        the scenes give it, is cut by the walls by design."""
-        given = self.initial.fill_upper
-        if self.initial.pressure != "hydrostatic" or len(given) < 2:
+        """A hydrostatic start whose free surface (initial.fill_upper, or the domain's top) lies above the
+        fluid's top: the fluid is cut below it, by the domain or by a container, and its pressure was taken
+        from the surface given, above the cut (an audit: a fill 0.3 above the tank's roof ran so, silently).
+        The fluid's top is found on the lattice: the fill region's top row, and the rows below it, as
+        psph.boundaries.fluid_mask fills them, so that any container (box, rotated, polygon) is covered; a
+        roof that cuts the top row only in part (a tilted one) is not refused. A fill given wider than a
+        container, as the scenes give it, is cut by the walls by design."""
+        ini, d, g = self.initial, self.domain, self.physics.gravity
+        if ini.pressure != "hydrostatic" or d.dimension < 2 or len(g) < 2 or g[1] == 0.0:
             return
-        tops = [("the domain's top", self.domain.upper[1])]
-        tops += [(f"the top of bodies[{k}] ({b.name!r})", b.center[1] + 0.5 * b.size[1])
-                 for k, b in enumerate(self.bodies) if b.shape == "box" and b.angle == 0.0]
-        where, top = min(tops, key=lambda item: item[1])
-        if given[1] > top + 1e-9 * self.domain.dx:
-            raise SceneError("initial.fill_upper", f"the hydrostatic pressure's free surface {given[1]:g} is above "
-                             f"{where}, {top:g}, where the fluid is cut: give at most {top:g}")
+        given = ini.fill_upper[1] if ini.fill_upper else d.upper[1]
+        if given > d.upper[1] + 1e-9 * d.dx:
+            raise SceneError("initial.fill_upper", f"the hydrostatic pressure's free surface {given:g} is above "
+                             f"the domain's top, {d.upper[1]:g}, where the fluid is cut: give at most {d.upper[1]:g}")
+        from psph.boundaries import fluid_mask  # geometry: numpy and the body profiles
+
+        axes = [d.lower[a] + (np.arange(n) + 0.5) * d.dx for a, n in enumerate(d.lattice_shape())]
+
+        def filled(y) -> bool:
+            nodes = np.stack([c.ravel() for c in np.meshgrid(*axes[:1], [y], *axes[2:], indexing="ij")], axis=1)
+            return bool(fluid_mask(self, nodes).any())
+
+        rows = axes[1][axes[1] <= given][::-1]  # from the fill region's top row down
+        k = next((k for k, y in enumerate(rows) if filled(y)), None)  # None: no fluid (create_particles says so)
+        if k:
+            y = rows[k]
+            raise SceneError("initial.fill_upper", f"the hydrostatic pressure's free surface {given:g}"
+                             f"{'' if ini.fill_upper else ' (not given: the domain top)'} is above the fluid's top "
+                             f"lattice row, y = {y:g}, {k} row(s) below the fill region's: a wall or body cuts the "
+                             f"fluid there; give at most {y + 0.5 * d.dx:g}")
 
     def _check_subsonic(self, k, body):
         """A body (or lid) whose surface reaches the speed of sound: the weakly compressible fluid cannot follow
@@ -846,11 +862,11 @@ class Scene:
             if hi[a] <= lo[a]:
                 key = "initial.fill_upper" if self.initial.fill_upper else "initial.fill_lower"
                 raise SceneError(key, f"the fill region is empty along axis {a}: upper {hi[a]:g} <= lower {lo[a]:g}")
-        self._check_hydrostatic_surface()
         method = self.shifting.method
         self._check_drop(fluid)
         self._check_packing(fluid)
         self._check_open(fluid)
+        self._check_hydrostatic_surface()  # (after the inflows' check: it fills the lattice)
         self._check_jet()
         self._check_dam_break()
         self._check_probes(fluid)

@@ -382,7 +382,15 @@ def test_packing_is_accepted_with_clone_walls_and_a_free_surface():
     ("hydrostatic_tank", ["initial.fill_upper=[2.0, 1.5]"], "initial.fill_upper",
      "free surface 1.5 is above the domain's top, 1.2, where the fluid is cut"),
     ("hydrostatic_tank", ["bodies.0.size=[2.0, 1.0]", "bodies.0.center=[1.0, 0.5]", "initial.fill_upper=[2.0, 1.1]"],
-     "initial.fill_upper", "above the top of bodies[0] ('tank'), 1, where"),
+     "initial.fill_upper", "above the fluid's top lattice row, y = 0.9875, 4 row(s) below the fill region's"),
+    ("hydrostatic_tank", ["bodies.0.size=[2.0, 1.0]", "bodies.0.center=[1.0, 0.5]", "initial.fill_upper=[2.0, 1.02]"],
+     "initial.fill_upper", "y = 0.9875, 1 row(s) below the fill region's: a wall or body cuts the fluid there; "
+     "give at most 1"),
+    # any container: a rotated box (top corner 1.065), a polygon whose top is 0.9 (the scenes' fill 1.0 and 1.1)
+    ("hydrostatic_tank", ["bodies.0.size=[1.4, 0.8]", "bodies.0.center=[1.0, 0.55]", "bodies.0.angle=10.0",
+                          "initial.fill_upper=[2.0, 1.1]"], "initial.fill_upper", "a wall or body cuts the fluid"),
+    ("trapezoidal_tank", ["bodies.0.vertices=[[0.0, 0.0], [1.0, 0.0], [1.6, 0.9], [0.0, 0.9]]"], "initial.fill_upper",
+     "free surface 1 is above the fluid's top lattice row, y = 0.9, 2 row(s) below"),
 ])
 def test_dam_break_keys_are_refused_where_they_do_not_apply(scene, sets, key, words):
     with pytest.raises(SceneError) as info:
