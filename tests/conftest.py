@@ -52,6 +52,32 @@ def collect_garbage_together():
         gc.collect()
 
 
+@pytest.fixture(autouse=True)
+def close_serial_drivers(monkeypatch):
+    """Close, when a test ends, the one-rank drivers it made and left open, as the `with` block of `psph run`
+    closes its driver: their PETSc objects and communicators are freed then, not whenever the collector runs
+    (psph.drivers.base.Driver). A driver on more ranks is left to its test: a close here, collective, would
+    wait for a rank whose test made none."""
+    from psph.drivers.fluid import FluidDriver
+    from psph.drivers.kinematic import KinematicDriver
+    from psph.drivers.static import StaticDriver
+
+    made = []
+
+    def registering(init):
+        def __init__(self, *args, **kwargs):
+            init(self, *args, **kwargs)
+            made.append(self)
+        return __init__
+
+    for cls in (FluidDriver, KinematicDriver, StaticDriver):
+        monkeypatch.setattr(cls, "__init__", registering(cls.__init__))
+    yield
+    for driver in made:
+        if not driver.closed and driver.sim.comm.size == 1:
+            driver.close()
+
+
 def pytest_collection_modifyitems(items):
     """The tests marked `long` first. With tests handed out one at a time (run_scripts/test.sh:
     --maxschedchunk 1; by default pytest-xdist gives each worker a block of consecutive tests), each worker
