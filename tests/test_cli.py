@@ -30,6 +30,17 @@ def test_bad_input_is_one_line_exit_2_nothing_written(tmp_path, args, words):
     assert not out.exists()
 
 
+def test_a_body_spun_past_the_speed_of_sound_is_one_line(tmp_path):
+    """Refused by key before its motion is sampled, where the speed overflowed: a numpy warning and its source
+    line came before the error."""
+    out = tmp_path / "out"
+    res = run_psph("run", CASES / "moving_square.toml", "--out", out, "--set", "bodies.1.motion.law=constant",
+                   "--set", "bodies.1.motion.angular_velocity=1e300")
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(lines) == 1, res.stderr
+    assert lines[0].startswith("psph: error: bodies[1].motion.angular_velocity: ") and not out.exists()
+
+
 def test_missing_scene_file(tmp_path):
     res = run_psph("run", tmp_path / "nope.toml")
     assert res.returncode == 2 and "not found" in res.stderr and "Traceback" not in res.stderr

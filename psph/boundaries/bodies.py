@@ -110,7 +110,7 @@ class Body:
             lo, hi = bounds(spec)
             self.reference_length = hi[0] - lo[0]
         else:  # an ellipse's major axis, a rectangle's width
-            self.reference_length = 2.0 * spec.size[0] if spec.shape == "ellipse" else spec.size[0]
+            self.reference_length = 2.0 * max(spec.size) if spec.shape == "ellipse" else spec.size[0]
 
     @property
     def moves(self) -> bool:
@@ -212,6 +212,8 @@ def check_placement(scene) -> None:
             bounded = not d.periodic[a] or not b.container
             box_lo, box_hi = (d.lower[a], d.upper[a]) if b.container else (lower[a], upper[a])
             if bounded and (lo[a] < box_lo - 1e-9 * dx or hi[a] > box_hi + 1e-9 * dx):
+                if key == "size" and hi[a] - lo[a] <= box_hi - box_lo:  # it would fit: placed wrong
+                    key = "center"
                 raise SceneError(f"{path}.{key}", f"{b.name!r} leaves the domain along axis {a}"
                                  + (": the fluid at the domain's edge would have no wall" if b.container else ""))
         dt = scene.time.cfl * d.h / scene.physics.sound_speed

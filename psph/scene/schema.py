@@ -179,6 +179,9 @@ class BodySpec:
         if self.lid_velocity and self.lid_velocity[1] != 0.0:
             raise SceneError(f"{path}.lid_velocity", "a lid slides along the box's top side: give [U, 0] (the "
                              "second entry, normal to the lid, must be 0)")
+        if self.lid_velocity and self.wall == "free_slip":  # the wall's tangential velocity never enters
+            raise SceneError(f"{path}.lid_velocity", "a free-slip wall (wall = \"free_slip\") exerts no shear, so "
+                             "its lid would move no fluid: give wall = \"no_slip\"")
         if self.model == "ghost" and (self.shape != "box" or self.angle != 0.0):
             raise SceneError(f"{path}.model", "ghost walls mirror across straight walls: an axis-aligned box "
                              "(shape = box, angle = 0)")
@@ -845,10 +848,11 @@ class Scene:
             self._check_ghost_walls(fluid)
             from psph.boundaries.bodies import check_placement  # geometry: numpy and the body profiles
 
+            for k, b in enumerate(self.bodies):  # before the motion is sampled (a huge speed overflows there)
+                self._check_subsonic(k, b)
             check_placement(self)
             d = self.domain
             for k, b in enumerate(self.bodies):
-                self._check_subsonic(k, b)
                 if b.lid_velocity and d.periodic[1] and b.center[1] + b.size[1] / 2.0 >= d.upper[1] - 1e-9 * d.dx:
                     raise SceneError(f"bodies[{k}].lid_velocity", "the box's top side is not inside the periodic "
                                      "y axis (a box spanning it keeps only its side plates): the lid would be ignored")

@@ -126,6 +126,18 @@ def test_translation_and_rotation_follow_their_own_laws():
                          motion=MotionSpec(rotation_law="oscillate", angular_velocity=1.0)), 0, 0.1, (1.0, 0.0)).moves
 
 
+def test_an_ellipse_s_reference_length_is_its_major_axis_however_written():
+    """The force coefficients' default D of an ellipse is its major axis (psph keys), also with the long
+    semi-axis given second: [0.5, 0.2] at -20 degrees and [0.2, 0.5] at 70 are one body (D was 2 size[0],
+    and the second ellipse's coefficients 2.5 times the first's, its moment's 6.25)."""
+    from psph.boundaries.bodies import Body
+    from psph.scene.schema import BodySpec
+
+    lengths = [Body(BodySpec(name="e", shape="ellipse", center=(1.0, 1.0), size=size, angle=angle), 0, 0.05,
+                    (1.0, 0.0)).reference_length for size, angle in (((0.5, 0.2), -20.0), ((0.2, 0.5), 70.0))]
+    assert lengths == [1.0, 1.0]
+
+
 # box containers whose sides are not on the lattice's midlines: seed 001's tank (5.367 x 3) at three
 # resolutions, a tank inside its domain off the lattice, and one whose sides fall on lattice points
 OFF_LATTICE_CONTAINERS = [("dam_break", ["domain.dx=0.025"]), ("dam_break", ["domain.dx=0.05"]),

@@ -67,24 +67,6 @@ def test_couette_startup_follows_the_analytic_transient(tmp_path):
     assert v_max < 5e-3 and morris < 0.25 * errors[2.0]
 
 
-@pytest.mark.parametrize("model", ["clone", "ghost"])
-def test_a_free_slip_lid_drags_nothing(tmp_path, model):
-    """The Couette plates with free-slip walls: the moving lid passes no shear to the fluid, which stays at
-    rest (free slip mirrors the velocity's normal part only, and the lid moves along itself), while with
-    no-slip walls the layer under the lid moves at about 0.6 U after t = 0.2; with clone particles and with
-    the fixed-ghost baseline."""
-    speeds = {}
-    for wall in ("free_slip", "no_slip"):
-        out = run(tmp_path, "couette.toml", wall, f"bodies.0.wall={wall}", "time.t_end=0.2", "output.every=0.2",
-                  *walls(model))
-        snap, _ = last_snapshot(out)
-        fluid = snap["kind"] == Kind.FLUID
-        top = fluid & (snap["position"][:, 1] > 0.95)
-        speeds[wall] = np.abs(snap["velocity"][fluid]).max(), snap["velocity"][top, 0].mean()
-    assert speeds["no_slip"][1] > 0.4
-    assert speeds["free_slip"][0] < 1e-10
-
-
 def test_couette_with_iips_next_to_the_walls(tmp_path):
     """IIPS with the thesis' bounded-flow threshold (0.08/h, section 10.1.1) from a perturbed start: solid
     particles are fixed neighbours, never moved; the NFTS update treats them as clones (the steps mirrored:
