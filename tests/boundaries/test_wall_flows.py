@@ -67,6 +67,26 @@ def test_couette_startup_follows_the_analytic_transient(tmp_path):
     assert v_max < 5e-3 and morris < 0.25 * errors[2.0]
 
 
+def test_plates_as_wide_as_the_periodic_domain_are_the_plates_of_any_width(tmp_path):
+    """A box spanning the periodic x axis is its plates (boundaries.bodies._periodic_plates): as wide as the
+    domain (0.5), wider (0.6) or as the scene has it (10), the Couette flow is the same, and the same along
+    x. Plates of the domain's width had their sides' nodes at the edges, which the particles within dx/2 of
+    them took as their closest wall: u varied along x by 2.4e-3 at t = 1 (6e-5 at t = 0.2 here)."""
+    velocities = {}
+    for width in (10.0, 0.6, 0.5):
+        out = run(tmp_path, "couette.toml", f"w{width}", f"bodies.0.size=[{width}, 1.0]", "time.t_end=0.2",
+                  "output.every=0.2")
+        snap, _ = last_snapshot(out)
+        fluid = snap["kind"] == Kind.FLUID
+        order = np.argsort(snap["gid"][fluid])
+        velocities[width] = snap["velocity"][fluid][order]
+        row = np.round(snap["position"][fluid, 1] / 0.05 - 0.5).astype(int)
+        u = snap["velocity"][fluid, 0]
+        assert max(np.ptp(u[row == r]) for r in np.unique(row)) < 1e-12, width
+    assert np.abs(velocities[0.5] - velocities[10.0]).max() < 1e-12
+    assert np.abs(velocities[0.6] - velocities[10.0]).max() < 1e-12
+
+
 def test_couette_with_iips_next_to_the_walls(tmp_path):
     """IIPS with the thesis' bounded-flow threshold (0.08/h, section 10.1.1) from a perturbed start: solid
     particles are fixed neighbours, never moved; the NFTS update treats them as clones (the steps mirrored:
