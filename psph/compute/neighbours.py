@@ -196,21 +196,22 @@ def _lists(query, n_rows, data, radius, exclude_self):
                  expected)
 
 
-@njit(cache=True)
 def build_neighbour_lists(pos, n_rows, radius):
     """CSR neighbour lists (ptr, idx) of rows 0..n_rows-1 over all particles in `pos`.
 
     pos: (n, d) positions of owned then halo particles; radius: list radius (support + skin).
     Returns ptr (n_rows + 1,) int64 and idx (ptr[-1],) int32 (a view of a buffer at most a quarter longer); row i is
     idx[ptr[i]:ptr[i+1]], ascending in cell order, j != i.
+
+    (This and build_cross_lists call _lists from Python, where exclude_self is a bool: from a numba function
+    each constant would be a literal type, and the search compiled once for each, 9 s more on a cold cache.)
     """
-    return _lists(pos, n_rows, pos, radius, True)
+    return _lists(pos, int(n_rows), pos, float(radius), True)
 
 
-@njit(cache=True)
 def build_cross_lists(query, data, radius):
     """CSR lists of the `data` points within `radius` of each `query` point (two different point sets)."""
-    return _lists(query, query.shape[0], data, radius, False)
+    return _lists(query, query.shape[0], data, float(radius), False)
 
 
 @njit(cache=True, inline="always")
