@@ -3,10 +3,10 @@
 numba's on-disk cache (cache=True) of a function is keyed on its own file's time stamp only, not on the
 files of the functions it inlines: after an edit of smoothing.py (or a `git pull` that changes it), the
 kernels of sums.py would be loaded compiled with the old kernel functions. The cache therefore goes in a
-directory named after a hash of this package's sources and numba's version, set here before any kernel is
-defined (unless NUMBA_CACHE_DIR is set): in $XDG_CACHE_HOME (or ~/.cache) psph/numba-HASH, or, where that
-cannot be written (a read-only install with no home, where numba's own choice, beside the sources, failed
-every command), in the temporary directory.
+directory named after a hash of this package's sources that use numba, and numba's version, set here
+before any kernel is defined (unless NUMBA_CACHE_DIR is set): in $XDG_CACHE_HOME (or ~/.cache)
+psph/numba-HASH, or, where that cannot be written (a read-only install with no home, where numba's own
+choice, beside the sources, failed every command), in the temporary directory.
 """
 
 import hashlib
@@ -39,7 +39,9 @@ def _use_versioned_cache() -> None:
         return
     digest = hashlib.sha256(numba.__version__.encode())
     for source in sorted(Path(__file__).parent.glob("*.py")):
-        digest.update(source.name.encode() + b"\0" + source.read_bytes())
+        text = source.read_bytes()
+        if b"from numba" in text or b"import numba" in text:  # (not warmup.py, which only calls them)
+            digest.update(source.name.encode() + b"\0" + text)
     path = _cache_dir(digest.hexdigest()[:16])
     if path is not None:
         config.CACHE_DIR = path
