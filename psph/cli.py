@@ -221,6 +221,7 @@ def _start_log(path, line: str) -> None:
 
 
 def cmd_run(args, petsc_options, comm) -> int:
+    import numpy as np
     from mpi4py import MPI
 
     from psph.drivers import driver_for
@@ -295,8 +296,10 @@ def cmd_run(args, petsc_options, comm) -> int:
     kwargs = {"restart": restart} if restart else {}  # static runs write no checkpoints
     stop.install(comm, after="iteration with a snapshot" if scene.physics.scheme == "none" else
                  "step with a checkpoint")
-    try:
-        with driver_for(scene)(scene, comm, out, log=log, progress=not args.quiet, **kwargs) as driver:
+    try:  # numpy's floating-point warnings (a blown-up speed squared) would come before psph's one-line
+        # diagnosis, which the state's checks give (non-finite fields, the density's range, the time step)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"), \
+                driver_for(scene)(scene, comm, out, log=log, progress=not args.quiet, **kwargs) as driver:
             summary = driver.run()
             rejected = sum(getattr(m, "rejections", 0) for m in driver.shifting_methods())
         late = stop.requested(comm)

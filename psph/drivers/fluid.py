@@ -514,7 +514,9 @@ class FluidDriver(Driver):
             if drift.max() > (most := self.scene.physics.max_volume_variation):
                 k = int(np.argmax(drift))
                 problem = f"particle volume drifted by {drift[k]:.3g} (> {most:g}, physics.max_volume_variation)"
-        if problem is None and self.first_dt and dt < DT_COLLAPSE * self.first_dt:
+        if problem is None and not dt > 0.0:  # a speed whose square overflows: every step, 0 (ran on at t = 0)
+            problem = f"time step collapsed to {dt:.3g}"
+        elif problem is None and self.first_dt and dt < DT_COLLAPSE * self.first_dt:
             problem = f"time step collapsed to {dt:.3g} (first step {self.first_dt:.3g})"
         if problem is not None and step == 0:
             problem = f"the initial state: {problem}"

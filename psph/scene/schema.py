@@ -15,6 +15,12 @@ from psph.scene.validate import option
 OUTFLOW_FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
 
 
+def _supersonic(key, what, speed, c0) -> SceneError:
+    """The refusal of a prescribed speed (a body's, an inflow's) not below the speed of sound."""
+    return SceneError(key, f"{what} at {speed:g}, not below the speed of sound physics.sound_speed = {c0:g} (a "
+                      "weakly compressible fluid needs it about 10 times the flow's speed)")
+
+
 def _overlap(lo, hi, other_lo, other_hi, margin=0.0) -> bool:
     """Do boxes [lo, hi] and [other_lo, other_hi] share more than `margin` along every axis?"""
     return bool(np.all(np.minimum(hi, other_hi) - np.maximum(lo, other_lo) > margin))
@@ -94,8 +100,12 @@ class InflowSpec:
                                          "buffer into the domain through the buffer's face on that side")
 
     def check(self, path):
-        if len(self.lower) != len(self.upper) or len(self.velocity) != len(self.lower):
-            raise SceneError(f"{path}.velocity", "lower, upper and velocity need one entry per dimension")
+        lengths = {"lower": len(self.lower), "upper": len(self.upper), "velocity": len(self.velocity)}
+        if len(set(lengths.values())) > 1:  # the key whose length the other two do not share
+            common = max(lengths.values(), key=list(lengths.values()).count)
+            odd = next(key for key, n in lengths.items() if n != common)
+            raise SceneError(f"{path}.{odd}", f"{lengths[odd]} entries where the other two keys have {common}: "
+                             "lower, upper and velocity need one entry per dimension")
         for a in range(len(self.lower)):
             if not self.upper[a] > self.lower[a]:
                 raise SceneError(f"{path}.upper[{a}]", f"must exceed lower[{a}] = {self.lower[a]}, "
@@ -649,6 +659,9 @@ class Scene:
         boxes = []
         for k, f in enumerate(self.inflow):
             boxes.append(self._check_buffer(k, f))
+            speed = math.hypot(*f.velocity)
+            if speed >= self.physics.sound_speed:  # (1e200 made the time step 0, and the run stood at t = 0)
+                raise _supersonic(f"inflow[{k}].velocity", "the fluid would enter", speed, self.physics.sound_speed)
         for k, (lo, hi) in enumerate(boxes):
             for j in range(k):
                 if _overlap(lo, hi, *boxes[j], 1e-9 * d.dx):
@@ -823,11 +836,8 @@ class Scene:
                 "motion.angular_velocity": abs(m.angular_velocity) * reach,
                 "lid_velocity": abs(body.lid_velocity[0]) if body.lid_velocity else 0.0}
         if peak["motion.velocity"] + peak["motion.angular_velocity"] >= c0 or peak["lid_velocity"] >= c0:
-            key = max(peak, key=peak.get)
-            raise SceneError(f"bodies[{k}].{key}", f"the body's surface would move at "
-                             f"{max(peak['lid_velocity'], peak['motion.velocity'] + peak['motion.angular_velocity']):g}"
-                             f", not below the speed of sound physics.sound_speed = {c0:g} (a weakly compressible "
-                             "fluid needs it about 10 times the flow's speed)")
+            raise _supersonic(f"bodies[{k}].{max(peak, key=peak.get)}", "the body's surface would move",
+                              max(peak["lid_velocity"], peak["motion.velocity"] + peak["motion.angular_velocity"]), c0)
 
     def check(self, path):
         fluid = self.physics.scheme in FLUID_SCHEMES

@@ -53,7 +53,7 @@ def free_jet(dim, t_end=0.6, **extra):
 
 def test_inflow_rows_continue_the_buffer_lattice():
     """Row m is emitted once |U| t >= m dx, on the lattice of the rows already there, and a particle joins the
-    fluid only past the downstream face and within the cross-section."""
+    fluid once the buffer no longer holds it: past its downstream face, however far (open.Inflow.holds)."""
     sc = free_jet(2)
     f = Inflow(sc.inflow[0], sc.domain.dx)
     assert f.rows == 4 and len(f.section) == 6
@@ -67,8 +67,8 @@ def test_inflow_rows_continue_the_buffer_lattice():
     ys = np.unique(np.round(np.concatenate([rows, moved])[:, 1], 12))
     assert np.allclose(np.diff(ys), 0.1)  # one lattice, rows dx apart
     assert ys.max() <= 2.0 - 0.5 * 0.1 + 1e-12  # the newest row is inside the buffer
-    probe = np.array([[0.0, 1.59], [0.0, 1.61], [0.35, 1.59], [0.0, 1.39]])
-    assert f.joined(probe).tolist() == [True, False, False, False]
+    probe = np.array([[0.0, 1.59], [0.0, 1.61], [0.0, 1.99], [0.35, 1.61], [0.0, 1.39]])
+    assert f.holds(probe).tolist() == [False, True, True, False, False]
 
 
 @pytest.mark.parametrize("dim", [1, 2, 3])
@@ -137,6 +137,13 @@ def test_a_retried_step_emits_joins_and_removes_its_rows_once(tmp_path):
     (["inflow.0.upper=[0.3,2.2]"], "inflow[0].upper"),
     (["inflow.0.lower=[-0.25,1.6]"], "inflow[0].lower"),  # off the fluid's lattice
     (["inflow.0.velocity=[0.0,1.0]"], "inflow[0].velocity"),  # out through the domain's top
+    # the key of the wrong length, not the velocity (which the message named whatever it was)
+    (["inflow.0.lower=[-0.3,1.6,0.0]"], "inflow[0].lower"),
+    (["inflow.0.upper=[]"], "inflow[0].upper"),
+    (["inflow.0.velocity=[0.0,-1.0,0.0]"], "inflow[0].velocity"),
+    # at or above the speed of sound (at 1e200 the time step was 0 and the run stood at t = 0)
+    (["inflow.0.velocity=[0.0,-1e200]"], "inflow[0].velocity"),
+    (["inflow.0.velocity=[0.0,-10.0]"], "inflow[0].velocity"),
     (["inflow.0.lower=[-0.3,1.0]", "inflow.0.upper=[0.3,1.4]"], "inflow[0].lower"),  # fluid upstream of it
     (["inflow=[{lower=[-0.3,1.6],upper=[0.3,2.0],velocity=[0.0,-1.0]},"
       "{lower=[-0.1,1.6],upper=[0.5,2.0],velocity=[0.0,-1.0]}]"], "inflow[1]"),
@@ -436,6 +443,28 @@ def test_a_domain_all_its_fluid_leaves_runs_on_empty(tmp_path, ranks, buffer):
     rows = read_history(tmp_path / "out" / "history.csv")
     assert rows[-1]["time"] == pytest.approx(0.6) and rows[-1]["kinetic_energy"] == 0.0
     assert not list((tmp_path / "out").glob("*.tmp"))
+
+
+def test_a_buffer_row_moving_several_dx_a_step_joins_the_fluid(tmp_path):
+    """U dt = 3.2 dx (U = 10, c0 = 15, cfl 2, h = 4 dx, all within their ranges): every row leaves the buffer
+    and joins the fluid, the mass flux is rho U A, and the uniform stream keeps its mass. A row had to be
+    within 2 dx past the downstream face to join: the rows that jumped that window crossed the domain as
+    buffer particles, left it unremoved, and the mass that came in was 64% of rho U A t (an audit)."""
+    table = apply_overrides(channel(), ["domain.dx=0.1", "domain.h_over_dx=4.0", "domain.upper=[4.0, 2.0]",
+                                        "inflow.0.upper=[0.8, 2.0]", "inflow.0.velocity=[10.0, 0.0]",
+                                        "physics.sound_speed=15.0", "physics.reference_velocity=10.0",
+                                        "time.cfl=2.0", "time.t_end=0.3", "neighbours.skin=1.0",
+                                        "shifting.method=none"])
+    with FluidDriver(scene_from_table(table), MPI.COMM_SELF, tmp_path, log=lambda message: None) as driver:
+        driver.run()
+        p = driver.system.particles
+        kind, x = p.owned("kind"), p.owned("position")[:, 0]
+        budget = driver.open.budget(float(p.owned("mass")[kind == Kind.FLUID].sum()))
+        initial = driver.open.mass["initial"]
+    assert x[kind == Kind.INLET].max() <= 0.8 + 1e-9 and x.max() < 4.0 + 0.4  # (a step past the outflow face)
+    assert budget["mass_in"] == pytest.approx(10.0 * 2.0 * 0.3, abs=2.0 * 0.1 ** 2 * 20)  # within a row
+    assert budget["mass_in"] - budget["mass_out"] == pytest.approx(0.0, abs=2.0 * 0.1 ** 2 * 20)
+    assert abs(budget["mass_balance_error"]) < 1e-12 and initial == pytest.approx(3.2 * 2.0)
 
 
 def test_an_inflow_into_a_closed_full_domain_is_refused():

@@ -408,6 +408,17 @@ def _taylor_green_driver(tmp_path, name, skin, reach):
     return driver
 
 
+def test_a_speed_whose_square_overflows_stops_the_run_at_step_1(tmp_path):
+    """A particle at 1e160 (finite, its |u|^2 is not): the time step is 0. The collapse check compared with the
+    first step, 0 too, so the run stood at t = 0 step after step (an audit: an inflow at 1e200, now refused)."""
+    from psph.errors import NumericalError
+
+    driver = _taylor_green_driver(tmp_path, "fast", skin=0.1, reach=STAGE_REACH["rk3"])
+    driver.system.particles.owned("velocity")[3] = (1e160, 0.0)
+    with pytest.raises(NumericalError, match=r"^time step collapsed to 0 \[step 1, t = 0"):
+        driver.run()
+
+
 def _final_fields(driver):
     p = driver.system.particles
     order = np.argsort(p.owned("gid"))
