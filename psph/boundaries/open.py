@@ -185,10 +185,9 @@ class OpenBoundaries:
         fluid = p.owned("kind") == Kind.FLUID
         self.mass = {"initial": allreduce_sum(system.comm, float(p.owned("mass")[fluid].sum())), "in": 0.0, "out": 0.0}
         self.buffer = scene.domain.outflow_buffer
-        if self.buffer:
-            from psph.schemes.eos import make_eos
+        from psph.schemes.eos import make_eos
 
-            self.eos = make_eos(scene.physics)
+        self.eos = make_eos(scene.physics)
 
     def apply(self, system, t) -> dict:
         """At time t: buffer particles past their downstream face join the fluid, rows due are emitted (on
@@ -250,9 +249,11 @@ class OpenBoundaries:
 
     def extrapolate(self, system) -> None:
         """Set the outflow buffer's density, pressure, mass and velocity from the fluid beside it (lists
-        current): in `apply`, and again after a shifting that moves the fluid after `apply` (IIPS and its field
-        update), so that the buffer continues the fluid the next step starts from. Collective."""
-        if not self.buffer:
+        current), and those of an inflow buffer with `density = "extrapolated"` but its velocity: in `apply`,
+        and again after a shifting that moves the fluid after `apply` (IIPS and its field update), so that the
+        buffers continue the fluid the next step starts from. Collective."""
+        extrapolated = [f for f in self.inflows if f.spec.density == "extrapolated"]
+        if not self.buffer and not extrapolated:
             return
         from psph.compute.sums import shepard_from_fluid
 
@@ -263,6 +264,14 @@ class OpenBoundaries:
         rows = np.flatnonzero(p.owned("kind") == Kind.OUTLET)
         shepard_from_fluid(p["position"], p["volume"], p["kind"], rows, system.nbr_ptr, system.nbr_idx,
                            system.kernel.params, p["density"], p["velocity"])
+        if extrapolated:  # the inflow buffers' density only: their velocity stays prescribed
+            held = np.zeros(p.n_owned, dtype=bool)
+            for f in extrapolated:
+                held |= f.holds(p.owned("position"))
+            inflow = np.flatnonzero(held & (p.owned("kind") == Kind.INLET))
+            shepard_from_fluid(p["position"], p["volume"], p["kind"], inflow, system.nbr_ptr, system.nbr_idx,
+                               system.kernel.params, p["density"], np.zeros_like(p["velocity"]))
+            rows = np.concatenate([rows, inflow])
         p.owned("pressure")[rows] = self.eos.pressure(p.owned("density")[rows])
         p.owned("mass")[rows] = p.owned("density")[rows] * p.owned("volume")[rows]
         system.refresh(["density", "pressure", "mass", "velocity"])

@@ -71,11 +71,12 @@ def test_inflow_rows_continue_the_buffer_lattice():
     assert f.holds(probe).tolist() == [False, True, True, False, False]
 
 
-@pytest.mark.parametrize("dim", [1, 2, 3])
-def test_uniform_jet_through_inflow_and_outflow_stays_exact(tmp_path, dim):
+@pytest.mark.parametrize("dim,density", [(1, "prescribed"), (2, "prescribed"), (3, "prescribed"), (2, "extrapolated")])
+def test_uniform_jet_through_inflow_and_outflow_stays_exact(tmp_path, dim, density):
     """Six rows enter and six leave in t = 0.6: the fluid keeps its count, velocity U and rho0 to round-off,
-    every gid is unique, and history.csv's mass stays constant."""
-    sc = free_jet(dim)
+    every gid is unique, and history.csv's mass stays constant (with the buffer's density extrapolated from
+    the fluid too: rho0 there)."""
+    sc = scene_from_table(apply_overrides(to_table(free_jet(dim)), [f"inflow.0.density={density}"]))
     driver = FluidDriver(sc, MPI.COMM_SELF, tmp_path)
     p = driver.system.particles
     fluid0 = int(np.count_nonzero(p.owned("kind") == Kind.FLUID))
@@ -465,6 +466,38 @@ def test_a_buffer_row_moving_several_dx_a_step_joins_the_fluid(tmp_path):
     assert budget["mass_in"] == pytest.approx(10.0 * 2.0 * 0.3, abs=2.0 * 0.1 ** 2 * 20)  # within a row
     assert budget["mass_in"] - budget["mass_out"] == pytest.approx(0.0, abs=2.0 * 0.1 ** 2 * 20)
     assert abs(budget["mass_balance_error"]) < 1e-12 and initial == pytest.approx(3.2 * 2.0)
+
+
+def walled_channel(density):
+    """A channel 4 x 1 between no-slip plates, from a buffer 4 dx deep at U = 1 (Re = 100, no shifting) to an
+    outflow face, dx = 0.1, to t = 3: the flow develops boundary layers from the buffer on."""
+    plate = {"shape": "rectangle", "size": [4.4, 0.5], "wall": "no_slip"}
+    return {"name": "walled", "domain": {"dimension": 2, "lower": [0.0, -0.5], "upper": [4.0, 1.5],
+                                         "periodic": [False, False], "dx": 0.1, "outflow": ["x+"]},
+            "initial": {"fill_lower": [0.4, 0.0], "fill_upper": [4.0, 1.0], "velocity": "inflow"},
+            "inflow": [{"lower": [0.0, 0.0], "upper": [0.4, 1.0], "velocity": [1.0, 0.0], "density": density}],
+            "physics": {"scheme": "delta_ale", "reynolds": 100.0}, "shifting": {"method": "none"},
+            "time": {"t_end": 3.0}, "output": {"every": 0.0, "history_every": 1000},
+            "bodies": [dict(plate, name="bottom", center=[2.2, -0.25]), dict(plate, name="top", center=[2.2, 1.25])]}
+
+
+def test_an_inflow_whose_density_follows_the_fluid_keeps_a_walled_channel_s_mass(tmp_path):
+    """Beside the plates the fluid leaving the buffer slows down and needs a pressure above the buffer's to be
+    turned into the core; a buffer at rho0 keeps pushing rows in at U against it, and the fluid piles up:
+    its mass grew 7% by t = 3 (10% by t = 8, 19% with delta+; an audit), at densities within 1.5% of rho0
+    (the volume sum grows with it). With the buffer's density extrapolated from the fluid (inflow.density =
+    "extrapolated") it grows 1.7% (2% by t = 8, 6% with delta+: README "Known issues")."""
+    growth = {}
+    for density in ("prescribed", "extrapolated"):
+        with FluidDriver(scene_from_table(walled_channel(density)), MPI.COMM_SELF, tmp_path / density,
+                         log=lambda message: None) as driver:
+            driver.run()
+        rows = read_history(tmp_path / density / "history.csv")
+        growth[density] = rows[-1]["total_mass"] / rows[0]["total_mass"] - 1.0
+        # (with the buffer's density off rho0 the diffusive terms pass it mass, which the budget counts only as
+        # its particles join: 4.7e-4 of the mass by t = 3)
+        assert abs(rows[-1]["mass_balance_error"]) < (1e-9 if density == "prescribed" else 1e-3)
+    assert growth["extrapolated"] < 0.025 and growth["prescribed"] > 3.0 * growth["extrapolated"], growth
 
 
 def test_an_inflow_into_a_closed_full_domain_is_refused():
