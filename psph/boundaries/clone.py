@@ -41,7 +41,7 @@ class WallTerms:
         self.u_ref = scene.physics.reference_velocity
         self.rho0 = scene.physics.density
         self.clones = [b for b in self.bodies if b.spec.model == "clone"]
-        self._fixed_tree = None
+        self._fixed_trees = {}  # boundaries.clone.WallTerms._node_trees
         self.periodic = scene.domain.periodic
         self.ghost = _ghost_walls(scene, [b for b in self.bodies if b.spec.model == "ghost"])
 
@@ -118,25 +118,35 @@ class WallTerms:
             p.owned("normal")[rows] = p.owned("ref_normal")[rows] @ b.rigid(t)[1].T
 
     def nearest_node_data(self, system, rows, t):
-        """Normal, distance and velocity of the closest body node for each fluid row near a wall (the
-        kernel uses the normal and distance; wall velocities come from the solid particles' own nodes)."""
-        tree, normals, velocities = self._node_tree(t)
+        """For each fluid row near a wall and each body (axis 1, the scene's body index; a ghost wall's
+        entries unused, inf), the normal of its closest node on that body and the distance to it. The kernel
+        mirrors each solid neighbour by the row's distance to the neighbour's own body: a row between two
+        bodies (an immersed body a few dx from a wall) took the nearer one's for both, which scaled the other's
+        mirrored velocities by the ratio of the two distances."""
         points = system.particles.owned("position")[rows]
-        dist, k = tree.query(points) if len(points) else (np.zeros(0), np.zeros(0, np.int64))
-        return normals[k], dist, velocities[k]
+        normals = np.zeros((len(points), len(self.bodies), 2))
+        dist = np.full((len(points), len(self.bodies)), np.inf)
+        if len(points):
+            for b, (tree, nrm) in self._node_trees(t).items():
+                dist[:, b], k = tree.query(points)
+                normals[:, b] = nrm[k]
+        return normals, dist
 
-    def _node_tree(self, t):
-        """A k-d tree of the clone bodies' nodes at time t, with their normals and velocities; built once
-        when no clone body moves."""
+    def _node_trees(self, t):
+        """{body index: (k-d tree of its nodes at time t, their normals)} of the clone bodies; a fixed body's
+        built once."""
         from scipy.spatial import cKDTree
 
-        if self._fixed_tree is not None:
-            return self._fixed_tree
-        pos, nrm, vel = (np.concatenate(parts) for parts in zip(*(b.nodes(t) for b in self.clones)))
-        tree = (cKDTree(pos), nrm, vel)
-        if not any(b.moves for b in self.clones):
-            self._fixed_tree = tree
-        return tree
+        trees = {}
+        for b in self.clones:
+            if b.index not in self._fixed_trees:
+                pos, nrm, _ = b.nodes(t)
+                trees[b.index] = (cKDTree(pos), nrm)
+                if not b.moves:
+                    self._fixed_trees[b.index] = trees[b.index]
+            else:
+                trees[b.index] = self._fixed_trees[b.index]
+        return trees
 
     def keep_shift_off(self, system, t, region, du) -> None:
         """No shifting into a wall in the free-surface region: each owned fluid row in `region` (bool, owned
@@ -154,12 +164,14 @@ class WallTerms:
         rows = np.flatnonzero(region & (system.particles.owned("kind") == Kind.FLUID))
         if not len(rows) or not self.clones:
             return
-        tree, normals, _ = self._node_tree(t)
-        dist, nodes = tree.query(system.particles.owned("position")[rows], k=NEAR_NODES,
-                                 distance_upper_bound=self.shift_reach)
-        close = np.isfinite(dist[:, 0])
-        padded = np.vstack([normals, np.zeros((1, 2))])  # tree.n stands for no node left within reach
-        off_walls(padded[nodes[close]], rows[close], du)
+        points = system.particles.owned("position")[rows]
+        near = []  # each body's nodes within reach: their normals, zero for none (tree.n stands for it)
+        for tree, normals in self._node_trees(t).values():
+            _, nodes = tree.query(points, k=NEAR_NODES, distance_upper_bound=self.shift_reach)
+            near.append(np.vstack([normals, np.zeros((1, 2))])[nodes])
+        near = np.concatenate(near, axis=1)
+        close = np.abs(near).sum(axis=(1, 2)) > 0.0
+        off_walls(near[close], rows[close], du)
 
     # ----------------------------------------------------------------- rhs
     def add(self, system, scheme, t, d_rho, d_mom):
@@ -187,7 +199,7 @@ class WallTerms:
     def _add_clones(self, system, scheme, t, du, eos_b, switch, no_pull, d_rho, d_mom):
         p = system.particles
         rows = near_wall_rows(p["kind"], system.nbr_ptr, system.nbr_idx)
-        n_i, s_i, _ = self.nearest_node_data(system, rows, t)
+        n_i, s_i = self.nearest_node_data(system, rows, t)
         clone_rhs(p["position"], p["volume"], p["density"], p["velocity"], du, p["pressure"], p["kind"],
                   p["body"], p["normal"], p["wall_distance"], p["wall_accel"], p["wall_velocity"], rows, n_i, s_i,
                   self.no_slip,

@@ -150,7 +150,10 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
               with_shift, tensile_switch, no_pull, centers, d_rho, d_mom, force, torque, particle_force):
     """Add the solid neighbours' contributions to the owned fluid `rows` (2-D).
 
-    n_i_all, s_i_all: the closest body node's normal and distance, per entry of rows; wall_vel: the velocity
+    n_i_all, s_i_all: per entry of rows and per body (rows, bodies, 2) and (rows, bodies), the normal of the
+    row's closest node on that body and the distance to it; a solid neighbour j is mirrored with those of its
+    own body, body[j], and so is eq. 5's test (is the row behind one of that body's solid particles' walls?)
+    made per body; wall_vel: the velocity
     of each solid particle's own closest node (u_b of eq. 6-7; the same as the fluid particle's closest
     node's on a smooth rigid wall, and the consistent choice at the corners of a lid).
     no_slip: per body; eos_b > 0 selects Tait (p = eos_b ((rho/rho0)^gamma - 1)), else linear.
@@ -168,10 +171,9 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
     """
     support = 2.0 * kp[1]
     g0, g1 = gravity[0], gravity[1]
+    use_own = np.zeros(no_slip.size, dtype=np.bool_)
     for r in range(rows.size):
         i = rows[r]
-        ni0, ni1 = n_i_all[r, 0], n_i_all[r, 1]
-        si = max(s_i_all[r], ds_min)
         xi0, xi1 = pos[i, 0], pos[i, 1]
         ui0, ui1 = vel[i, 0], vel[i, 1]
         rho_i, p_i, v_i = rho[i], prs[i], vol[i]
@@ -179,15 +181,14 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
         pull_free = no_pull[i] != 0
         di0 = du[i, 0] if with_shift else 0.0
         di1 = du[i, 1] if with_shift else 0.0
-        # eq. 5 (sign corrected): is the particle behind some solid particle's wall?
-        use_own = False
+        # eq. 5 (sign corrected): is the particle behind some solid particle's wall, per body?
+        use_own[:] = False
         for k in range(ptr[i], ptr[i + 1]):
             j = idx[k]
             if solid(kind[j]) and normal[j, 0] * (xi0 - pos[j, 0]) + normal[j, 1] * (xi1 - pos[j, 1]) > 0.0:
                 x0, x1, _, rr = pair(pos, i, j, 2)
                 if rr < support:
-                    use_own = True
-                    break
+                    use_own[body[j]] = True
         cont = 0.0
         gp0 = gp1 = 0.0
         vs0 = vs1 = 0.0
@@ -199,7 +200,10 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
             x0, x1, _, rr = pair(pos, i, j, 2)
             if rr >= support or rr == 0.0:
                 continue
-            if use_own:
+            b = body[j]
+            ni0, ni1 = n_i_all[r, b, 0], n_i_all[r, b, 1]
+            si = max(s_i_all[r, b], ds_min)
+            if use_own[b]:
                 n0, n1 = ni0, ni1
             else:
                 n0, n1 = normal[j, 0], normal[j, 1]
@@ -211,7 +215,6 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
             un = ((ub0 - ui0) * n0 + (ub1 - ui1) * n1) * ratio + ub0 * n0 + ub1 * n1
             ud0, ud1 = ut * t0 + un * n0, ut * t1 + un * n1
             # Laplacian velocity (eq. 7)
-            b = body[j]
             if no_slip[b]:
                 lt = ((ub0 - ui0) * t0 + (ub1 - ui1) * t1) * ratio + ub0 * t0 + ub1 * t1
                 ln = ui0 * n0 + ui1 * n1

@@ -117,10 +117,10 @@ def warm_up(dim: int, kernel_name: str, parts=PARTS) -> None:
         rows = walls.near_wall_rows(kind, ptr, idx)
         bodies = 1
         walls.clone_rhs(pos, vol, field, vector, vector, scalar, kind, np.zeros(n, dtype=np.int64), vector, scalar,
-                        vector, vector, rows, np.zeros((0, 2)), np.zeros(0), np.zeros(bodies, dtype=np.bool_), ptr,
-                        idx, kp, 1.0, 1.0, 0.0, 7.0, 0.1, True, np.zeros(2), 0.1, 0, True, np.zeros(n, dtype=np.int8),
-                        np.zeros(n, dtype=np.int8), np.zeros((bodies, 2)), scalar.copy(), vector.copy(),
-                        np.zeros((bodies, 2, 2)), np.zeros((bodies, 2)), np.zeros((n, 2)))
+                        vector, vector, rows, np.zeros((0, bodies, 2)), np.zeros((0, bodies)),
+                        np.zeros(bodies, dtype=np.bool_), ptr, idx, kp, 1.0, 1.0, 0.0, 7.0, 0.1, True, np.zeros(2),
+                        0.1, 0, True, np.zeros(n, dtype=np.int8), np.zeros(n, dtype=np.int8), np.zeros((bodies, 2)),
+                        scalar.copy(), vector.copy(), np.zeros((bodies, 2, 2)), np.zeros((bodies, 2)), np.zeros((n, 2)))
         walls.off_walls(np.zeros((1, 2, 2)), np.zeros(1, dtype=np.int64), vector.copy())
 
 

@@ -282,17 +282,38 @@ def test_at_a_convex_corner_the_clones_take_the_particles_own_normal(tmp_path):
     assert abs(d_rho_slide) < 1e-12 * d_rho_approach
 
 
-def test_the_node_tree_is_kept_only_while_no_clone_body_moves():
-    """The closest-node search reuses its k-d tree for fixed walls and rebuilds it while a body moves."""
+def test_a_wall_s_clones_are_mirrored_by_the_distance_to_that_wall_not_to_a_nearer_body(tmp_path):
+    """A particle sliding in the 2 dx gap between the floor and a block above it, 0.025 below the block
+    and 0.075 above the floor: the floor's clones mirror its velocity with the distance to the floor, as
+    without the block (its clones left out: their kind made fluid). With the closest node of any body, the
+    block's, 3 times nearer, scaled the floor's mirrored velocities: its shear on the particle came out 1.5
+    times too large (-0.076 against -0.050)."""
+    block = "bodies=[{name='walls',shape='box',center=[0.5,0.5],size=[1.0,1.0],wall='no_slip'," \
+            "lid_velocity=[1.0,0.0]},{name='block',shape='rectangle',center=[0.5,0.2],size=[0.4,0.2]}]"
+    rates = {}
+    for name, sets in (("floor", {}), ("floor and block", {"bodies": block[len("bodies="):]})):
+        driver, system, p = cavity(tmp_path / name.replace(" ", "_"), **{"physics.reynolds": 1.0, **sets})
+        assert np.any(p["body"] == 1) == (name != "floor")
+        p["kind"][p["body"] == 1] = Kind.FLUID  # the block's solids (none without it) out of the wall terms
+        i = particle_at(p, 0.5 + DX / 2, 1.5 * DX)
+        assert np.allclose(p["position"][i], [0.5 + DX / 2, 1.5 * DX])
+        rates[name] = wall_rates(driver, system, i, velocity=(1.0, 0.0))[1]
+    assert rates["floor"][0] < 0.0
+    assert np.allclose(rates["floor and block"], rates["floor"], rtol=1e-12, atol=0.0), rates
+
+
+def test_a_body_s_node_tree_is_kept_only_while_it_does_not_move():
+    """The closest-node search keeps one k-d tree per clone body: a fixed wall's is built once, a moving
+    body's at every time asked (with its nodes where they are then)."""
     from psph.boundaries.clone import WallTerms
 
     moving = WallTerms(load_scene(CASES / "moving_square.toml"))
-    early, late = moving._node_tree(0.0), moving._node_tree(2.0)
-    assert early is not late and not np.allclose(early[0].data, late[0].data)
-    square = moving.clones[1].nodes(2.0)[0]  # the tree holds the square's nodes where they are at t = 2
-    assert np.allclose(late[0].data[-len(square):], square)
+    early, late = moving._node_trees(0.0), moving._node_trees(2.0)
+    assert early[0] is late[0]  # the tank
+    assert early[1] is not late[1] and np.allclose(late[1][0].data, moving.clones[1].nodes(2.0)[0])
+    assert not np.allclose(early[1][0].data, late[1][0].data)
     fixed = WallTerms(load_scene(CASES / "hydrostatic_tank.toml"))
-    assert fixed._node_tree(0.0) is fixed._node_tree(5.0)
+    assert fixed._node_trees(0.0)[0] is fixed._node_trees(5.0)[0]
 
 
 def test_no_shifting_into_a_wall_in_the_free_surface_region(tmp_path):
