@@ -12,6 +12,7 @@ The body forces of the last right-hand side evaluation are kept for the history.
 import numpy as np
 
 from psph.boundaries.bodies import make_bodies
+from psph.boundaries.geometry import nearest_nodes
 from psph.compute.walls import NO_MATRIX, clone_rhs, ghost_grad_c, ghost_images, ghost_rhs, near_wall_rows, off_walls
 from psph.parallel.comm import allreduce_sum
 from psph.particles import Kind
@@ -97,6 +98,23 @@ class WallTerms:
                     vel[beyond, a] *= -1.0
                     count += int(np.count_nonzero(beyond))
         return count
+
+    def link_nodes(self, system) -> None:
+        """Each owned solid particle's closest node on its body's profile (`wall_node`), that node's normal
+        (`ref_normal`, and `normal` for a fixed body) and the distance to it (`wall_distance`), from its
+        reference position, as psph.boundaries.solid_arrays makes them. A restart takes them again: a
+        checkpoint's node indices point into the profile of the version that wrote it (the Couette plates'
+        of 4c054d7, before the periodic plates, ran past the new profile's nodes: an IndexError)."""
+        p = system.particles
+        body = p.owned("body")
+        for b in self.clones:
+            rows = np.flatnonzero(body == b.index)
+            node, dist = nearest_nodes(b.profile.nodes, p.owned("ref_position")[rows])
+            p.owned("wall_node")[rows] = node
+            p.owned("wall_distance")[rows] = dist
+            p.owned("ref_normal")[rows] = b.profile.normals[node]
+            if not b.moves:
+                p.owned("normal")[rows] = b.profile.normals[node]
 
     # ------------------------------------------------------------ kinematics
     def place(self, system, t, positions=True):

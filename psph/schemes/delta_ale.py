@@ -145,6 +145,8 @@ class DeltaALE:
         if fresh:
             self._initial_fields(p)
         if self.walls is not None:
+            if not fresh:
+                self.walls.link_nodes(system)
             self.walls.place(system, t)
         for name in self.halo_fields():
             system.add_halo_field(name)

@@ -87,6 +87,32 @@ def test_plates_as_wide_as_the_periodic_domain_are_the_plates_of_any_width(tmp_p
     assert np.abs(velocities[0.6] - velocities[10.0]).max() < 1e-12
 
 
+def test_a_restart_links_the_solids_to_their_nodes_again(tmp_path):
+    """A checkpoint's solid particles whose closest-node data are not this version's profile's (node 0,
+    zero normals and distances here; a checkpoint of 4c054d7, written before the periodic plates, indexed
+    past the Couette plates' nodes, an IndexError): the restart takes them again from the reference
+    positions, and ends as the whole run does, bit for bit."""
+    import shutil
+
+    whole = run(tmp_path, "couette.toml", "whole", "time.t_end=0.1", "output.every=0.1",
+                "output.checkpoint_every=10")
+    shutil.copytree(whole, tmp_path / "again")
+    [checkpoint] = (tmp_path / "again").glob("checkpoint_*.h5")
+    with h5py.File(checkpoint, "r+") as f:
+        solid = f["particles/kind"][:] != Kind.FLUID
+        assert solid.any()
+        for name in ("wall_node", "wall_distance", "ref_normal", "normal"):
+            values = f[f"particles/{name}"][:]
+            values[solid] = 0
+            f[f"particles/{name}"][:] = values
+    done = run_psph("run", "--restart", checkpoint, "--quiet", "--overwrite")
+    assert done.returncode == 0, done.stderr
+    ends = [last_snapshot(out)[0] for out in (whole, tmp_path / "again")]
+    order = [np.argsort(end["gid"]) for end in ends]
+    for name in ("position", "velocity", "density"):
+        assert np.array_equal(ends[0][name][order[0]], ends[1][name][order[1]]), name
+
+
 def test_couette_with_iips_next_to_the_walls(tmp_path):
     """IIPS with the thesis' bounded-flow threshold (0.08/h, section 10.1.1) from a perturbed start: solid
     particles are fixed neighbours, never moved; the NFTS update treats them as clones (the steps mirrored:
