@@ -198,8 +198,11 @@ def warm_up_parts(scene) -> frozenset:
     parts = set()
     if scene.physics.scheme in FLUID_SCHEMES:
         parts.add("fluid")
+        models = {b.model for b in scene.bodies}
         parts.update(name for name, present in (
-            ("riemann", scene.physics.scheme == "riemann_ale"), ("walls", bool(scene.bodies)),
+            ("riemann", scene.physics.scheme == "riemann_ale"), ("delta_ale", scene.physics.scheme != "riemann_ale"),
+            ("walls", "clone" in models), ("ghost_walls", "ghost" in models),
+            ("open", scene.domain.outflow_buffer or any(f.density == "extrapolated" for f in scene.inflow)),
             ("free_surface", bool(scene.describe_free_surface())),
             ("shifting", scene.shifting.method not in ("none", "iips")),
             ("field_update", iips_runs(scene) and scene.iips.update != "none")) if present)

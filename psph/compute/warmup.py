@@ -30,7 +30,8 @@ def _lattice(dim: int, spacing: float) -> np.ndarray:
     return np.ascontiguousarray(grid * spacing)
 
 
-PARTS = frozenset({"fluid", "riemann", "walls", "free_surface", "shifting", "iips", "assembled", "field_update"})
+PARTS = frozenset({"fluid", "delta_ale", "riemann", "walls", "ghost_walls", "open", "free_surface", "shifting", "iips",
+                   "assembled", "field_update"})
 
 
 def warm_up(dim: int, kernel_name: str, parts=PARTS) -> None:
@@ -110,9 +111,21 @@ def warm_up(dim: int, kernel_name: str, parts=PARTS) -> None:
         riemann.riemann_ale_rhs(pos, vol, field, field, vector, vector, vector, tensor, pairs, 1.0, 1.0, True, 0.1,
                                 False, np.zeros(dim), scalar, scalar.copy(), vector.copy(), limited=True,
                                 low_dissipation=False)
-    else:
+    if "delta_ale" in parts:  # the delta-ALE schemes (schemes.delta_ale)
         fluid.delta_ale_rhs(pos, vol, field, field, vector, vector, field, vector, pairs, kp, 1.0, 0.1, 0.1, 0.01,
                             np.zeros(dim), 0, True, True, kind, False, scalar, scalar.copy(), vector.copy())
+    if "open" in parts:  # an outflow buffer, an inflow buffer's extrapolated density (boundaries.open)
+        sums.shepard_from_fluid(pos, vol, kind, gid.copy(), ptr, idx, kp, field.copy(), vector.copy())
+    if dim == 2 and "ghost_walls" in parts:  # the fixed ghost particles' images (boundaries.clone)
+        ghosts = {"axis": np.array([1]), "coord": np.array([0.0]), "sign": np.array([1.0])}
+        rows = gid.copy()
+        images = walls.ghost_images(pos, kind, rows, ghosts, ptr, idx, kernel.support)
+        walls.ghost_rhs(pos, vol, field, vector, vector, scalar, rows, *images, ghosts["axis"], ghosts["coord"],
+                        np.zeros((1, 2)), True, kp, 1.0, 1.0, 0.0, 7.0, 0.1, True, np.zeros(2), 0, True,
+                        np.zeros(n, dtype=np.int8), scalar.copy(), vector.copy())
+        for mat in (walls.NO_MATRIX, tensor.copy()):
+            walls.ghost_grad_c(pos, vol, rows, *images, ghosts["axis"], ghosts["coord"], kp, 0.0, 1.0, 1.0,
+                               vector.copy(), mat)
     if dim == 2 and "walls" in parts:  # the clone walls (boundaries.clone), on no row
         rows = walls.near_wall_rows(kind, ptr, idx)
         bodies = 1

@@ -75,6 +75,9 @@ RUNS = [
     ["inclined_ellipse", "time.t_end=0.001"],  # a moving body in a free stream
     ["lid_driven_cavity", "time.t_end=0.01"],  # IIPS with NFTS beside walls
     ["impinging_jet", "time.t_end=0.01"],  # inflow, outflow, free surface
+    # the buffers extrapolated from the fluid (a review found them compiled in the loop), ghost walls
+    ["impinging_jet", "time.t_end=0.01", "inflow.0.density=extrapolated", "domain.outflow_buffer=true"],
+    ["hydrostatic_tank", "time.t_end=0.01", "bodies.0.model=ghost"],
     ["static_perturbed", "shifting.method=iips", "iips.max_newton=2", "domain.kernel=wendland_c2", *BOX_1D],
     ["static_perturbed", "shifting.method=iips", "iips.max_newton=2", "domain.kernel=cubic_spline", *BOX_3D],
     ["static_perturbed", "shifting.method=explicit_iterative", "shifting.max_iterations=2", *BOX_3D],
