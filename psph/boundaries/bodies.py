@@ -90,7 +90,7 @@ class Body:
                                              fluid_inside=spec.shape == "box")
         periodic = tuple(domain.periodic) if domain is not None and spec.container else (False, False)
         if any(periodic):
-            self.profile = _periodic_plates(self.profile, domain)
+            self.profile = _periodic_plates(self.profile, domain, ds)
         self.center0 = np.asarray(spec.center or np.mean(spec.vertices, axis=0), dtype=np.float64)
         self.velocity = np.asarray(spec.motion.velocity or (0.0, 0.0), dtype=np.float64)
         # drag acts along the flow seen from the body: against its motion, or along the free stream (+x
@@ -178,29 +178,28 @@ def make_bodies(scene):
     return [Body(spec, k, scene.domain.dx, stream, scene.domain) for k, spec in enumerate(scene.bodies)]
 
 
-def _periodic_plates(profile, domain) -> Profile:
-    """An unrotated box container's profile on a domain periodic along an axis it spans (check_placement):
-    its plates there, continued across the axis' edges. Its sides (normals along the axis) have no solid
-    particle behind them and go; its corners become plate nodes (the normal's part along the axis goes);
-    the nodes within the domain [lower, upper) along the axis are kept, with their images one period to
-    either side. The fluid's closest node, whose distance s_i scales every clone's mirrored velocity
-    (psph.compute.walls.clone_rhs), was a side's for the particles within dx/2 of the edges, or, without
-    the images, one ds off along the plate (a walls audit: the Couette plates as wide as the domain, 0.5,
-    had u vary along x by 2.4e-3 and |v| reach 2e-3, against 0 and 1.2e-3 with the scene's, 10 wide)."""
-    nodes, normals = profile.nodes, profile.normals.copy()
-    keep = np.ones(len(nodes), dtype=bool)
-    for a in range(2):
-        if domain.periodic[a]:
-            keep &= (np.abs(normals[:, a]) < 1.0 - 1e-9) & (nodes[:, a] >= domain.lower[a]) \
-                & (nodes[:, a] < domain.upper[a])
-            normals[:, a] = 0.0
-    nodes, normals = nodes[keep], normals[keep] / np.linalg.norm(normals[keep], axis=1)[:, None]
-    for a in range(2):
-        if domain.periodic[a]:
-            period = np.eye(2)[a] * (domain.upper[a] - domain.lower[a])
-            nodes = np.concatenate([nodes - period, nodes, nodes + period])
-            normals = np.concatenate([normals] * 3)
-    return Profile(nodes, normals, profile.fluid_inside)
+def _periodic_plates(profile, domain, ds) -> Profile:
+    """An unrotated box container's profile on a domain periodic along one axis, which the box spans
+    (check_placement): its two plates, nodes every ~ds from the domain's lower edge along the axis, and
+    their images one period to either side. Its sides have no solid particle behind them, and the fluid's
+    closest node, whose distance s_i scales every clone's mirrored velocity (psph.compute.walls.clone_rhs),
+    was a side's for the particles within dx/2 of the edges; nodes placed along the box's own width, not
+    the domain's period, sat off the lattice by an amount that depended on that width (a walls audit, a
+    review: the Couette flow varied along x by 2.4e-3 at t = 1 with plates as wide as the domain, 0.5, by
+    2.3e-4 at t = 0.2 with 0.61, against round-off with the scene's, 10 wide)."""
+    a = domain.periodic.index(True)
+    period = domain.upper[a] - domain.lower[a]
+    count = max(int(round(period / ds)), 1)
+    along = domain.lower[a] + period * np.arange(-count, 2 * count) / count
+    plate = np.abs(profile.normals[:, a]) < 1e-9
+    nodes, normals = [], []
+    for normal in (-1.0, 1.0):  # the plate whose normal (out of the fluid) points this way across the axis
+        at = profile.nodes[plate & (profile.normals[:, 1 - a] == normal), 1 - a]
+        points = np.empty((len(along), 2))
+        points[:, a], points[:, 1 - a] = along, at[0]
+        nodes.append(points)
+        normals.append(np.tile(np.eye(2)[1 - a] * normal, (len(along), 1)))
+    return Profile(np.concatenate(nodes), np.concatenate(normals), profile.fluid_inside)
 
 
 def check_placement(scene) -> None:
@@ -238,6 +237,9 @@ def check_placement(scene) -> None:
         if b.container and any(d.periodic) and b.angle != 0.0:
             raise SceneError(f"{path}.angle", f"{b.name!r}: a container spans a periodic axis with its plates, "
                              "which meet themselves across it only unrotated (give angle = 0)")
+        if b.container and all(d.periodic):
+            raise SceneError(f"{path}.shape", f"{b.name!r}: a container would span both periodic axes, and keep "
+                             "no wall (domain.periodic)")
         lo, hi = bounds(b)
         key = {"box": "size", "polygon": "vertices"}.get(b.shape, "center")
         for a in range(2):  # before any profile is built (a mistyped huge size would take long)

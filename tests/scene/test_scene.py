@@ -382,6 +382,7 @@ def test_packing_is_accepted_with_clone_walls_and_a_free_surface():
     ("taylor_green", ["initial.fill_lower=[1.0, 0.0]"], "initial.fill_lower", "empty along axis 0"),
     # a rotated container's plates would not meet themselves across the periodic axis
     ("couette", ["bodies.0.angle=5.0"], "bodies[0].angle", "only unrotated"),
+    ("couette", ["domain.periodic=[true, true]", "bodies.0.lid_velocity=[]"], "bodies[0].shape", "keep no wall"),
     # a free-slip wall takes no shear from its lid: the plates' fluid stayed at rest, exit 0
     ("couette", ["bodies.0.wall=free_slip"], "bodies[0].lid_velocity", "its lid would move no fluid"),
     ("couette", ["bodies.0.wall=free_slip", "bodies.0.model=ghost"], "bodies[0].lid_velocity", "a free-slip wall"),
