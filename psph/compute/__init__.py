@@ -16,17 +16,20 @@ from pathlib import Path
 
 
 def _cache_dir(digest: str):
-    """The first writable of the user's cache and the temporary directory, with psph's subdirectory for
-    `digest`; None if neither is."""
+    """The first usable of the user's cache and the temporary directory, with psph's subdirectory for
+    `digest`; None if neither is. psph's directory must be this user's and writable by no one else: numba's
+    index files are pickles, and a directory another user made first in the shared temporary directory
+    could hand this process theirs."""
     home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    user = getattr(os, "getuid", lambda: "user")()
-    for base in (os.path.join(home, "psph"), os.path.join(tempfile.gettempdir(), f"psph-{user}")):
+    uid = os.getuid()
+    for base in (os.path.join(home, "psph"), os.path.join(tempfile.gettempdir(), f"psph-{uid}")):
         path = os.path.join(base, f"numba-{digest}")
         try:
-            os.makedirs(path, exist_ok=True)
+            os.makedirs(path, mode=0o700, exist_ok=True)
+            mine = [os.stat(p) for p in (base, path)]
         except OSError:
             continue
-        if os.access(path, os.W_OK | os.X_OK):
+        if all(s.st_uid == uid and not s.st_mode & 0o022 for s in mine) and os.access(path, os.W_OK | os.X_OK):
             return path
     return None
 

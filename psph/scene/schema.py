@@ -105,11 +105,14 @@ class InflowSpec:
 
     def check(self, path):
         lengths = {"lower": len(self.lower), "upper": len(self.upper), "velocity": len(self.velocity)}
-        if len(set(lengths.values())) > 1:  # the key whose length the other two do not share
+        if len(set(lengths.values())) == 2:  # the key whose length the other two do not share
             common = max(lengths.values(), key=list(lengths.values()).count)
             odd = next(key for key, n in lengths.items() if n != common)
             raise SceneError(f"{path}.{odd}", f"{lengths[odd]} entries where the other two keys have {common}: "
                              "lower, upper and velocity need one entry per dimension")
+        if len(set(lengths.values())) == 3:
+            raise SceneError(path, f"lower, upper and velocity have {lengths['lower']}, {lengths['upper']} and "
+                             f"{lengths['velocity']} entries: they need one per dimension")
         for a in range(len(self.lower)):
             if not self.upper[a] > self.lower[a]:
                 raise SceneError(f"{path}.upper[{a}]", f"must exceed lower[{a}] = {self.lower[a]}, "

@@ -142,6 +142,7 @@ def test_a_retried_step_emits_joins_and_removes_its_rows_once(tmp_path):
     (["inflow.0.lower=[-0.3,1.6,0.0]"], "inflow[0].lower"),
     (["inflow.0.upper=[]"], "inflow[0].upper"),
     (["inflow.0.velocity=[0.0,-1.0,0.0]"], "inflow[0].velocity"),
+    (["inflow.0.lower=[-0.3]", "inflow.0.velocity=[0.0,0.0,-1.0]"], "inflow[0]"),
     # at or above the speed of sound (at 1e200 the time step was 0 and the run stood at t = 0)
     (["inflow.0.velocity=[0.0,-1e200]"], "inflow[0].velocity"),
     (["inflow.0.velocity=[0.0,-10.0]"], "inflow[0].velocity"),

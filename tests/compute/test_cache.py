@@ -1,6 +1,7 @@
 """numba's on-disk cache never serves a kernel compiled from other sources (psph.compute's versioned cache
 directory)."""
 
+import os
 import shutil
 import subprocess
 import sys
@@ -62,3 +63,20 @@ def test_without_a_writable_user_cache_the_kernels_are_cached_in_the_temporary_d
     assert proc.returncode == 0, proc.stderr[-2000:]
     [user] = (tmp_path / "tmp").iterdir()
     assert user.name.startswith("psph-") and any(user.glob("numba-*/*/*.nbi")), sorted(user.rglob("*"))
+
+
+def test_a_temporary_cache_directory_another_user_could_write_is_not_used(tmp_path):
+    """psph's directory in the shared temporary directory, made first by someone else with group or world
+    write: numba's index files there are pickles another user could plant, so the cache is not put there
+    (numba's own choice then holds)."""
+    (tmp_path / "not_a_directory").write_text("")
+    (tmp_path / "tmp").mkdir()
+    planted = tmp_path / "tmp" / f"psph-{os.getuid()}"
+    planted.mkdir()
+    planted.chmod(0o777)
+    env = {k: v for k, v in mpi_environment().items() if k != "NUMBA_CACHE_DIR"}
+    env.update(XDG_CACHE_HOME=str(tmp_path / "not_a_directory"), TMPDIR=str(tmp_path / "tmp"))
+    script = "import psph.compute\nfrom numba.core import config\nprint(repr(config.CACHE_DIR))"
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=300,
+                          cwd=ROOT)
+    assert proc.returncode == 0 and proc.stdout.strip() == "''", proc.stdout + proc.stderr
