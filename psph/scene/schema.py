@@ -804,9 +804,10 @@ class Scene:
         fluid's top: the fluid is cut below it, by the domain or by a container, and its pressure was taken
         from the surface given, above the cut (an audit: a fill 0.3 above the tank's roof ran so, silently).
         The fluid's top is found on the lattice: the fill region's top row, and the rows below it, as
-        psph.boundaries.fluid_mask fills them, so that any container (box, rotated, polygon) is covered; a
-        roof that cuts the top row only in part (a tilted one) is not refused. A fill given wider than a
-        container, as the scenes give it, is cut by the walls by design."""
+        psph.boundaries.fluid_mask fills them, so that any container (box, rotated, polygon) is covered, to
+        the lattice's resolution: a surface less than dx/2 above a roof passes, and so does a roof that
+        cuts the top row only in part (a tilted one). A fill given wider than a container, as the scenes
+        give it, is cut by the walls by design."""
         ini, d, g = self.initial, self.domain, self.physics.gravity
         if ini.pressure != "hydrostatic" or d.dimension < 2 or len(g) < 2 or g[1] == 0.0:
             return
