@@ -214,8 +214,9 @@ def warm_up_parts(scene) -> frozenset:
 def _warm_up(comm, scene) -> None:
     """Compile (or load) the kernels a run of `scene` calls (compute.warmup, warm_up_parts) on one rank of
     each machine, then load them from numba's cache on the others: ranks compiling at once each compiled
-    everything (2 ranks on a cold cache: 116 s of CPU, against 67 s on one) and wrote the cache's index at
-    once. Collective."""
+    everything, wrote the cache's index at once and, more ranks than cores, shared the cores while doing so
+    (Taylor-Green on a cold cache: 39 s of wall time on one rank, 40 s on two, which spent 76 s of CPU,
+    either way: the waiting rank polls). Collective."""
     from mpi4py import MPI
 
     args = (scene.domain.dimension, scene.domain.kernel, warm_up_parts(scene))
