@@ -815,6 +815,8 @@ class Scene:
         if given > d.upper[1] + 1e-9 * d.dx:
             raise SceneError("initial.fill_upper", f"the hydrostatic pressure's free surface {given:g} is above "
                              f"the domain's top, {d.upper[1]:g}, where the fluid is cut: give at most {d.upper[1]:g}")
+        if not any(b.container for b in self.bodies):  # (bodies are 2-D: a row of the lattice is short)
+            return
         from psph.boundaries import fluid_mask  # geometry: numpy and the body profiles
 
         axes = [d.lower[a] + (np.arange(n) + 0.5) * d.dx for a, n in enumerate(d.lattice_shape())]
