@@ -203,9 +203,9 @@ def xdmf_document(entries, dim: int) -> str:
         for name, (tail, dtype) in meta.items():
             if name in ("position", "position_xyz") or _number_type(dtype) is None:
                 continue
-            if tail == ():
+            if tail == () or tail == (1,) == (dim,):  # a 1-D run's vectors (velocity) are scalars to ParaView
                 kind = "Scalar"
-            elif tail == (dim,) and dim > 1:
+            elif tail == (dim,):
                 kind = "Vector"
             else:
                 continue  # tensors stay in the HDF5 file only

@@ -19,7 +19,8 @@ def write_series(comm, out, scene, times):
     p = system.particles
     for t in times:
         p.owned("position")[:, 0] += 0.01  # moves; positions are written wrapped into the box
-        writer.write(p, step=int(100 * t), time=t, extra={"marker": p.owned("gid") * 2.0})
+        writer.write(p, step=int(100 * t), time=t, extra={"marker": p.owned("gid") * 2.0,
+                                                          "shift": p.owned("position") + 1.0})
     return system
 
 
@@ -67,16 +68,22 @@ def test_xdmf_series_opens_in_vtk(comm, mpi_tmp_path):
     assert {"gid", "kind", "volume", "marker"} <= names
 
 
-def test_one_dimensional_series_has_a_geometry(comm, mpi_tmp_path):
+def test_one_dimensional_series_has_a_geometry_and_its_vectors(comm, mpi_tmp_path):
+    """A 1-D series: its positions, and its vectors (a velocity, here `shift`, of one component: they were
+    left out of the XDMF, an audit) as scalars."""
     write_series(comm, mpi_tmp_path, periodic_scene(dim=1, n=40), [0.0])
     comm.Barrier()
     if comm.rank == 0:
+        from vtkmodules.util.numpy_support import vtk_to_numpy
         from vtkmodules.vtkIOXdmf2 import vtkXdmfReader
 
         reader = vtkXdmfReader()
         reader.SetFileName(str(mpi_tmp_path / XDMF_NAME))
         reader.Update()
-        assert reader.GetOutputDataObject(0).GetNumberOfPoints() == 40
+        grid = reader.GetOutputDataObject(0)
+        assert grid.GetNumberOfPoints() == 40
+        with h5py.File(mpi_tmp_path / "snapshot_000000.h5", "r") as f:
+            assert np.array_equal(vtk_to_numpy(grid.GetPointData().GetArray("shift")), f["particles/shift"][:, 0])
 
 
 def test_history_rewrites_atomically(comm, mpi_tmp_path):
