@@ -101,12 +101,13 @@ def _remove_frame(system) -> None:
     system.rebuild(rebalance=True)
 
 
-def pack(scene, system) -> dict:
+def pack(scene, system, rows=None) -> dict:
     """Pack the fluid particles of `system` (seed 002 eq. 2.16; module docstring) and set their volumes to
     V0. Returns a report: iterations, whether T fell below the tolerance, T / beta, Linf(grad Gamma) h over
     the fluid (frame included) before and after, V0, the frame's size, the wall time and the history rows
-    (iteration, T / beta, Linf(grad Gamma) h). A non-finite state stops every rank with a NumericalError
-    naming the iteration and a particle. Collective."""
+    (iteration, T / beta, Linf(grad Gamma) h), appended as they come to `rows` if given (a failure leaves
+    them there). A non-finite state stops every rank with a NumericalError naming the iteration and a
+    particle. Collective."""
     spec, d = scene.packing, scene.domain
     comm, p, h = system.comm, system.particles, system.kernel.h
     start = time.perf_counter()
@@ -120,7 +121,9 @@ def pack(scene, system) -> dict:
     damping = 1.0 + spec.alpha / spacing * dt  # 1 + zeta dt
     grad = grad_c(system)
     _, linf_start = norms(comm, grad, fluid_mask(system), h)
-    rows, kinetic, linf, iteration = [(0, 0.0, linf_start)], 0.0, linf_start, 0
+    rows = [] if rows is None else rows
+    rows.append((0, 0.0, linf_start))
+    kinetic, linf, iteration = 0.0, linf_start, 0
     while iteration < spec.iterations:
         iteration += 1
         fluid = fluid_mask(system)

@@ -211,6 +211,14 @@ def test_quiet_run_logs_to_file_and_plots(tmp_path):
     assert res.returncode == 2 and "holds neither a run" in res.stderr
 
 
+def test_a_study_of_drops_is_plotted_by_their_semi_axis_error():
+    from psph.plot import study_error
+
+    assert study_error({"semi_axis_error": 4e-3, "L2_grad_c": 0.41, "L2_dfdx": None}) == "semi_axis_error"
+    assert study_error({"L2_vx_error": 0.04, "L2_grad_c": 0.1}) == "L2_vx_error"
+    assert study_error({"L2_grad_c": 0.1}) == "L2_grad_c" and study_error({"kinetic_energy": 1.0}) is None
+
+
 def test_plot_of_a_broken_or_failed_run_is_one_line_or_leaves_out_what_is_not_finite(tmp_path):
     """A failed run's last snapshot may hold NaN (the state at the failure): fields.png leaves those particles
     out and says so. A truncated snapshot, or figures that cannot be written, are one line and exit 2."""

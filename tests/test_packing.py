@@ -119,10 +119,18 @@ def test_the_packed_drop_follows_the_analytic_ellipse_and_the_lattice_drop_does_
     assert errors["packed"] < 0.03 < 0.06 < errors["lattice"]
 
 
-def test_a_diverging_packing_stops_with_the_state_written(tmp_path):
+def test_a_diverging_packing_stops_with_the_state_and_its_history_written_and_plotted(tmp_path):
+    """The state at the failure, and packing.csv's rows up to it (they were lost); `psph plot` draws the
+    state's fields (it refused a directory without history.csv)."""
     res = run_psph("run", DROP, "--out", tmp_path / "out", "--set", "domain.dx=0.1", "--set", "packing.cfl=2",
                    "--quiet")
     assert res.returncode == 3
     lines = [line for line in res.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "packing diverged at iteration" in lines[0] and "packing.cfl" in lines[0], res.stderr
     assert list((tmp_path / "out").glob("snapshot_*.h5"))
+    failed_at = int(lines[0].split("packing diverged at iteration ")[1].split(":")[0])
+    rows = np.loadtxt(tmp_path / "out" / "packing.csv", delimiter=",", skiprows=1, ndmin=2)
+    assert rows[0, 0] == 0 and 0 < rows[-1, 0] < failed_at and np.all(np.isfinite(rows[:, 2]))
+    res = run_psph("plot", tmp_path / "out")
+    assert res.returncode == 0 and "fields.png only" in res.stderr, res.stderr
+    assert (tmp_path / "out" / "figures" / "fields.png").read_bytes()[:4] == b"\x89PNG"

@@ -281,16 +281,19 @@ class FluidDriver(Driver):
 
     def pack(self) -> dict:
         """Colagrossi et al.'s particle packing (psph.packing, seed 002) before the fluid fields exist, then
-        the initial condition again at the packed positions; its history goes to OUT/packing.csv. A failure
-        writes the state. Collective."""
+        the initial condition again at the packed positions; its history goes to OUT/packing.csv, also up to a
+        failure, which writes the state. Collective."""
         from psph.packing import pack
 
-        with self.sim.diagnose_failures(lambda: (0, 0.0)):
-            report = pack(self.scene, self.system)
+        rows = []
+        try:
+            with self.sim.diagnose_failures(lambda: (0, 0.0)):
+                report = pack(self.scene, self.system, rows)
+        finally:
+            if self.sim.comm.rank == 0 and rows:
+                np.savetxt(self.sim.out_dir / "packing.csv", np.asarray(rows), delimiter=",",
+                           header="iteration,kinetic_energy_over_beta,Linf_grad_gamma", comments="", fmt="%.10g")
         reset_initial_fields(self.scene, self.system.particles)
-        if self.sim.comm.rank == 0:
-            np.savetxt(self.sim.out_dir / "packing.csv", np.asarray(report["rows"]), delimiter=",",
-                       header="iteration,kinetic_energy_over_beta,Linf_grad_gamma", comments="", fmt="%.10g")
         how = "T < tolerance" if report["converged"] else "the iteration limit (packing.iterations)"
         self.sim.log(f"packing: {report['iterations']} iteration(s) to {how}, T/beta = {report['kinetic_energy']:.2e}, "
                      f"Linf(grad Gamma) h {report['Linf_grad_gamma_start']:.3e} -> {report['Linf_grad_gamma']:.3e} "
