@@ -32,18 +32,22 @@ def main():
     parser.add_argument("--shifting", nargs="+", default=["none", "delta_plus"])
     parser.add_argument("--seconds", type=float, default=4.0, help="minimum timed wall time per case")
     parser.add_argument("--scheme", default="delta_ale", choices=FLUID_SCHEMES)
+    parser.add_argument("--delta", type=float, nargs="+", default=[0.1],
+                        help="physics.delta (and delta_m): 0 is standard SPH, whose diffusive terms cost nothing")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     if comm.rank == 0:
         print(f"{args.scheme} right-hand side, {comm.size} rank(s), Wendland C6, h = 2 dx")
-        print(f"{'particles':>10} {'shifting':>11} {'RHS/s per core [M]: median':>27} {'best':>6}  split (rank 0)")
+        print(f"{'particles':>10} {'shifting':>11} {'delta':>6} {'RHS/s per core [M]: median':>27} {'best':>6}"
+              "  split (rank 0)")
     for n in args.sizes:
-        for method in args.shifting:
+        for method, delta in ((m, dl) for m in args.shifting for dl in args.delta):
             scene = scene_from_table({
                 "name": "bench", "domain": {"dimension": 2, "lower": [0.0, 0.0], "upper": [1.0, 1.0],
                                             "periodic": [True, True], "dx": 1.0 / n},
                 "initial": {"velocity": "taylor_green", "sigma_over_dx": 0.1},
-                "physics": {"scheme": args.scheme}, "time": {"t_end": 1.0}, "shifting": {"method": method}})
+                "physics": {"scheme": args.scheme, "delta": delta, "delta_m": delta},
+                "time": {"t_end": 1.0}, "shifting": {"method": method}})
             scheme = make_scheme(scene)
             system = build_system(scene, comm, specs=scheme.field_specs(), halo_fields=scheme.halo_fields())
             scheme.initialize(system)
@@ -68,7 +72,7 @@ def main():
             split = ", ".join(f"{k} {100 * v[0] / elapsed:.0f}%" for k, v in sorted(parts.items()))
             n_global = system.n_global  # collective
             if comm.rank == 0:
-                print(f"{n_global:>10} {method:>11} {median:>27.3f} {best:>6.3f}  {split}")
+                print(f"{n_global:>10} {method:>11} {delta:>6g} {median:>27.3f} {best:>6.3f}  {split}")
 
 
 if __name__ == "__main__":

@@ -40,12 +40,13 @@ def _compile(d):
     padded zero components."""
 
     @per_dimension(d)
-    def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, cptr, cidx, cf, with_grad_c,
-                              coeff, power, w_ref, grad_c):
-        """The renormalised gradient of phi with the pair cache (see the wrapper below) and, with_grad_c, in
-        the same pass over the lists, compute.shift_velocity's corrected grad C of every row over every
-        neighbour (solids included), in the same sums and order as corrected_grad_c (the same bits), but for
-        a solid's rows with fluid_only: they are skipped, their grad C zero (no law moves a solid)."""
+    def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, with_gradient, cptr, cidx, cf,
+                              with_grad_c, coeff, power, w_ref, grad_c):
+        """The renormalised gradient of phi (with_gradient) with the pair cache (see the wrapper below) and,
+        with_grad_c, in the same pass over the lists, compute.shift_velocity's corrected grad C of every row
+        over every neighbour (solids included), in the same sums and order as corrected_grad_c (the same
+        bits), but for a solid's rows with fluid_only: they are skipped, their grad C zero (no law moves a
+        solid)."""
         s2 = 4.0 * kp[1] * kp[1]
         c = 0
         for i in range(ptr.size - 1):
@@ -78,6 +79,8 @@ def _compile(d):
                 cidx[c] = j
                 cf[c] = f
                 c += rr > 0.0
+                if not with_gradient:
+                    continue
                 m00 -= s * x0 * x0
                 dphi = s * (phi[j] - phi[i])
                 g0 += dphi * x0
@@ -93,6 +96,8 @@ def _compile(d):
             cptr[i + 1] = c
             if with_grad_c:
                 store(grad_c, i, d, c0_, c1_, c2_)
+            if not with_gradient:
+                continue
             r0, r1, r2 = solve_symmetric(m00, m01, m02, m11, m12, m22, g0, g1, g2, d, 1e-6)
             store(out, i, d, r0, r1, r2)
 
@@ -222,7 +227,8 @@ class PairCache:
         return self
 
 
-def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pairs=None, grad_c=None):
+def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pairs=None, grad_c=None,
+                          gradient=True):
     """<grad phi>^L_i = L_i sum_j (phi_j - phi_i) grad_i W_ij V_j (seed 001 eq. 15), fused in one pass, for
     the rows of ptr. fluid_only: sum over fluid and inflow particles only (not solids), and only for their
     rows (walls carry no field; an inflow particle's gradient enters its fluid neighbours'
@@ -232,11 +238,12 @@ def renormalised_gradient(pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pa
     compute.shift_velocity.corrected_grad_c in the same pass (the same values, one walk of the lists; zero
     in a solid's rows with fluid_only, which are skipped: the shifting laws move fluid only).
     Pairs beyond the support are skipped (f = 0 there, but for pairs within rounding of its edge, whose
-    f of order 1e-42 the gradient left out as well)."""
+    f of order 1e-42 the gradient left out as well). gradient = False: only the pair cache (and grad C),
+    out untouched (a scheme without diffusive terms reads no density gradient)."""
     pairs = (pairs or PairCache()).fit(ptr, idx)
     coeff, power, w_ref, g = grad_c if grad_c is not None else (0.0, 1.0, 1.0, np.zeros((0, pos.shape[1])))
-    _KERNELS[pos.shape[1]][0](pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, pairs.ptr, pairs.idx, pairs.f,
-                              grad_c is not None, float(coeff), float(power), float(w_ref), g)
+    _KERNELS[pos.shape[1]][0](pos, vol, phi, ptr, idx, kp, kind, fluid_only, out, bool(gradient), pairs.ptr,
+                              pairs.idx, pairs.f, grad_c is not None, float(coeff), float(power), float(w_ref), g)
 
 
 def delta_ale_rhs(pos, vol, rho, mass, vel, du, prs, grad_rho, pairs, kp, c0, delta, delta_m, mu,

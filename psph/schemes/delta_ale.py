@@ -47,6 +47,10 @@ class DeltaALE:
         self.nu = phys.kinematic_viscosity(scene.domain)
         self.mu = self.rho0 * self.nu
         self.delta, self.delta_m = phys.delta, phys.delta_m
+        # D^rho or D^m act (eq. 14); a term reads the density gradient: without them (standard SPH) it is
+        # neither computed nor sent (the Riemann scheme's reconstruction always reads it)
+        self.diffusive = self.delta > 0.0 or (self.variant == 0 and self.delta_m > 0.0)
+        self.reads_grad_rho = self.diffusive
         dim = scene.domain.dimension
         self.gravity = np.zeros(dim) if not phys.gravity else np.asarray(phys.gravity, dtype=np.float64)
         self.tensile = phys.tensile_switch
@@ -87,7 +91,8 @@ class DeltaALE:
                  f"equation of state: {self.eos.name}, c0 = {self.c0:g}, rho0 = {self.rho0:g}",
                  f"viscosity: {'Morris et al. (1997)' if self.morris else 'pi_ij (eq. 11)'} operator, "
                  f"nu = {self.nu:g}",
-                 f"density diffusion D^rho, delta = {self.delta:g} (eq. 14)"]
+                 f"density diffusion D^rho, delta = {self.delta:g} (eq. 14)" if self.delta else
+                 "density diffusion off"]
         if self.variant == 0:
             lines.append(f"mass diffusion D^m, delta = {self.delta_m:g}" if self.delta_m else "mass diffusion off")
         if np.any(self.gravity):
@@ -235,6 +240,8 @@ class DeltaALE:
     def diffusion_rows(self, system):
         """1 where a particle takes part in the diffusive terms (lambda above free_surface.lambda_diffusion,
         seed 001 section 6.3), per local particle; True (all) without the switch."""
+        if not self.diffusive:
+            return False
         if self.lambda_diffusion <= 0.0:
             return True
         return (system.particles["surface_lambda"] > self.lambda_diffusion).astype(np.int8)
@@ -250,7 +257,8 @@ class DeltaALE:
         system.refresh(["density", "mass", "velocity", "volume", "pressure"])
         self.shift_and_density_gradient(system, t, dt, fluid_only=walls)
         du = p["shift_velocity"] if self.shift.active else p["velocity"]  # (not read without a shift)
-        system.refresh(["grad_rho"])
+        if self.reads_grad_rho:
+            system.refresh(["grad_rho"])
         kp = system.kernel.params
         n, d = p.n_owned, p.dim
         d_rho = np.zeros(n)
@@ -280,7 +288,8 @@ class DeltaALE:
 
     def shift_and_density_gradient(self, system, t, dt, fluid_only) -> None:
         """The shifting velocity (owned rows, then their halo copies) and the renormalised density gradient
-        with the pair cache (owned rows; the caller refreshes the halo). A law built on the corrected grad C
+        with the pair cache (owned rows; the caller refreshes the halo), the gradient only where a term reads
+        it (self.reads_grad_rho). A law built on the corrected grad C
         gets it from the gradient's own pass over the lists (compute.fluid.renormalised_gradient), which
         spares a second pass. Collective."""
         p, law = system.particles, self.shift
@@ -288,7 +297,8 @@ class DeltaALE:
         if law.active and law.grad_c_weights is not None and self.fuse_grad_c:
             grad_c = (*law.grad_c_weights, law.reference_w(system), np.zeros((p.n_owned, p.dim)))
         renormalised_gradient(p["position"], p["volume"], p["density"], system.nbr_ptr, system.nbr_idx,
-                              system.kernel.params, p["kind"], fluid_only, p["grad_rho"], self.pairs, grad_c=grad_c)
+                              system.kernel.params, p["kind"], fluid_only, p["grad_rho"], self.pairs, grad_c=grad_c,
+                              gradient=self.reads_grad_rho)
         if law.active:
             law.velocity(system, self, dt, grad=None if grad_c is None else grad_c[3])
             self.surface.restrict(system, p.owned("shift_velocity"), self.walls, t)

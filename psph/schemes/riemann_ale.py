@@ -22,6 +22,7 @@ class RiemannALE(DeltaALE):
         self.tait = scene.physics.eos == "tait"
         self.limited = scene.physics.muscl_limiter == "minmod"
         self.low_dissipation = scene.physics.riemann_dissipation == "low"
+        self.reads_grad_rho = True  # the MUSCL states (eq. 5.49)
 
     def describe(self) -> list:
         limiter = "minmod" if self.limited else "no limiter"

@@ -34,6 +34,24 @@ def test_mass_and_momentum_rates_sum_to_zero(shifting):
     assert np.abs(mom).max() < 1e-12 * np.abs(rates["momentum"]).sum()
 
 
+@pytest.mark.parametrize("scheme", ["delta_ale", "delta_ale_const_volume"])
+def test_standard_sph_computes_no_density_gradient_and_gets_the_same_rates(scheme):
+    """delta = delta_m = 0: the diffusive terms cost nothing (no density gradient, no pair terms), and the
+    rates are those of the same scheme with them computed at zero coefficients, bit for bit."""
+    _, s, system = fluid(scheme, "delta_plus", delta=0.0, delta_m=0.0)
+    p = system.particles
+    p.owned("density")[:] *= 1.0 + 0.01 * np.sin(np.arange(p.n_owned))
+    s.set_state(system, s.state(system))
+    p["grad_rho"][:] = 0.0
+    lean = s.rhs(system, 0.0, 1e-3)
+    assert not s.reads_grad_rho and not np.any(p["grad_rho"])
+    s.diffusive = s.reads_grad_rho = True
+    full = s.rhs(system, 0.0, 1e-3)
+    assert np.abs(p["grad_rho"]).max() > 1e-3
+    for key in full:
+        assert np.array_equal(lean[key], full[key]), key
+
+
 def test_constant_mass_variant_conserves_momentum_without_shifting():
     _, scheme, system = fluid("delta_ale_const_mass", "none", tensile_switch=False)
     rates = scheme.rhs(system, 0.0, 1e-3)
