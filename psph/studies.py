@@ -3,6 +3,7 @@ and write tables (Markdown and CSV) and convergence rates. Every figure a study 
 it makes itself."""
 
 import csv
+import hashlib
 import json
 import math
 import os
@@ -14,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from psph.errors import NumericalError
+from psph.errors import NumericalError, PsphError
 from psph.io.history import read_history
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,6 +31,54 @@ class Run:
 
 class NotRun(Exception):
     """run_scene(..., only_finished=True) found no finished run of its command."""
+
+
+class RunStopped(RuntimeError):
+    """psph stopped a run with a numerical diagnosis (exit code 3; its state and history are kept): a result
+    of the study, which a sweep tables (stop_message gives its line)."""
+
+
+class RunFailed(Exception):
+    """psph refused a run (a bad scene, key or PETSc option: exit code 2) or it crashed: no result, and the
+    study cannot go on. The message is one line (psph's error); the run's whole stderr is in
+    OUT/study_failed.txt; returncode is psph's exit code."""
+
+    def __init__(self, message, returncode=1):
+        super().__init__(message)
+        self.returncode = returncode
+
+
+def run_study(main) -> None:
+    """Run a study's main(): bad input (PsphError), a run psph refused or that crashed (RunFailed) and a
+    diagnosed stop the study does not table (RunStopped) end it with one line on stderr and exit code 2
+    (3 for a stop); the runs already made stay in their directories (PSPH_STUDY_REUSE=1 resumes). A
+    main() that returns a number exits with it."""
+    name = Path(sys.argv[0]).name
+    try:
+        code = main()
+    except (PsphError, RunFailed) as err:
+        print(f"{name}: error: {err}", file=sys.stderr)
+        sys.exit(2)
+    except RunStopped as err:
+        print(f"{name}: error: {stop_message(err)}", file=sys.stderr)
+        sys.exit(NumericalError.exit_code)
+    if code:
+        sys.exit(code)
+
+
+def code_version() -> str:
+    """A hash of psph's source (every psph/**/*.py): a study resumed on other code runs again."""
+    if not _CODE_VERSION:
+        digest = hashlib.sha256()
+        for path in sorted((ROOT / "psph").rglob("*.py")):
+            digest.update(str(path.relative_to(ROOT)).encode() + b"\0" + path.read_bytes())
+        _CODE_VERSION.append(digest.hexdigest()[:16])
+    return _CODE_VERSION[0]
+
+
+_CODE_VERSION = []
+# studies' runs that a table was made from although they are of other code (run_scene(only_finished=True))
+_STALE_RUNS = []
 
 
 # what the study's own command line adds to every run it makes (parse_args)
@@ -52,6 +101,19 @@ def parse_args(parser, argv=None):
     return args
 
 
+def positive_int(text) -> int:
+    """argparse type: an integer >= 1 (a size, a count)."""
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a positive integer")
+    return value
+
+
 def study_command(scene, out, sets=(), petsc=(), ranks=1, quiet=True) -> list:
     """The command line of `psph run scene --out out --overwrite --set ... [PETSc options]` on `ranks` MPI
     ranks, the study's command line's --set and PETSc options (parse_args) after `sets` and `petsc`."""
@@ -70,9 +132,12 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, on
     """`psph run scene --out out --set ... [PETSc options]` on `ranks` MPI ranks; raises on failure.
 
     With reuse (default: the PSPH_STUDY_REUSE environment variable is set), a directory holding a
-    complete run of exactly this command is read instead of run again (to resume or extend a study), and
-    one that psph stopped with a numerical diagnosis (exit code 3) raises that diagnosis again.
-    only_finished: reuse, and raise NotRun instead of running (a study's table from the runs it has).
+    complete run of exactly this command (the same rank count, scene file contents and psph source) is
+    read instead of run again (to resume or extend a study), and one that psph stopped with a numerical
+    diagnosis (exit code 3) raises that diagnosis again. only_finished: reuse, and raise NotRun instead of
+    running (a study's table from the runs it has); a run of other psph source is read then, and
+    write_table says so in the table's note.
+    Raises RunStopped for a diagnosed stop (exit code 3) and RunFailed for anything else.
     The study's command line's --set and PETSc options (parse_args) follow `sets` and `petsc`."""
     cmd = study_command(scene, out, sets, petsc, ranks, quiet)
     out = Path(out)
@@ -81,17 +146,21 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, on
         reuse = True
     elif reuse is None:
         reuse = bool(os.environ.get("PSPH_STUDY_REUSE"))
-    stopped, summary = out / "study_stopped.txt", out / "summary.json"
-    key = cmd[cmd.index("-m"):]  # without the mpiexec prefix: the rank count does not change the result
-    if reuse and stamp.exists() and _same_command(json.loads(stamp.read_text()), key):
+    stopped, summary, failed = out / "study_stopped.txt", out / "summary.json", out / "study_failed.txt"
+    key = {"command": cmd[cmd.index("-m"):], "ranks": ranks, "scene_sha256": _file_hash(scene),
+           "code": code_version(), "study": command_line()}
+    old = json.loads(stamp.read_text()) if reuse and stamp.exists() else None
+    if old is not None and _same_command(old, key, code=not only_finished):
+        if old.get("code") != key["code"] and (summary.exists() or stopped.exists()):
+            _STALE_RUNS.append(f"{out} ({old.get('study') or 'an unrecorded command'})")
         if summary.exists():
             return Run(out, json.loads(summary.read_text()), read_history(out / "history.csv"))
         if stopped.exists():
-            raise RuntimeError(stopped.read_text())
+            raise RunStopped(stopped.read_text())
     if only_finished:
         raise NotRun(f"{out}: no finished run of this command")
-    stamp.unlink(missing_ok=True)  # a run killed half-way must not pass for the old complete one
-    stopped.unlink(missing_ok=True)
+    for path in (stamp, stopped, failed):  # a run killed half-way must not pass for the old complete one
+        path.unlink(missing_ok=True)
     env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_COMM", "PMIX"))}
     res = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if res.returncode != 0:
@@ -99,9 +168,16 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, on
         if res.returncode == NumericalError.exit_code and out.is_dir():  # a diagnosed stop is a result too
             stopped.write_text(message)
             stamp.write_text(json.dumps(key))
-        raise RuntimeError(message)
+            raise RunStopped(message)
+        if out.is_dir():
+            failed.write_text(message)
+        raise RunFailed(f"{out}: {stop_message(message).removeprefix('psph: error: ')}", res.returncode)
     stamp.write_text(json.dumps(key))
     return Run(out, json.loads(summary.read_text()), read_history(out / "history.csv"))
+
+
+def _file_hash(path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16] if Path(path).is_file() else ""
 
 
 def stop_message(err) -> str:
@@ -111,14 +187,18 @@ def stop_message(err) -> str:
     return next((line for line in lines if line.startswith("psph: error:")), lines[-1] if lines else "")
 
 
-def _same_command(a, b) -> bool:
-    """Two study commands are the same run if they differ at most in where the scene file lies (a study
-    resumed from another checkout of psph) and in how the output directory is spelled (the stamp lies in
-    that directory, so it names it already)."""
+def _same_command(a, b, code=True) -> bool:
+    """Two study stamps (run_scene) are the same run if their commands differ at most in where the scene
+    file lies (a study resumed from another checkout of psph) and in how the output directory is spelled
+    (the stamp lies in that directory, so it names it already), on the same rank count, with the same scene
+    file contents and (code) psph source. A stamp of an older psph (a bare command) matches nothing."""
     def key(cmd):
         cmd = [c for k, c in enumerate(cmd) if k == 0 or cmd[k - 1] != "--out"]
         return [Path(c).name if c.endswith(".toml") else c for c in cmd]
-    return key(a) == key(b)
+    if not isinstance(a, dict):
+        return False
+    same = [key(a["command"]) == key(b["command"])] + [a.get(k) == b[k] for k in ("ranks", "scene_sha256")]
+    return all(same) and (not code or a.get("code") == b["code"])
 
 
 # the lid-driven cavity scene, and the overrides of each wall model: clone particles with IIPS + NFTS (the
@@ -164,7 +244,8 @@ def dominant_frequency(times, values, t0=0.0, oversample=64, periods=3) -> float
 
 
 def fmt(value, spec=".3g") -> str:
-    if value is None or (isinstance(value, float) and math.isnan(value)):
+    """A table cell: "-" for a value not measured (None), "nan" for a NaN."""
+    if value is None:
         return "-"
     if isinstance(value, str):
         return value
@@ -180,12 +261,18 @@ def command_line() -> str:
 
 
 def write_table(path, header, rows, title="", note="") -> str:
-    """Write a Markdown table (path.md) and the same data as CSV (path.csv); returns the Markdown."""
+    """Write a Markdown table (path.md) and the same data as CSV (path.csv); returns the Markdown. The note
+    ends with the study's command line (unless it gives one) and names the runs read back that other psph
+    source made (run_scene(only_finished=True))."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     lines = [f"### {title}", ""] if title else []
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(fmt(v).replace("|", "\\|") for v in row) + " |" for row in rows]
+    if "Command: " not in note:
+        note = (note + " " if note else "") + "Command: " + command_line()
+    if _STALE_RUNS:
+        note += " Read back from runs of other psph source: " + "; ".join(sorted(set(_STALE_RUNS))) + "."
     if note:
         lines += ["", note]
     text = "\n".join(lines) + "\n"

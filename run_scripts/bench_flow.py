@@ -24,11 +24,12 @@ from psph.scene.load import scene_from_table
 from psph.scene.schema import FLUID_SCHEMES
 from psph.schemes import make_scheme
 from psph.simulation import build_system
+from psph.studies import positive_int
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", type=int, nargs="+", default=[100, 200], help="particles per side")
+    parser.add_argument("--sizes", type=positive_int, nargs="+", default=[100, 200], help="particles per side")
     parser.add_argument("--shifting", nargs="+", default=["none", "delta_plus"])
     parser.add_argument("--seconds", type=float, default=4.0, help="minimum timed wall time per case")
     parser.add_argument("--scheme", default="delta_ale", choices=FLUID_SCHEMES)
@@ -76,4 +77,6 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from psph.studies import run_study
+
+    run_study(main)

@@ -18,10 +18,14 @@ sweeps are the same.
 """
 
 import argparse
+import sys
 import time
 
 import numpy as np
 from numba import njit
+
+from psph.cli import split_petsc_options
+from psph.studies import positive_int
 
 
 @njit(cache=True)
@@ -43,11 +47,14 @@ def stream_bandwidth(n=20_000_000):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", type=int, nargs="+", default=[200, 400], help="particles per side")
-    parser.add_argument("--iterations", type=int, default=3, help="timed Newton iterations (after one warm-up)")
+    parser.add_argument("--sizes", type=positive_int, nargs="+", default=[200, 400], help="particles per side")
+    parser.add_argument("--iterations", type=positive_int, default=3,
+                        help="timed Newton iterations (after one warm-up)")
     parser.add_argument("--operator", choices=["assembled", "matrix_free"], default="assembled",
-                        help="iips.operator")
-    args, petsc_args = parser.parse_known_args()
+                        help="iips.operator (default: the assembled AIJ matrix, whose bandwidth bound is printed; "
+                             "a scene's default is matrix-free)")
+    ours, petsc_args = split_petsc_options(sys.argv[1:])  # a mistyped --option is an error, not a PETSc option
+    args = parser.parse_args(ours)
 
     from psph.solvers.petsc import initialize
 
@@ -120,4 +127,6 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from psph.studies import run_study
+
+    run_study(main)

@@ -25,6 +25,7 @@ from psph.compute.neighbours import build_cross_lists, build_neighbour_lists
 from psph.compute.smoothing import kernel_f
 from psph.scene.load import scene_from_table
 from psph.simulation import build_system
+from psph.studies import positive_int
 
 
 @njit(cache=True)
@@ -85,7 +86,7 @@ def lattice_scene(n):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", type=int, nargs="+", default=[100, 200, 400], help="particles per side")
+    parser.add_argument("--sizes", type=positive_int, nargs="+", default=[100, 200, 400], help="particles per side")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     if comm.rank == 0:
@@ -124,4 +125,6 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from psph.studies import run_study
+
+    run_study(main)

@@ -28,7 +28,7 @@ SETTINGS = {"lid_driven_cavity": ["domain.dx=0.02"], "moving_square": ["domain.d
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=200)
-    parser.add_argument("--cases", nargs="+", default=list(SETTINGS))
+    parser.add_argument("--cases", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
     parser.add_argument("--shifting", default="delta_plus", help="shifting.method (iips adds its own cost)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="scene override")
     parser.add_argument("--out", type=Path, help="also write the table to OUT/walls_{N}ranks.md and .csv")
@@ -67,4 +67,6 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from psph.studies import run_study
+
+    run_study(main)

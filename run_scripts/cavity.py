@@ -32,6 +32,7 @@ from psph.studies import (  # noqa: E402
     CAVITY,
     CAVITY_WALLS,
     Run,
+    RunStopped,
     command_line,
     last_snapshot,
     parse_args,
@@ -105,7 +106,7 @@ def main():
                 shifting = shifting_label(scene)
                 try:
                     run = run_scene(CAVITY, args.out / name, sets=sets, ranks=args.ranks)
-                except RuntimeError as err:  # psph's diagnosis stopped the run (its state and history are kept)
+                except RunStopped as err:  # psph's diagnosis stopped the run (its state and history are kept)
                     print(f"Re={re} {walls} L/dx={n}: stopped: {stop_message(err)}", flush=True)
                     table.append([re, walls, shifting, n,
                                   f"stopped: {stop_message(err).removeprefix('psph: error: ')}", *["-"] * 6])
@@ -155,4 +156,6 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from psph.studies import run_study
+
+    run_study(main)

@@ -141,13 +141,16 @@ def main():
     parser.add_argument("--out", type=Path, default=Path("results/dam_break"))
     parser.add_argument("--ranks", type=int, default=2)
     parser.add_argument("--t-end", type=float, default=8.0, help="t sqrt(g/H)")
-    parser.add_argument("--resolutions", type=int, nargs="+", default=[20, 40], help="H/dx")
+    parser.add_argument("--resolutions", type=int, nargs="*", default=[20, 40], help="H/dx of the runs to --t-end")
     parser.add_argument("--early-resolutions", type=int, nargs="+", default=[20, 40], help="H/dx")
     parser.add_argument("--early-sound-speeds", type=float, nargs="+", default=[20.0, 40.0, 80.0],
                         help="c0 / sqrt(g H) of the initial-pressure runs")
     parser.add_argument("--impact-resolutions", type=int, nargs="*", default=[80],
                         help=f"H/dx of runs to t = {IMPACT_END:g} only (the surge and the first impact)")
     args = parse_args(parser)
+    if args.resolutions and args.t_end < IMPACT_END:  # the table of the runs to --t-end reads the first impact
+        parser.error(f"--t-end {args.t_end:g} ends before the first impact's window (t = {IMPACT_END:g}); for "
+                     "shorter runs give --resolutions with no value")
     note = "Command: " + command_line()
     print(write_table(args.out / "initial_pressure",
                       ["H/dx", "c0 / sqrt(gH)", "RMS error", "max error", "largest swing", "wall s"],
@@ -230,8 +233,11 @@ def main():
     write_histories(args.out / "histories.csv", ["H/dx"], runs,
                     ["front_x", "column_height", "kinetic_energy", "potential_energy", "volume_error",
                      "total_mass", "max_density_variation", "wall_reflections"])
-    snapshots_figure(args.out / "snapshots.png", runs[-1][1].out, np.arange(1.0, 9.0))
+    if runs:
+        snapshots_figure(args.out / "snapshots.png", runs[-1][1].out, np.arange(1.0, 9.0))
 
 
 if __name__ == "__main__":
-    main()
+    from psph.studies import run_study
+
+    run_study(main)

@@ -47,6 +47,7 @@ from psph.particles import Kind
 from psph.studies import (
     CASES,
     Run,
+    RunStopped,
     command_line,
     last_snapshot,
     parse_args,
@@ -139,7 +140,7 @@ def main():
         try:
             return run_scene(CASES / "dam_break.toml", out, sets=[f"domain.dx={H / n}", f"time.t_end={args.t_end}",
                                                                   "output.every=1", "output.history_every=10"] + sets)
-        except RuntimeError as err:
+        except RunStopped as err:
             if not (out / "study_stopped.txt").exists():
                 raise
             return stop_message(err)
@@ -161,4 +162,6 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from psph.studies import run_study
+
+    run_study(main)

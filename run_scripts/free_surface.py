@@ -140,4 +140,6 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from psph.studies import run_study
+
+    run_study(main)

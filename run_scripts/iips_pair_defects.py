@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from psph.studies import (
+    RunStopped,
     command_line,
     fmt,
     iips_pair_defects,
@@ -47,7 +48,7 @@ def main():
     try:
         run_scene(ROOT / "cases/taylor_green.toml", run_dir, sets, ranks=args.ranks)
         stop, states = "reached t_end", [(-1, "")]
-    except RuntimeError as err:
+    except RunStopped as err:
         stop = "stopped: " + stop_message(err)
         states = [(-2, ", before the stop"), (-1, ", saved at the stop")]
     print(stop, flush=True)
@@ -77,4 +78,6 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from psph.studies import run_study
+
+    run_study(main)

@@ -21,7 +21,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from psph.studies import CASES, parse_args, run_scene, stop_message, write_table  # noqa: E402
+from psph.studies import CASES, RunStopped, parse_args, run_scene, stop_message, write_table  # noqa: E402
 
 
 def pareto(points):
@@ -48,7 +48,7 @@ def static_sweep(out, ranks):
                             sets=["domain.dx=0.0125", "initial.sigma_over_dx=0.1", "shifting.method=iips",
                                   "iips.max_newton=10", f"domain.h_over_dx={ratio}", *PCS[pc][1]],
                             petsc=["-iips_pc_type", PCS[pc][0], "-iips_ksp_rtol", str(rtol)])
-        except RuntimeError as exc:  # a diagnosed failure is a result of the sweep
+        except RunStopped as exc:  # a diagnosed failure is a result of the sweep
             rows.append([ratio, pc, rtol, "failed: " + stop_message(exc)[:80]] + ["-"] * 5)
             print(rows[-1], flush=True)
             continue
@@ -91,7 +91,7 @@ def kinematic_sweep(out, ranks):
                                   f"iips.beta={beta}", "iips.max_newton=50", "iips.on_failure=warn",
                                   "iips.on_stall=warn", "output.every=0", *PCS[pc][1]],
                             petsc=[] if default else ["-iips_pc_type", PCS[pc][0], "-iips_ksp_rtol", str(rtol)])
-        except RuntimeError as exc:  # a diverged KSP solve stops even a "warn" run: a result of the sweep
+        except RunStopped as exc:  # a diverged KSP solve stops even a "warn" run: a result of the sweep
             rows.append([ratio, beta, pc, rtol, "failed: " + stop_message(exc)[:80]] + ["-"] * 6)
             print(rows[-1], flush=True)
             continue
@@ -142,4 +142,6 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from psph.studies import run_study
+
+    run_study(main)

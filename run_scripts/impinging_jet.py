@@ -35,7 +35,17 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from psph.analytic import impinging_jet_wall  # noqa: E402
-from psph.studies import CASES, NotRun, command_line, parse_args, plot_histories, run_scene, write_table  # noqa: E402
+from psph.studies import (  # noqa: E402
+    CASES,
+    NotRun,
+    RunStopped,
+    command_line,
+    parse_args,
+    plot_histories,
+    run_scene,
+    stop_message,
+    write_table,
+)
 
 IIPS = ["shifting.method=iips", "iips.procedure=A", "iips.threshold=0.02", "iips.update=mls2",
         "iips.stall_max_shift=0"]
@@ -80,6 +90,8 @@ def main():
     parser.add_argument("--average-from", type=float, default=5.0)
     parser.add_argument("--no-run", action="store_true", help="tables and plots from the finished runs only")
     args = parse_args(parser)
+    if args.average_from >= args.t_end:
+        parser.error(f"--average-from {args.average_from:g} leaves no time to average before --t-end {args.t_end:g}")
     rows, profiles, curves = [], [], []
     for n in args.resolutions:
         for method in args.methods:
@@ -94,9 +106,8 @@ def main():
             except NotRun:
                 print(f"{out}: not run", flush=True)
                 continue
-            except RuntimeError as err:  # the run stopped: psph's one-line message
-                stop = next((line for line in str(err).splitlines() if line.startswith("psph: error")), str(err))
-                rows.append([n, method, stop[:200], *[""] * 7])
+            except RunStopped as err:  # the run stopped: psph's one-line message
+                rows.append([n, method, stop_message(err), *[""] * 7])
                 print(rows[-1], flush=True)
                 continue
             row, profile = summary_row(run, args.average_from)
@@ -128,4 +139,6 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from psph.studies import run_study
+
+    run_study(main)

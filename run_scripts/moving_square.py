@@ -20,7 +20,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from psph.studies import CASES, command_line, parse_args, run_scene, stop_message, write_histories, write_table  # noqa: E402
+from psph.studies import (  # noqa: E402
+    CASES,
+    RunStopped,
+    command_line,
+    parse_args,
+    run_scene,
+    stop_message,
+    write_histories,
+    write_table,
+)
 
 METHODS = {
     "explicit P_S=10": ["shifting.method=neuhauser", "shifting.neuhauser_ps=10", "iips.update=none"],
@@ -46,7 +55,7 @@ def main():
                 run = run_scene(CASES / "moving_square.toml", args.out / f"{tag}_dx{args.dx}_n{ranks}",
                                 sets=[f"domain.dx={args.dx}", f"time.t_end={args.t_end}", "output.every=1.0",
                                       "output.history_every=10", *sets], ranks=ranks)
-            except RuntimeError as err:
+            except RunStopped as err:
                 print(f"{name} on {ranks} rank(s): stopped: {stop_message(err)}", flush=True)
                 table.append([name, ranks, "stopped", "-", "-", "-", "-", "-"])
                 continue
@@ -89,4 +98,6 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from psph.studies import run_study
+
+    run_study(main)

@@ -12,9 +12,6 @@ and exits 1 if any case blew up undiagnosed. Bi-periodic unit box, U = 1, delta-
 
 import argparse
 import itertools
-import json
-import subprocess
-import sys
 from pathlib import Path
 
 import matplotlib
@@ -23,7 +20,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from psph.studies import CASES, last_snapshot, parse_args, study_command, write_table  # noqa: E402
+from psph.studies import (  # noqa: E402
+    CASES,
+    RunFailed,
+    RunStopped,
+    last_snapshot,
+    parse_args,
+    run_scene,
+    stop_message,
+    write_table,
+)
 
 SCENE = CASES / "taylor_green.toml"
 OUTCOMES = {"ran": "tab:green", "stopped (diagnosed)": "tab:orange", "BLEW UP (undiagnosed)": "tab:red"}
@@ -37,21 +43,21 @@ def run_case(out, sigma, ratio, c0, reynolds, method, dx, t_end):
         sets += ["iips.update=nfts", "iips.threshold=0.001"]
     else:
         sets += ["iips.update=none"]
-    res = subprocess.run(study_command(SCENE, out, sets), capture_output=True, text=True)
-    lines = res.stderr.strip().splitlines()
-    if res.returncode == 0:
-        data, _ = last_snapshot(out)
-        finite = all(np.isfinite(v).all() for v in data.values() if v.dtype.kind == "f")
-        if not finite:
-            return "BLEW UP (undiagnosed)", "non-finite fields in the final snapshot"
-        final = json.loads((out / "summary.json").read_text())["final"]
-        return "ran", f"L2|v_x - v_xA| = {final['L2_vx_error']:.3g}"
-    if res.returncode == 2:  # the scene or the command line is wrong: no outcome of the case, stop the map
-        sys.exit(f"stability_map: {out}: {(lines or ['(no message)'])[-1]}")
-    if res.returncode == 3 and len(lines) == 1 and lines[0].startswith("psph: error:") \
-            and list(out.glob("snapshot_*.h5")):
-        return "stopped (diagnosed)", lines[0].removeprefix("psph: error: ")[:110]
-    return "BLEW UP (undiagnosed)", f"exit {res.returncode}: {(lines or ['(no message)'])[-1][:100]}"
+    try:
+        run = run_scene(SCENE, out, sets)
+    except RunStopped as err:  # psph's one-line diagnosis, with the state saved
+        line = stop_message(err)
+        if line.startswith("psph: error:") and list(out.glob("snapshot_*.h5")):
+            return "stopped (diagnosed)", line.removeprefix("psph: error: ")
+        return "BLEW UP (undiagnosed)", f"exit 3 without a saved state: {line}"
+    except RunFailed as err:
+        if err.returncode == 2:  # the scene or the command line is wrong: no outcome of the case, stop the map
+            raise
+        return "BLEW UP (undiagnosed)", f"exit {err.returncode}: {err}"
+    data, _ = last_snapshot(out)
+    if not all(np.isfinite(v).all() for v in data.values() if v.dtype.kind == "f"):
+        return "BLEW UP (undiagnosed)", "non-finite fields in the final snapshot"
+    return "ran", f"L2|v_x - v_xA| = {run.summary['final']['L2_vx_error']:.3g}"
 
 
 def main():
@@ -67,17 +73,19 @@ def main():
     args = parse_args(parser)
     rows = []
     cases = list(itertools.product(args.methods, args.sigmas, args.ratios, args.c0, args.reynolds))
-    for k, (method, sigma, ratio, c0, reynolds) in enumerate(cases, 1):
-        out = args.out / "runs" / f"{method}_s{sigma}_h{ratio}_c{c0:g}_Re{reynolds:g}"
-        outcome, detail = run_case(out, sigma, ratio, c0, reynolds, method, args.dx, args.t_end)
-        rows.append([method, sigma, ratio, c0, reynolds, outcome, detail])
-        print(f"[{k}/{len(cases)}] {method:10s} sigma/dx={sigma} h/dx={ratio} c0/U={c0:g} Re={reynolds:g}: "
-              f"{outcome}; {detail}", flush=True)
-    counts = {o: sum(r[5] == o for r in rows) for o in OUTCOMES}
-    given = "".join(f", then --set {s}" for s in args.set) + (f", {' '.join(args.petsc)}" if args.petsc else "")
-    note = (f"dx = {args.dx}, t_end = {args.t_end}{given}; " + ", ".join(f"{o}: {n}" for o, n in counts.items()))
-    print(write_table(args.out / "map.md", ["method", "sigma/dx", "h/dx", "c0/U", "Re", "outcome", "detail"], rows,
-                      title="Stability map: Taylor-Green runs at the extremes", note=note))
+    try:
+        for k, (method, sigma, ratio, c0, reynolds) in enumerate(cases, 1):
+            out = args.out / "runs" / f"{method}_s{sigma}_h{ratio}_c{c0:g}_Re{reynolds:g}"
+            outcome, detail = run_case(out, sigma, ratio, c0, reynolds, method, args.dx, args.t_end)
+            rows.append([method, sigma, ratio, c0, reynolds, outcome, detail])
+            print(f"[{k}/{len(cases)}] {method:10s} sigma/dx={sigma} h/dx={ratio} c0/U={c0:g} Re={reynolds:g}: "
+                  f"{outcome}; {detail}", flush=True)
+    finally:  # the cases done so far, also when a refused one stops the map
+        counts = {o: sum(r[5] == o for r in rows) for o in OUTCOMES}
+        given = "".join(f", then --set {s}" for s in args.set) + (f", {' '.join(args.petsc)}" if args.petsc else "")
+        note = f"dx = {args.dx}, t_end = {args.t_end}{given}; " + ", ".join(f"{o}: {n}" for o, n in counts.items())
+        print(write_table(args.out / "map.md", ["method", "sigma/dx", "h/dx", "c0/U", "Re", "outcome", "detail"],
+                          rows, title="Stability map: Taylor-Green runs at the extremes", note=note))
     # one panel per method: x = (h/dx, sigma/dx), y = (c0/U, Re), colour = outcome
     fig, axes = plt.subplots(1, len(args.methods), figsize=(5 * len(args.methods), 4.2), squeeze=False)
     xs = list(itertools.product(args.ratios, args.sigmas))
@@ -101,4 +109,6 @@ def main():
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from psph.studies import run_study
+
+    run_study(main)

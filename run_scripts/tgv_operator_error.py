@@ -38,6 +38,9 @@ def main():
     parser.add_argument("--viscosity", choices=("monaghan", "morris"), default="monaghan",
                         help="the viscous operator measured (physics.viscosity)")
     args = parser.parse_args()
+    missing = [str(p) for p in args.runs if not p.is_dir()]
+    if missing:
+        parser.error(f"--runs: no directory {', '.join(missing)}")
     cases = []
     for m in args.lattices:
         g = (np.arange(m) + 0.5) / m
@@ -76,4 +79,6 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from psph.studies import run_study
+
+    run_study(main)

@@ -19,7 +19,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from psph.studies import CASES, NotRun, parse_args, rate, run_scene, stop_message, write_table  # noqa: E402
+from psph.studies import CASES, NotRun, RunStopped, parse_args, rate, run_scene, stop_message, write_table  # noqa: E402
 
 METHODS = {  # label: scene overrides
     "no shifting": ["shifting.method=none", "iips.update=none"],
@@ -44,7 +44,7 @@ def main():
     parser.add_argument("--no-run", action="store_true",
                         help="run nothing: tabulate the finished runs in --out ('-' for the others)")
     args = parse_args(parser)
-    runs = {}
+    runs, stops = {}, {}
     for dx in args.resolutions:
         for label in args.methods:
             tag = label.replace(" ", "").replace("+", "_").replace("=", "")
@@ -58,8 +58,9 @@ def main():
                 print(f"{label} dx={dx}: not run", flush=True)
                 runs[(label, dx)] = None
                 continue
-            except RuntimeError as exc:  # a run stopped by a diagnosis is a result too
-                print(f"{label} dx={dx}: stopped: {stop_message(exc)}", flush=True)
+            except RunStopped as exc:  # a run stopped by a diagnosis is a result too: its cell says so
+                stops[(label, dx)] = "stopped: " + stop_message(exc).removeprefix("psph: error: ")
+                print(f"{label} dx={dx}: {stops[(label, dx)]}", flush=True)
                 runs[(label, dx)] = None
                 continue
             runs[(label, dx)] = run
@@ -71,14 +72,17 @@ def main():
         run = runs.get((label, dx))
         return run.summary["final"][key] if run else float("nan")
 
+    def cell(label, dx, key="L2_vx_error"):  # the error, why a run has none ("stopped: ..."), or "-" (not run)
+        return err(label, dx, key) if runs.get((label, dx)) else stops.get((label, dx))
+
     overrides = f" Scene overrides: {', '.join(args.set)}." if args.set else ""
     rows = []
     for label in args.methods:
         e = [err(label, dx) for dx in args.resolutions]
         row = [label]
         for k, dx in enumerate(args.resolutions):
-            row += [e[k], rate(e[k - 1], e[k], args.resolutions[k - 1] / dx) if k else float("nan")]
-        row.append(err(label, args.resolutions[-1], "kinetic_energy_error"))
+            row += [cell(label, dx), rate(e[k - 1], e[k], args.resolutions[k - 1] / dx) if k else None]
+        row.append(cell(label, args.resolutions[-1], "kinetic_energy_error"))
         rows.append(row)
     header = ["method"]
     for dx in args.resolutions:
@@ -105,7 +109,7 @@ def main():
     for i, row in enumerate(trade):
         row.append("*" if i in front else "")
     plt.xlabel("wall time [s]")
-    plt.ylabel("L2|v_x - v_xA| at t = 1")
+    plt.ylabel(f"L2|v_x - v_xA| at t = {args.t_end:g}")
     plt.legend(fontsize=7)
     plt.tight_layout()
     fig.savefig(args.out / "tradeoff.png", dpi=120)
@@ -117,4 +121,6 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from psph.studies import run_study
+
+    run_study(main)

@@ -12,7 +12,6 @@ far above 1 costs steps. Writes estimate.md / estimate.csv; exits 1 if any ratio
 
 import argparse
 import itertools
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -51,4 +50,6 @@ def main():
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from psph.studies import run_study
+
+    run_study(main)

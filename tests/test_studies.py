@@ -2,6 +2,7 @@
 already made, complete or stopped by a diagnosis, instead of running them again."""
 
 import csv
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -69,6 +70,59 @@ def test_a_resumed_study_reads_back_complete_and_stopped_runs(tmp_path, monkeypa
         studies.run_scene(scene, tmp_path / "done", sets=SETS + ["time.cfl=0.1"], only_finished=True)
     with pytest.raises(AssertionError, match="made again"):  # another command is a new run
         studies.run_scene(scene, tmp_path / "done", sets=SETS + ["time.cfl=0.1"], reuse=True)
+
+
+def test_a_refused_run_is_a_failure_of_the_study_not_a_stop(tmp_path):
+    """A bad key (exit 2) raises RunFailed with psph's one line, which no sweep takes for a diagnosed stop
+    (RunStopped); the run's whole stderr is kept beside it."""
+    with pytest.raises(studies.RunFailed) as failed:
+        studies.run_scene(studies.CASES / "taylor_green.toml", tmp_path / "bad", sets=SETS + ["bogus.key=1"])
+    assert not isinstance(failed.value, RuntimeError) and failed.value.returncode == 2
+    assert str(failed.value).startswith(f"{tmp_path / 'bad'}: bogus") and "unknown key" in str(failed.value)
+    assert len(str(failed.value).splitlines()) == 1
+
+
+def test_a_resumed_study_runs_again_on_other_ranks_scene_or_code(tmp_path, monkeypatch):
+    """A run is read back only for the same rank count (its wall times), scene file contents and psph source;
+    a table made from runs of other source (only_finished) says so in its note."""
+    scene = tmp_path / "tg.toml"
+    scene.write_text((studies.CASES / "taylor_green.toml").read_text())
+    done = studies.run_scene(scene, tmp_path / "done", sets=SETS, reuse=True)
+
+    def no_run(*args, **kwargs):
+        raise AssertionError("the run was made again")
+
+    monkeypatch.setattr(subprocess, "run", no_run)
+    path = tmp_path / "done" / "study_command.json"
+    stamp = json.loads(path.read_text())
+    assert studies.run_scene(scene, tmp_path / "done", sets=SETS, reuse=True).summary == done.summary
+    with pytest.raises(AssertionError, match="made again"):
+        studies.run_scene(scene, tmp_path / "done", sets=SETS, reuse=True, ranks=2)
+    path.write_text(json.dumps(stamp))  # (the attempt removed it: its run would replace the old one)
+    scene.write_text(scene.read_text().replace("t_end", "# a changed scene\nt_end", 1))
+    with pytest.raises(AssertionError, match="made again"):
+        studies.run_scene(scene, tmp_path / "done", sets=SETS, reuse=True)
+    scene.write_text((studies.CASES / "taylor_green.toml").read_text())
+    path.write_text(json.dumps({**stamp, "code": "older", "study": "x.py"}))
+    with pytest.raises(AssertionError, match="made again"):
+        studies.run_scene(scene, tmp_path / "done", sets=SETS, reuse=True)
+    path.write_text(json.dumps({**stamp, "code": "older", "study": "x.py"}))
+    monkeypatch.setattr(studies, "_STALE_RUNS", [])
+    assert studies.run_scene(scene, tmp_path / "done", sets=SETS, only_finished=True).summary == done.summary
+    text = studies.write_table(tmp_path / "t", ["a"], [[float("nan")], [None]], note="A note.")
+    assert "| nan |" in text and "| - |" in text
+    assert f"Read back from runs of other psph source: {tmp_path / 'done'} (x.py)." in text
+    assert "Command: " in text
+
+
+def test_a_study_ends_a_refused_run_in_one_line_and_a_nonzero_exit(tmp_path):
+    script = studies.CASES.parent / "run_scripts" / "tgv_tradeoff.py"
+    res = subprocess.run([sys.executable, str(script), "--resolutions", "0.1", "--methods", "no shifting",
+                          "--out", str(tmp_path), "--set", "bogus.key=1"], capture_output=True, text=True,
+                         timeout=300)
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert res.stderr.startswith("tgv_tradeoff.py: error: ") and "bogus" in res.stderr
+    assert not (tmp_path / "convergence.md").exists()  # no table of "-" made of a refused run
 
 
 def test_the_stop_message_is_psphs_line_not_mpiexecs_banner():
@@ -228,7 +282,7 @@ def test_the_long_dam_break_study_tables_finished_and_stopped_runs(tmp_path, mon
                        "|rho/rho0 - 1| = 0.58 > 0.5 [step 9, t = 0.01]")
             out.mkdir(parents=True)
             (out / "study_stopped.txt").write_text(message)
-            raise RuntimeError(message)
+            raise studies.RunStopped(message)
         return real(scene, out, sets=sets, **kwargs)
 
     monkeypatch.setattr(study, "run_scene", run_scene)
