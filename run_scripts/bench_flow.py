@@ -27,6 +27,12 @@ from psph.simulation import build_system
 from psph.studies import positive_int
 
 
+def diffusion(scheme, delta) -> dict:
+    """The scheme's diffusive coefficients at delta (delta_ale's D^rho and D^m; its variants' D^rho)."""
+    keys = {"riemann_ale": (), "delta_ale": ("delta", "delta_m")}.get(scheme, ("delta",))
+    return {key: delta for key in keys}
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=positive_int, nargs="+", default=[100, 200], help="particles per side")
@@ -34,7 +40,8 @@ def main():
     parser.add_argument("--seconds", type=float, default=4.0, help="minimum timed wall time per case")
     parser.add_argument("--scheme", default="delta_ale", choices=FLUID_SCHEMES)
     parser.add_argument("--delta", type=float, nargs="+", default=[0.1],
-                        help="physics.delta (and delta_m): 0 is standard SPH, whose diffusive terms cost nothing")
+                        help="physics.delta (and delta_m): 0 is standard SPH, whose diffusive terms cost nothing "
+                             "(not read by riemann_ale)")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     if comm.rank == 0:
@@ -47,7 +54,7 @@ def main():
                 "name": "bench", "domain": {"dimension": 2, "lower": [0.0, 0.0], "upper": [1.0, 1.0],
                                             "periodic": [True, True], "dx": 1.0 / n},
                 "initial": {"velocity": "taylor_green", "sigma_over_dx": 0.1},
-                "physics": {"scheme": args.scheme, "delta": delta, "delta_m": delta},
+                "physics": {"scheme": args.scheme, **diffusion(args.scheme, delta)},
                 "time": {"t_end": 1.0}, "shifting": {"method": method}})
             scheme = make_scheme(scene)
             system = build_system(scene, comm, specs=scheme.field_specs(), halo_fields=scheme.halo_fields())

@@ -431,6 +431,20 @@ def test_a_flow_with_iips_and_no_threshold_is_warned_about(tmp_path):
     assert kept.returncode == 0 and "warning" not in kept.stderr, kept.stderr
 
 
+@pytest.mark.parametrize("c0, dissipation, warned", [(100.0, "full", True), (10.0, "full", False),
+                                                    (100.0, "low", False)])
+def test_the_riemann_scheme_at_low_mach_is_warned_about(tmp_path, c0, dissipation, warned):
+    """The acoustic solver's dissipation grows with c0/U (a Riemann audit: -89% kinetic energy by t = 0.01 at
+    c0/U = 1000, exit 0); riemann_dissipation = "low" does not."""
+    res = run_psph("run", CASES / "taylor_green.toml", "--out", tmp_path, "--quiet", "--set", "domain.dx=0.1",
+                   "--set", "time.t_end=0.002", "--set", "physics.scheme=riemann_ale", "--set",
+                   f"physics.sound_speed={c0}", "--set", f"physics.riemann_dissipation={dissipation}",
+                   "--set", "shifting.method=none", "--set", "iips.update=none", "--set", "output.every=0")
+    assert res.returncode == 0, res.stderr
+    assert ("warning: physics.sound_speed / reference_velocity = 100: the acoustic Riemann solver's dissipation"
+            in res.stderr) is warned, res.stderr
+
+
 @pytest.mark.parametrize("update,warned", [("mls2", True), ("mls1", True), ("mls2_increment", False),
                                            ("nfts", False)])
 def test_a_plain_mls_remap_with_a_free_surface_is_warned_about(tmp_path, update, warned):

@@ -77,7 +77,9 @@ def acoustic_riemann(rho_l, u_l, rho_r, u_r, c0, rho0, tait):
     rho_bar = 0.5 * (rho_l + rho_r)
     z = rho_bar * _sound_speed(rho_bar, c0, rho0, tait)
     u_s = 0.5 * (u_l + u_r) + 0.5 * (p_l - p_r) / z
-    p_s = 0.5 * (p_l + p_r) + 0.5 * z * (u_l - u_r)
+    # particles separating faster than the states' pressures allow open a vacuum between them (Toro 2009,
+    # ch. 4): p^E no lower than the equation of state's p(0), where rho^E = 0 (no NaN from Tait's root)
+    p_s = max(0.5 * (p_l + p_r) + 0.5 * z * (u_l - u_r), _pressure(0.0, c0, rho0, tait))
     return _density(p_s, c0, rho0, tait), u_s, p_s
 
 
@@ -85,12 +87,15 @@ def acoustic_riemann(rho_l, u_l, rho_r, u_r, c0, rho0, tait):
 def low_dissipation_pressure(rho_l, u_l, rho_r, u_r, c0, rho0, tait):
     """p^E of Zhang, Hu and Adams (2017, J. Comput. Phys. 335): the acoustic solver's dissipation
     z (u_L - u_R) / 2 with the sound speed replaced by beta = min(3 max(u_L - u_R, 0), c): none where the
-    particles separate, and second order in the jump where they approach."""
+    particles separate, and second order in the jump where they approach. (Zhang et al. average p and rho
+    weighted by the other side's density; psph takes the plain means, which agree to first order in the
+    density jump.) No lower than p(0), as acoustic_riemann."""
     rho_bar = 0.5 * (rho_l + rho_r)
     c = _sound_speed(rho_bar, c0, rho0, tait)
     beta = min(3.0 * max(u_l - u_r, 0.0), c)
-    return 0.5 * (_pressure(rho_l, c0, rho0, tait) + _pressure(rho_r, c0, rho0, tait)) + 0.5 * rho_bar * beta * (
+    p_s = 0.5 * (_pressure(rho_l, c0, rho0, tait) + _pressure(rho_r, c0, rho0, tait)) + 0.5 * rho_bar * beta * (
         u_l - u_r)
+    return max(p_s, _pressure(0.0, c0, rho0, tait))
 
 
 def _compile(d):

@@ -393,9 +393,9 @@ class PhysicsSpec:
                                  "gives a negative wall pressure: a wall pushes, never pulls")
     max_density_variation: float = option(0.1, doc="stop when |rho / rho0 - 1| exceeds this (weak "
                                           "compressibility violated)", gt=0.0)
-    max_volume_variation: float = option(0.5, doc="delta_ale: stop when a particle volume drifts by more than "
-                                         "this fraction of its initial value (seed 001 fig. 6: without D^m "
-                                         "volumes drift by 50%)", gt=0.0)
+    max_volume_variation: float = option(0.5, doc="delta_ale and riemann_ale: stop when a particle volume drifts "
+                                         "by more than this fraction of its initial value (seed 001 fig. 6: "
+                                         "without D^m volumes drift by 50%)", gt=0.0)
 
     def kinematic_viscosity(self, domain) -> float:
         """nu: U L / reynolds, or alpha h c0 / (2 (d + 2)) with an artificial viscosity alpha."""
@@ -929,6 +929,13 @@ class Scene:
             if getattr(self.physics, key) != default and self.physics.scheme != "riemann_ale":
                 raise SceneError(f"physics.{key}", "the Riemann fluxes belong to physics.scheme = riemann_ale, "
                                  f"not {self.physics.scheme!r}")
+        unread = {"riemann_ale": ("delta", "delta_m"), "delta_ale_const_mass": ("delta_m",),
+                  "delta_ale_const_volume": ("delta_m",)}.get(self.physics.scheme, ())
+        for key in unread:  # the Riemann fluxes replace D^rho and D^m; only delta_ale's masses diffuse
+            if getattr(self.physics, key) != PhysicsSpec.__dataclass_fields__[key].default:
+                raise SceneError(f"physics.{key}", f"physics.scheme = {self.physics.scheme!r} has no "
+                                 f"{'mass' if key == 'delta_m' else 'density'} diffusion to scale (delta_ale"
+                                 f"{'' if key == 'delta_m' else ' family'} only)")
         if fluid and self.neighbours.skin == 0.0:
             raise SceneError("neighbours.skin", "a flow needs a skin: with 0 the neighbour lists cannot hold a time "
                              "step's stages (the default is 0.1)")

@@ -170,6 +170,21 @@ def test_riemann_ale_refuses_bodies(model):
     assert info.value.key == "bodies" and "riemann_ale has no wall model" in str(info.value)
 
 
+@pytest.mark.parametrize("scheme, key, accepted", [
+    ("riemann_ale", "delta", False), ("riemann_ale", "delta_m", False), ("delta_ale_const_mass", "delta_m", False),
+    ("delta_ale_const_volume", "delta_m", False), ("delta_ale_const_mass", "delta", True),
+    ("delta_ale", "delta_m", True)])
+def test_a_diffusion_coefficient_the_scheme_does_not_read_is_refused(scheme, key, accepted):
+    """A Riemann audit: physics.delta = 0.3 with riemann_ale ran, and psph info showed it, to no effect."""
+    sets = [f"physics.scheme={scheme}", f"physics.{key}=0.3"]
+    if accepted:
+        assert getattr(load_scene(CASES / "taylor_green.toml", sets).physics, key) == 0.3
+        return
+    with pytest.raises(SceneError) as info:
+        load_scene(CASES / "taylor_green.toml", sets)
+    assert info.value.key == f"physics.{key}" and "diffusion to scale" in str(info.value)
+
+
 @pytest.mark.parametrize("model", ["clone", "ghost"])
 def test_a_lid_on_a_periodic_y_axis_is_refused(model):
     changes = {"domain.periodic": [False, True], "bodies.0.model": model}
