@@ -33,9 +33,10 @@ class NumericalError(PsphError):
 
     exit_code = 3
 
-    def __init__(self, message: str, *, step=None, time=None, gid=None, position=None, iteration=None):
+    def __init__(self, message: str, *, step=None, time=None, gid=None, position=None, iteration=None, stage=None):
         self.step, self.time, self.gid, self.position, self.iteration = step, time, gid, position, iteration
-        where = []
+        self.stage = stage
+        where = [] if stage is None else [stage]  # a part of the run before its steps ("pre-procedure")
         if step is not None:
             where.append(f"step {step}")
         if iteration is not None:  # a static run's (its snapshots' step)
@@ -65,7 +66,7 @@ def is_collective(err) -> bool:
 
 
 # what a NumericalError says about where it happened (its keyword arguments)
-WHERE = ("step", "time", "gid", "position", "iteration")
+WHERE = ("step", "time", "gid", "position", "iteration", "stage")
 
 
 def rebuild_error(cls, message: str, where=None) -> PsphError:

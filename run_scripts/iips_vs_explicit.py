@@ -31,11 +31,12 @@ only the excess over 1 is left for the pairs' Hessians and the linear solve.
 """
 
 import argparse
+import re
 from pathlib import Path
 
 import numpy as np
 
-from psph.studies import CASES, parse_args, run_scene, write_table
+from psph.studies import CASES, RunStopped, parse_args, run_scene, stop_message, write_table
 
 SCENE = CASES / "static_perturbed.toml"
 COMMON = ["domain.dx=0.0125", "initial.sigma_over_dx=0.1", "diagnostics.stop_at_cartesian=1.05"]
@@ -72,9 +73,15 @@ def main():
             sets = COMMON + [f"diagnostics.test_wavelength={wavelength}"]
             explicit = []
             for diffusion, cap in BASELINES.items():
-                exp = run_scene(SCENE, args.out / f"explicit_D{diffusion}_l{wavelength}_n{ranks}", ranks=ranks,
-                                sets=sets + ["shifting.method=explicit_iterative", f"shifting.diffusion={diffusion}",
-                                             f"shifting.max_iterations={cap}"])
+                try:
+                    exp = run_scene(SCENE, args.out / f"explicit_D{diffusion}_l{wavelength}_n{ranks}", ranks=ranks,
+                                    sets=sets + ["shifting.method=explicit_iterative",
+                                                 f"shifting.diffusion={diffusion}", f"shifting.max_iterations={cap}"])
+                except RunStopped as err:  # psph stops a run that ends worse than it started
+                    grew = re.search(r"L2\(grad C\) (\S+) -> (\S+)", stop_message(err))
+                    explicit.append((f"diverges (L2(grad C) {grew[1]} -> {grew[2]})" if grew else
+                                     "stopped: " + stop_message(err).removeprefix("psph: error: "), None))
+                    continue
                 explicit.append((exp.summary["steps"], exp.summary["shifting_time_s"]) if reached(exp) else
                                 (f"not in {exp.summary['steps']} ({ratio(exp):.3g} x)", None))
             for name, iips_sets, options in IIPS:

@@ -306,8 +306,9 @@ class FluidDriver(Driver):
         the flow cannot strain into a squeezed lattice as it does the Cartesian one (README, Taylor-Green).
         The initial condition is then set again at the moved positions. Collective."""
         start = time.perf_counter()
-        linf, iterations = pre_procedure(self.scene.iips, self.sim.comm, self.system,
-                                         surface=make_free_surface(self.scene, pre_procedure=True))
+        with self.sim.diagnose_failures(lambda: (0, 0.0)):  # the state at a failure is written
+            linf, iterations = pre_procedure(self.scene.iips, self.sim.comm, self.system,
+                                             surface=make_free_surface(self.scene, pre_procedure=True))
         reset_initial_fields(self.scene, self.system.particles)
         pre = {"linf": linf, "time_s": time.perf_counter() - start}
         self.sim.log(f"pre-procedure: {iterations} IIPS iterations, Linf(grad C) = {linf:.3e}, "

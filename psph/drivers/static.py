@@ -31,6 +31,25 @@ class StaticDriver(Driver):
         with self.closing_on_failure():
             self.shifting = make_shifting(scene, self.sim.comm)
 
+    @staticmethod
+    def _check_improved(sim, report, iterations, path) -> None:
+        """A run that leaves the distribution worse than it found it (L2(grad C) above iteration 0's, not at
+        round-off) has diverged, whatever its last iterations did: NumericalError naming the best iteration
+        (an audit: the cubic spline at h/dx = 2 went 0.055 -> 0.0094 -> 0.37 and ended at 0.135, exit 0)."""
+        from psph.errors import NumericalError
+        from psph.scene.schema import ROUNDOFF_LINF
+
+        rows = sim.history.rows
+        if report["L2_grad_c"] <= rows[0]["L2_grad_c"] * (1.0 + 1e-9) or report["Linf_grad_c"] <= ROUNDOFF_LINF:
+            return
+        best = min(rows, key=lambda r: r["L2_grad_c"])
+        sim.history.flush()
+        raise NumericalError(f"the shifting left the distribution worse than it started: L2(grad C) "
+                             f"{rows[0]['L2_grad_c']:.3g} -> {report['L2_grad_c']:.3g} (lowest {best['L2_grad_c']:.3g} "
+                             f"at iteration {best['iteration']}): it diverged (a kernel that pairs particles, as the "
+                             f"cubic spline does at h/dx = 2, or too large a step); the state is in {path}",
+                             iteration=iterations)
+
     def cartesian_reference(self) -> float:
         """L2(d f/dx) on the unperturbed lattice of the same scene. Collective."""
         scene = self.scene
@@ -89,6 +108,8 @@ class StaticDriver(Driver):
                                        extra={"grad_c": grad_c(system)})
             if stopped and stopped[-1]:  # (a failed first iteration reports none)
                 sim.stop(f"the state after iteration {iterations} is in {path} (static runs write no checkpoint)")
+            if not result.failed:  # (a failed call kept the state its on_stall / on_failure chose, and said so)
+                self._check_improved(sim, report, iterations, path)
         return sim.summary(steps=iterations, final={**report, "L2_dfdx_cartesian": reference},
                            shifting_time_s=elapsed["shifting_time_s"],
                            linear_iterations=elapsed["linear_iterations"])

@@ -12,6 +12,12 @@ from psph.compute.smoothing import KERNEL_NAMES
 from psph.errors import SceneError
 from psph.scene.validate import option
 
+# Linf(grad C) at which a distribution is level to round-off (sums of ~50 terms of O(1) carry ~1e-14): IIPS
+# takes no Newton step from there, whatever the procedure or threshold (psph.shifting.iips). Its right-hand
+# side is noise, which the solve cannot reduce by rtol (BCGS ended DIVERGED_DTOL or BREAKDOWN, on some rank
+# counts and not others); a threshold below it is never reached
+ROUNDOFF_LINF = 1e-12
+
 OUTFLOW_FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
 
 
@@ -477,8 +483,9 @@ class IIPSSpec:
     def check(self, path):
         if self.threshold > 0 and self.beta > 0:
             raise SceneError(f"{path}.beta", "give either iips.threshold or iips.beta, not both")
-        if self.beta > 0 and self.pre_newton == 0:
-            raise SceneError(f"{path}.pre_newton", "iips.beta needs a pre-procedure (pre_newton > 0)")
+        if 0.0 < self.threshold < ROUNDOFF_LINF:
+            raise SceneError(f"{path}.threshold", f"{self.threshold:g} is below round-off ({ROUNDOFF_LINF:g}, "
+                             "where IIPS takes no step): no call would reach it")
 
 
 @dataclass(frozen=True)
@@ -854,6 +861,10 @@ class Scene:
         if self.physics.scheme == "none" and self.iips.pre_newton > 0:  # ran silently without either
             raise SceneError("iips.pre_newton", "a static run is itself the pre-procedure (its iterations are "
                              "iips.max_newton); pre_newton and beta apply to kinematic and fluid runs")
+        if self.iips.beta > 0 and self.iips.pre_newton == 0:
+            raise SceneError("iips.beta", "a static run has no pre-procedure to scale: give iips.threshold"
+                             if self.physics.scheme == "none" else
+                             "iips.beta scales Linf(grad C) after a pre-procedure: give iips.pre_newton > 0")
         if self.bodies:
             if self.domain.dimension != 2:
                 raise SceneError("bodies", "solid bodies are 2-D (seed 004 gives the 2-D clone particles)")

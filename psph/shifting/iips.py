@@ -38,10 +38,11 @@ import time
 import numpy as np
 
 from psph.boundaries.free_surface import NoFreeSurface
-from psph.errors import NumericalError, SolverError
+from psph.errors import NumericalError, SceneError, SolverError
 from psph.parallel.comm import allreduce_max, allreduce_sum
 from psph.particles import FieldSpec
 from psph.profiling import phase
+from psph.scene.schema import ROUNDOFF_LINF
 from psph.shifting.base import Shifting, ShiftReport, measure
 from psph.shifting.iips_operator import AssembledOperator, iips_operator
 from psph.solvers.aij import chain_matrix, check_mat_type, family_of
@@ -62,10 +63,6 @@ COINCIDENT = 1e-6
 NUDGE = 1e-3
 # Linf(grad C) below this is round-off (a perfect lattice gives ~1e-14): growth from there is not divergence
 DIVERGENCE_FLOOR = 1e-6
-# Linf(grad C) at which a distribution is level to round-off (sums of ~50 terms of O(1) carry ~1e-14): no
-# Newton step is taken from there, whatever the procedure or threshold. Its right-hand side is noise, which
-# the solve cannot reduce by rtol (BCGS ended DIVERGED_DTOL or BREAKDOWN, on some rank counts and not others)
-ROUNDOFF_LINF = 1e-12
 PREFIX = "iips_"  # the options prefix of the IIPS solver and matrix
 
 
@@ -206,6 +203,11 @@ class ImplicitShifting(Shifting):
         self.initial_linf = linf
         if self.spec.beta > 0:
             self.threshold = self.spec.beta * linf
+            if self.threshold < ROUNDOFF_LINF:  # an audit: 9 calls of 10 stalled at 20 iterations, exit 0
+                raise SceneError("iips.beta", f"the pre-procedure left Linf(grad C) = {linf:.3g} (level already: "
+                                 f"a lattice?), and beta x it = {self.threshold:.3g} is below round-off "
+                                 f"({ROUNDOFF_LINF:g}), which no call reaches: give iips.threshold, or start "
+                                 "from a perturbed distribution (initial.sigma_over_dx > 0)")
 
     def _free_structure(self) -> None:
         """Free the vectors of the last structure, if any (petsc4py keeps them alive), and make the solver let
@@ -418,10 +420,16 @@ def pre_procedure(spec, comm, system, iips=None, surface=None):
     fewer than pre_newton), or (None, 0) when `spec.pre_newton` is 0. Collective."""
     if spec.pre_newton == 0:
         return None, 0
-    if iips is not None:
-        return iips.prepare(system), iips.pre_iterations
-    temporary = ImplicitShifting(spec, comm, surface=surface)
+
+    def label(info):  # a failure's place: "[pre-procedure, iteration k]" (check_escaped, IIPS's errors)
+        system.where = {"stage": "pre-procedure", "iteration": info["newton"] + 1}
+
+    label({"newton": 0})
+    temporary = None if iips is not None else ImplicitShifting(spec, comm, surface=surface)
     try:
-        return temporary.prepare(system), temporary.pre_iterations
+        shifting = iips or temporary
+        return shifting.prepare(system, on_iteration=label), shifting.pre_iterations
     finally:
-        temporary.destroy()
+        system.where = {}
+        if temporary is not None:
+            temporary.destroy()

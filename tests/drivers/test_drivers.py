@@ -59,7 +59,10 @@ def test_kinematic_iips_procedures(tmp_path, procedure):
     summary = json.loads((out / "summary.json").read_text())
     rows = read_history(out / "history.csv")
     steps = summary["steps"]
-    assert steps == 20 and len(rows) == steps + 1 and rows[-1]["time"] == pytest.approx(0.02)
+    assert steps == 20 and len(rows) == steps + 1 and summary["end_time"] == pytest.approx(0.02)
+    # a row is the distribution after a step's shifting, at the time it was applied (before the advection)
+    assert [r["time"] for r in rows[:2]] == [0.0, 0.0]
+    assert rows[-1]["time"] == summary["final"]["time"] == pytest.approx(0.02 - summary["dt"])
     newton = [r["newton"] for r in rows[1:]]
     if procedure == "A":
         assert min(newton) >= 1
@@ -163,3 +166,43 @@ def test_relaxed_start_keeps_procedure_b_from_stalling(tmp_path):
     assert lattice["failed_calls"] > 0 and relaxed["failed_calls"] == 0
     assert relaxed["pre_procedure_linf"] < 1e-3
     assert relaxed["newton_iterations"] < lattice["newton_iterations"]
+
+
+def one_line(res, code):
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == code and len(lines) == 1 and lines[0].startswith("psph: error: "), res.stderr
+    return lines[0]
+
+
+def test_a_threshold_no_call_can_reach_is_refused(tmp_path):
+    """A drivers audit: a lattice start leaves the pre-procedure at round-off, and beta x it (2.1e-14) was a
+    threshold below round-off, where IIPS takes no step: 9 calls of 10 stalled at 20 iterations, exit 0."""
+    lattice = run_psph("run", CASES / "kinematic_tgv.toml", "--out", tmp_path / "a", *KINEMATIC,
+                       "--set", "initial.sigma_over_dx=0")
+    assert "iips.beta: the pre-procedure left Linf(grad C) = " in one_line(lattice, 2)
+    tiny = run_psph("run", CASES / "kinematic_tgv.toml", "--out", tmp_path / "b", *KINEMATIC,
+                    "--set", "iips.beta=0", "--set", "iips.threshold=1e-13")
+    assert "iips.threshold: 1e-13 is below round-off" in one_line(tiny, 2)
+    static = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "c", "--set", "iips.beta=5")
+    assert "iips.beta: a static run has no pre-procedure to scale: give iips.threshold" in one_line(static, 2)
+
+
+def test_a_static_run_that_ends_worse_than_it_started_stops_with_its_state(tmp_path):
+    """A drivers audit: the cubic spline at h/dx = 2 took L2(grad C) 0.055 -> 0.0094 -> 0.37, ended at 0.135,
+    and exited 0 with the worst state called final."""
+    out = tmp_path / "out"
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", out, "--set", "shifting.method=iips",
+                   "--set", "domain.dx=0.05", "--set", "domain.kernel=cubic_spline")
+    line = one_line(res, 3)
+    assert "the shifting left the distribution worse than it started: L2(grad C) 0.0548 -> " in line
+    assert "(lowest 0.00941 at iteration 1)" in line and line.endswith("[iteration 20]")
+    assert not (out / "summary.json").exists() and len(read_history(out / "history.csv")) == 21
+    with h5py.File(out / "snapshot_000001.h5") as last:
+        assert last.attrs["step"] == 20
+
+
+def test_a_failure_in_the_pre_procedure_says_so(tmp_path):
+    res = run_psph("run", CASES / "kinematic_tgv.toml", "--out", tmp_path, *KINEMATIC, "-iips_ksp_max_it", "4")
+    assert "iips linear solve diverged: DIVERGED_MAX_IT after 4 iterations [pre-procedure, iteration 1, particle " \
+           "gid " in one_line(res, 3)
+    assert (tmp_path / "snapshot_000000.h5").exists()
