@@ -120,17 +120,26 @@ def cmd_info(args, petsc_options, comm) -> int:
     from psph.drivers import describe_model
     from psph.scene.load import load_scene
     from psph.scene.validate import to_table
-    from psph.simulation import estimate_resources, estimate_time_step, iips_assembled
+    from psph.simulation import estimate_resources, estimate_time_step, iips_assembled, iips_runs
     from psph.solvers.petsc import initialize
 
     scene = load_scene(args.scene, args.set)
     initialize(petsc_options)  # which IIPS operator the options choose (the memory estimate)
+    solver = None
+    if iips_runs(scene):  # the solver the command line's PETSc options give (collective)
+        from psph.shifting.iips import ImplicitShifting
+
+        shifting = ImplicitShifting(scene.iips, comm)
+        try:
+            solver = "IIPS linear solver: " + ImplicitShifting.describe_settings(shifting.settings())
+        finally:
+            shifting.destroy()
     if comm.rank == 0:
         print(f"# scene {scene.name!r} from {args.scene}")
         _print_table(to_table(scene))
         print("# model terms (only these run)")
         for line in describe_model(scene):
-            print(f"#   {line}")
+            print(f"#   {solver if solver and line.startswith('IIPS linear solver:') else line}")
         ranks = args.ranks or comm.size
         n, nbytes, per_particle = estimate_resources(scene, ranks, iips_assembled(scene))
         print(f"# estimated particles: {n}, memory on {ranks} rank(s): {nbytes / 2**30:.3g} GiB "
@@ -260,6 +269,7 @@ def cmd_run(args, petsc_options, comm) -> int:
 
         shifting = ImplicitShifting(scene.iips, comm)  # a bad -iips_ option stops the run before --overwrite clears
         try:
+            solver = shifting.settings()  # (the trial may raise its max_it)
             shifting.trial(scene.domain.dimension)
         finally:
             shifting.destroy()
@@ -300,6 +310,8 @@ def cmd_run(args, petsc_options, comm) -> int:
                     "solver's dissipation z (u_L - u_R) / 2 grows with c0 (Taylor-Green, dx = 0.05, t = 0.01: kinetic "
                     "energy -2.3% at c0/U = 10, -10% at 50, -89% at 1000); physics.riemann_dissipation = \"low\" "
                     "keeps it (-0.13%)")
+    if iips_runs(scene):
+        log(f"psph: IIPS linear solver: {ImplicitShifting.describe_settings(solver)}")
     kwargs = {"restart": restart} if restart else {}  # static runs write no checkpoints
     stop.install(comm, after="iteration with a snapshot" if scene.physics.scheme == "none" else
                  "step with a checkpoint")
@@ -307,6 +319,8 @@ def cmd_run(args, petsc_options, comm) -> int:
         # diagnosis, which the state's checks give (non-finite fields, the density's range, the time step)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"), \
                 driver_for(scene)(scene, comm, out, log=log, progress=not args.quiet, **kwargs) as driver:
+            if iips_runs(scene):
+                driver.sim.summary_extra["iips_solver"] = solver
             summary = driver.run()
             rejected = sum(getattr(m, "rejections", 0) for m in driver.shifting_methods())
         late = stop.requested(comm)

@@ -56,6 +56,7 @@ class Simulation:
                  progress=False):
         self.started = time.perf_counter()
         self.scene = scene
+        self.summary_extra = {}  # what the caller adds to summary.json (the command line: the IIPS solver)
         self.comm = comm.Dup()
         self.out_dir = Path(out_dir)
         if self.comm.rank == 0:
@@ -177,6 +178,7 @@ class Simulation:
             "final": final,
         }
         data.update(extra)
+        data.update(self.summary_extra)
         write_summary(self.comm, self.out_dir, data)
         return data
 

@@ -456,3 +456,21 @@ def test_a_plain_mls_remap_with_a_free_surface_is_warned_about(tmp_path, update,
     assert res.returncode == 0, res.stderr
     assert (f"warning: iips.update = {update} remaps every field at every IIPS call" in res.stderr) is warned, \
         res.stderr
+
+
+def test_the_iips_solver_the_options_give_is_reported(tmp_path):
+    """A drivers audit: psph info said "default bcgs + jacobi" whatever the options, and a run recorded
+    neither the solver nor whether iips.operator = "auto" chose the matrix-free or the assembled operator."""
+    options = ["-iips_ksp_type", "gmres", "-iips_pc_type", "gamg", "-iips_ksp_rtol", "1e-3"]
+    sets = ["--set", "shifting.method=iips", "--set", "domain.dx=0.1", "--set", "iips.max_newton=2"]
+    expected = "IIPS linear solver: KSP gmres + PC gamg, rtol 0.001, max_it 10000, assembled aij matrix"
+    info = run_psph("info", SCENE, *sets, *options)
+    assert info.returncode == 0 and expected in info.stdout, info.stdout + info.stderr
+    res = run_psph("run", SCENE, "--out", tmp_path, "--quiet", *sets, *options)
+    assert res.returncode == 0, res.stderr
+    assert "psph: " + expected in (tmp_path / "psph.log").read_text()
+    solver = json.loads((tmp_path / "summary.json").read_text())["iips_solver"]
+    assert solver == {"ksp_type": "gmres", "pc_type": "gamg", "rtol": 1e-3, "atol": 1e-50, "max_it": 10000,
+                      "operator": "assembled", "mat_type": "aij"}
+    default = run_psph("info", SCENE, *sets)
+    assert "KSP bcgs + PC jacobi, rtol 0.01, max_it 10000, matrix-free operator" in default.stdout

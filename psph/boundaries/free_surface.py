@@ -174,11 +174,11 @@ class FreeSurface(NoFreeSurface):
 
 
 def make_free_surface(scene, pre_procedure=False):
-    """FreeSurface where a fluid scene has a free surface and its shifting method moves the particles (or, with
-    pre_procedure, for the IIPS pre-procedure, whatever the method); NoFreeSurface elsewhere."""
+    """FreeSurface where a fluid or static scene has a free surface and its shifting method moves the particles
+    (or, with pre_procedure, for the IIPS pre-procedure, whatever the method); NoFreeSurface elsewhere."""
     from psph.scene.schema import FLUID_SCHEMES
 
     shifts = pre_procedure or scene.shifting.method != "none"
-    if scene.physics.scheme in FLUID_SCHEMES and scene.describe_free_surface() and shifts:
+    if scene.physics.scheme in (*FLUID_SCHEMES, "none") and scene.describe_free_surface() and shifts:
         return FreeSurface(scene.free_surface, inflow=bool(scene.inflow))
     return NoFreeSurface()

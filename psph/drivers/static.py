@@ -21,6 +21,10 @@ class StaticDriver(Driver):
         lines = ["physics none: particles move only by shifting",
                  "diagnostics: L2/Linf(grad C) (thesis eq. 3.4-3.5), L2(d f/dx) (eq. 3.7, wavelength "
                  f"{d.test_wavelength:g} = {d.test_wavelength / scene.domain.dx:g} particles)"]
+        surface = scene.describe_free_surface()
+        if surface and scene.shifting.method == "iips":
+            lines.append(f"free surface ({surface}): IIPS leaves its particles where they are, detected as in a "
+                         "flow's pre-procedure (thesis 10.2.1)")
         if d.stop_at_cartesian > 0:
             lines.append(f"stop when L2(d f/dx) <= {d.stop_at_cartesian:g} x its Cartesian-lattice value")
         return lines

@@ -797,6 +797,21 @@ class Scene:
             return f"the fluid's cut at the outflow faces {', '.join(self.domain.outflow)} (domain.outflow)"
         return ""
 
+    def _bare_faces(self) -> list:
+        """The bounded faces of the domain ("x-", "y+", ...) that the fill region reaches, with no body in the
+        scene to wall them (a drop reaches none)."""
+        d, lo, hi = self.domain, self.initial.fill_lower, self.initial.fill_upper
+        if self.bodies or self.initial.drop_radius > 0:
+            return []
+        faces = []
+        for a in range(d.dimension):
+            if not d.periodic[a]:
+                if not lo or lo[a] <= d.lower[a] + 0.5 * d.dx:
+                    faces.append("xyz"[a] + "-")
+                if not hi or hi[a] >= d.upper[a] - 0.5 * d.dx:
+                    faces.append("xyz"[a] + "+")
+        return faces
+
     def free_surface_axis(self):
         """The first axis along which the fluid's fill region stops short of the domain (a free surface
         there), or None."""
@@ -858,6 +873,20 @@ class Scene:
 
     def check(self, path):
         fluid = self.physics.scheme in FLUID_SCHEMES
+        surface = self.describe_free_surface()
+        if self.physics.scheme == "kinematic" and surface:
+            raise SceneError("initial", f"a kinematic run advects a distribution that fills its periodic domain; "
+                             f"this one has a free surface ({surface})")
+        if self.physics.scheme == "none" and surface and self.shifting.method == "explicit_iterative":
+            raise SceneError("shifting.method", f"explicit_iterative has no free-surface treatment, and would push "
+                             f"the particles of {surface} out: use iips, which keeps them (thesis 10.2.1)")
+        bare = self._bare_faces()
+        if self.physics.scheme in ("none", "kinematic") and self.shifting.method != "none" and bare:
+            raise SceneError("domain.periodic", f"{list(self.domain.periodic)}: the particles along the bounded "
+                             f"face(s) {', '.join(bare)} have no neighbour beyond it and no wall, and the shifting "
+                             "pushes them out of the domain (an audit: exit 3 at iteration 1): make the axis "
+                             "periodic, put a container body around the particles, or leave a free surface there "
+                             "(initial.fill_lower / fill_upper)")
         if self.physics.scheme == "none" and self.iips.pre_newton > 0:  # ran silently without either
             raise SceneError("iips.pre_newton", "a static run is itself the pre-procedure (its iterations are "
                              "iips.max_newton); pre_newton and beta apply to kinematic and fluid runs")

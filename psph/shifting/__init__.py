@@ -8,9 +8,11 @@ def make_shifting(scene, comm):
     """The shifting object the scene asks for."""
     method = scene.shifting.method
     if method == "iips":
+        from psph.boundaries.free_surface import make_free_surface
         from psph.shifting.iips import ImplicitShifting
 
-        return ImplicitShifting(scene.iips, comm)
+        # a static distribution's free surface: its particles stay (thesis 10.2.1), as in a flow's pre-procedure
+        return ImplicitShifting(scene.iips, comm, surface=make_free_surface(scene))
     if method == "explicit_iterative":
         from psph.shifting.explicit import ExplicitIterativeShifting
 

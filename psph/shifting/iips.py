@@ -219,6 +219,22 @@ class ImplicitShifting(Shifting):
             self.mat = None
             self._structure_of = None
 
+    def settings(self) -> dict:
+        """The linear solver the options give (KSP, PC, tolerances) and the operator (iips.operator, "auto"
+        decided), for the log and summary.json (`iips_solver`)."""
+        ksp = self.solver.ksp
+        rtol, atol, _, max_it = ksp.getTolerances()
+        assembled = isinstance(self.operator, AssembledOperator)
+        return {"ksp_type": ksp.getType(), "pc_type": ksp.getPC().getType(), "rtol": rtol, "atol": atol,
+                "max_it": max_it, "operator": "assembled" if assembled else "matrix_free",
+                "mat_type": petsc().Options().getString(f"{PREFIX}mat_type", "aij") if assembled else None}
+
+    @staticmethod
+    def describe_settings(s) -> str:
+        operator = f"assembled {s['mat_type']} matrix" if s["operator"] == "assembled" else "matrix-free operator"
+        return (f"KSP {s['ksp_type']} + PC {s['pc_type']}, rtol {s['rtol']:g}, max_it {s['max_it']}, "
+                f"{operator} (PETSc options prefix -{PREFIX})")
+
     def trial(self, dim) -> None:
         """Solve once with this -iips_ solver on a small test system in `dim` dimensions (solvers.aij.chain_matrix,
         of the -iips_mat_type the assembled operator would have; the matrix-free operator's preconditioners need
