@@ -147,6 +147,10 @@ def cmd_info(args, petsc_options, comm) -> int:
         step = estimate_time_step(scene)
         if step:
             print(f"# {step}")
+        unread = scene.unread_keys()
+        if unread:
+            print(f"# keys set that this run does not read (another method's?): {', '.join(unread)} "
+                  f"({_unread_why(scene)})")
     return 0
 
 
@@ -312,6 +316,10 @@ def cmd_run(args, petsc_options, comm) -> int:
                     "keeps it (-0.13%)")
     if iips_runs(scene):
         log(f"psph: IIPS linear solver: {ImplicitShifting.describe_settings(solver)}")
+    given = {item.split("=", 1)[0].strip() for item in args.set}  # a scene file may hold other methods' keys
+    unread = [key for key in scene.unread_keys() if key in given]
+    if unread:
+        _warn(comm, f"psph: warning: --set keys this run does not read: {', '.join(unread)} ({_unread_why(scene)})")
     kwargs = {"restart": restart} if restart else {}  # static runs write no checkpoints
     stop.install(comm, after="iteration with a snapshot" if scene.physics.scheme == "none" else
                  "step with a checkpoint")
@@ -379,6 +387,10 @@ def _warn_unused_options(comm) -> None:
     if unused:
         _warn(comm, f"psph: warning: PETSc options that nothing read: {', '.join(unused)} (misspelt, or for a "
                     "solver this scene does not have)")
+
+
+def _unread_why(scene) -> str:
+    return f"physics.scheme = {scene.physics.scheme!r}, shifting.method = {scene.shifting.method!r}"
 
 
 def _warn(comm, line: str) -> None:

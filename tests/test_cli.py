@@ -474,3 +474,20 @@ def test_the_iips_solver_the_options_give_is_reported(tmp_path):
                       "operator": "assembled", "mat_type": "aij"}
     default = run_psph("info", SCENE, *sets)
     assert "KSP bcgs + PC jacobi, rtol 0.01, max_it 10000, matrix-free operator" in default.stdout
+
+
+def test_a_set_key_the_run_does_not_read_is_warned_about(tmp_path):
+    """A drivers audit: --set time.retries=3 on a kinematic run (which retries nothing), or iips.max_newton with
+    the explicit iteration, ran with exit 0 and no word. A scene file's keys for other methods are only listed
+    by psph info (cases/dam_break.toml holds IIPS's for --set shifting.method=iips)."""
+    kinematic = ["run", CASES / "kinematic_tgv.toml", "--quiet", "--set", "domain.dx=0.1", "--set", "time.t_end=0.01",
+                 "--set", "iips.pre_newton=5"]
+    res = run_psph(*kinematic, "--out", tmp_path / "a", "--set", "time.retries=3", "--set",
+                   "shifting.method=explicit_iterative", "--set", "iips.max_newton=3")
+    assert res.returncode == 0, res.stderr
+    assert "psph: warning: --set keys this run does not read: iips.max_newton, time.retries (physics.scheme = " \
+           "'kinematic', shifting.method = 'explicit_iterative')" in res.stderr
+    quiet = run_psph(*kinematic, "--out", tmp_path / "b")
+    assert quiet.returncode == 0 and "does not read" not in quiet.stderr, quiet.stderr
+    info = run_psph("info", CASES / "dam_break.toml")
+    assert "# keys set that this run does not read (another method's?): iips.procedure, iips.threshold" in info.stdout

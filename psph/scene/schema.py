@@ -785,6 +785,33 @@ class Scene:
         """Whether some body is made of clone particles (bodies[].model)."""
         return any(b.model == "clone" for b in self.bodies)
 
+    def unread_keys(self) -> list:
+        """Keys set away from their defaults that this run does not read, "section.key" each: a scene file
+        may hold several methods' settings and switch between them with --set, so they are not refused;
+        psph run and psph info name them. The shifting section's keys whose text names one method
+        ("delta_plus: ...") outside it, the IIPS call's keys without IIPS (the pre-procedure's with neither
+        it nor a pre-procedure), the fluid runs' time keys in static and kinematic runs, and the time and
+        output keys a static run does not read (it iterates, and writes its first and last states)."""
+        scheme, method = self.physics.scheme, self.shifting.method
+        fluid = scheme in FLUID_SCHEMES
+        keys = [f"shifting.{name}" for name, f in ShiftingSpec.__dataclass_fields__.items()
+                if f.metadata["doc"].split(":")[0] in SHIFTING_METHODS and f.metadata["doc"].split(":")[0] != method]
+        if method != "iips":
+            pre = self.iips.pre_newton > 0 and scheme != "none"
+            keys += [f"iips.{name}" for name in IIPSSpec.__dataclass_fields__
+                     if not pre or name in ("procedure", "threshold", "beta", "max_newton")]
+        if not fluid:
+            keys += ["time.retries", "time.integrator"]
+        if scheme == "none":
+            keys += ["time.t_end", "time.cfl", "output.every", "output.history_every"]
+        return [key for key in keys if self._set(key)]
+
+    def _set(self, key) -> bool:
+        """Whether `key` ("section.name") differs from its default."""
+        section, name = key.split(".")
+        spec = getattr(self, section)
+        return getattr(spec, name) != type(spec).__dataclass_fields__[name].default
+
     def describe_free_surface(self) -> str:
         """Where the fluid has a free surface, in words ("" for none): a drop's rim, or the fill region
         stopping short of the domain."""
