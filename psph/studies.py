@@ -222,6 +222,22 @@ def rate(e_coarse, e_fine, ratio=2.0) -> float:
     return float("nan")
 
 
+def at_time(history, t, column):
+    """`column` of the history row closest to time t."""
+    return min(history, key=lambda r: abs(r["time"] - t))[column]
+
+
+def pareto(points):
+    """Indices of the (time, error) points no other point beats in both."""
+    return [i for i, (t, e) in enumerate(points)
+            if not any(t2 <= t and e2 <= e and (t2, e2) != (t, e) for t2, e2 in points)]
+
+
+def tag(label) -> str:
+    """A method's table label as a directory name part: "IIPS + MLS-II" -> "IIPS_MLS-II"."""
+    return label.replace(" ", "").replace("+", "_").replace("=", "")
+
+
 def dominant_frequency(times, values, t0=0.0, oversample=64, periods=3) -> float:
     """Frequency of the largest peak in the periodogram of values(t) over t >= t0 (history rows need not be
     evenly spaced: they are interpolated onto an even grid of the same number of samples). The window is

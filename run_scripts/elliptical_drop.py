@@ -25,7 +25,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 from psph.initial import elliptical_drop  # noqa: E402
 from psph.particles import Kind  # noqa: E402
 from psph.scene.load import load_scene  # noqa: E402
-from psph.studies import CASES, command_line, last_snapshot, parse_args, plot_histories, run_scene, write_table  # noqa: E402
+from psph.studies import CASES, at_time, command_line, last_snapshot, parse_args, plot_histories, run_scene, write_table  # noqa: E402
 
 SCENE = CASES / "elliptical_drop.toml"
 SWEEP_ITERATIONS = 3000
@@ -34,11 +34,6 @@ SWEEP_ITERATIONS = 3000
 def packing_rows(out) -> np.ndarray:
     """The packing history of a run: columns iteration, T / beta, Linf(grad Gamma) h."""
     return np.loadtxt(Path(out) / "packing.csv", delimiter=",", skiprows=1, ndmin=2)
-
-
-def at_time(history, t, column):
-    """`column` of the history row closest to time t."""
-    return min(history, key=lambda r: abs(r["time"] - t))[column]
 
 
 def flow_runs(args):

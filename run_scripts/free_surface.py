@@ -26,15 +26,20 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from psph.compute.free_surface import REGION, SURFACE  # noqa: E402
 from psph.particles import Kind  # noqa: E402
-from psph.studies import CASES, NotRun, command_line, last_snapshot, parse_args, plot_histories, run_scene, write_table  # noqa: E402
+from psph.studies import (  # noqa: E402
+    CASES,
+    NotRun,
+    at_time,
+    command_line,
+    last_snapshot,
+    parse_args,
+    plot_histories,
+    run_scene,
+    write_table,
+)
 
 IIPS = ["shifting.method=iips", "iips.procedure=A", "iips.threshold=0.02", "iips.update=nfts"]
 METHODS = {"none": ["shifting.method=none"], "delta_plus": ["shifting.method=delta_plus"], "iips": IIPS}
-
-
-def at_time(history, t, column):
-    """`column` of the history row closest to time t."""
-    return min(history, key=lambda r: abs(r["time"] - t))[column]
 
 
 def finished_run(args, scene, out, sets):

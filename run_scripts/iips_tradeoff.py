@@ -21,14 +21,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from psph.studies import CASES, RunStopped, parse_args, run_scene, stop_message, write_table  # noqa: E402
-
-
-def pareto(points):
-    """Indices of the points no other point beats in both time and error."""
-    return [i for i, (t, e) in enumerate(points)
-            if not any(t2 <= t and e2 <= e and (t2, e2) != (t, e) for t2, e2 in points)]
-
+from psph.studies import CASES, RunStopped, pareto, parse_args, run_scene, stop_message, write_table  # noqa: E402
 
 # preconditioner: (-iips_pc_type, scene overrides). Jacobi runs matrix-free (iips.operator "auto"), and once
 # more on the assembled matrix; hypre and GAMG need the assembled matrix ("auto" gives it them)

@@ -27,6 +27,7 @@ from psph.studies import (  # noqa: E402
     parse_args,
     run_scene,
     stop_message,
+    tag,
     write_histories,
     write_table,
 )
@@ -50,9 +51,8 @@ def main():
     for ranks in args.ranks:
         for name in args.methods:
             sets = METHODS[name]
-            tag = name.replace(" ", "").replace("+", "_").replace("=", "")
             try:
-                run = run_scene(CASES / "moving_square.toml", args.out / f"{tag}_dx{args.dx}_n{ranks}",
+                run = run_scene(CASES / "moving_square.toml", args.out / f"{tag(name)}_dx{args.dx}_n{ranks}",
                                 sets=[f"domain.dx={args.dx}", f"time.t_end={args.t_end}", "output.every=1.0",
                                       "output.history_every=10", *sets], ranks=ranks)
             except RunStopped as err:

@@ -19,7 +19,18 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from psph.studies import CASES, NotRun, RunStopped, parse_args, rate, run_scene, stop_message, write_table  # noqa: E402
+from psph.studies import (  # noqa: E402
+    CASES,
+    NotRun,
+    RunStopped,
+    pareto,
+    parse_args,
+    rate,
+    run_scene,
+    stop_message,
+    tag,
+    write_table,
+)  # noqa: E402
 
 METHODS = {  # label: scene overrides
     "no shifting": ["shifting.method=none", "iips.update=none"],
@@ -47,9 +58,8 @@ def main():
     runs, stops = {}, {}
     for dx in args.resolutions:
         for label in args.methods:
-            tag = label.replace(" ", "").replace("+", "_").replace("=", "")
             try:
-                run = run_scene(CASES / "taylor_green.toml", args.out / f"{tag}_dx{dx}", ranks=args.ranks,
+                run = run_scene(CASES / "taylor_green.toml", args.out / f"{tag(label)}_dx{dx}", ranks=args.ranks,
                                 sets=METHODS[label] + [f"domain.dx={dx}", f"time.t_end={args.t_end}",
                                                        "output.every=0", "output.history_every=50"]
                                 + ([f"iips.procedure={args.procedure}"] if args.procedure else []),
@@ -102,10 +112,7 @@ def main():
             s = runs[(label, dx)].summary
             overhead = s.get("iips_time_s", 0.0) / max(s["step_time_s"] - s.get("iips_time_s", 0.0), 1e-12)
             trade.append([label, dx, wall, e, s["steps"], overhead if label.startswith("IIPS") else "-"])
-    front = set()
-    for i, a in enumerate(trade):
-        if not any(b[2] <= a[2] and b[3] <= a[3] and b is not a for b in trade):
-            front.add(i)
+    front = set(pareto([(row[2], row[3]) for row in trade]))
     for i, row in enumerate(trade):
         row.append("*" if i in front else "")
     plt.xlabel("wall time [s]")
