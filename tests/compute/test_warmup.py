@@ -79,7 +79,8 @@ RUNS = [
     ["impinging_jet", "time.t_end=0.01", "inflow.0.density=extrapolated", "domain.outflow_buffer=true"],
     ["hydrostatic_tank", "time.t_end=0.01", "bodies.0.model=ghost"],
     ["static_perturbed", "shifting.method=iips", "iips.max_newton=2", "domain.kernel=wendland_c2", *BOX_1D],
-    ["static_perturbed", "shifting.method=iips", "iips.max_newton=2", "domain.kernel=cubic_spline", *BOX_3D],
+    # (one iteration: the cubic spline's second at dx = 0.125 leaves the box worse than it started, and stops)
+    ["static_perturbed", "shifting.method=iips", "iips.max_newton=1", "domain.kernel=cubic_spline", *BOX_3D],
     ["static_perturbed", "shifting.method=explicit_iterative", "shifting.max_iterations=2", *BOX_3D],
 ]
 
