@@ -103,9 +103,10 @@ def main():
     errors = [[name, ratio] + [runs[(name, dx, ratio)].summary["final"]["L2_dfdx"] for dx in args.resolutions]
               for ratio in args.ratios for name in PROCEDURES]
     write_table(args.out / "errors", ["procedure", "h/dx"] + [f"L2(df/dx) at dx={dx}" for dx in args.resolutions],
-                errors, title=f"Kinematic case: L2(d f/dx) at t = {args.t_end}")
+                errors, title=f"Kinematic case: L2(d f/dx) after the last step's shifting (t = {args.t_end} - dt)")
     print(write_table(args.out / "table_8_3", header, rows,
-                      title=f"Kinematic case: convergence rates of L2(d f/dx) at t = {args.t_end} (thesis Table 8.3)",
+                      title=f"Kinematic case: convergence rates of L2(d f/dx) at t = {args.t_end} - dt "
+                            "(thesis Table 8.3)",
                       note=f"dx/L = {', '.join(map(str, args.resolutions))}; theta_k between successive resolutions."))
     print((args.out / "errors.md").read_text())
 
