@@ -150,6 +150,8 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, on
     key = {"command": cmd[cmd.index("-m"):], "ranks": ranks, "scene_sha256": _file_hash(scene),
            "code": code_version(), "study": command_line()}
     old = json.loads(stamp.read_text()) if reuse and stamp.exists() else None
+    if isinstance(old, list) and only_finished:  # a stamp of an older psph: its command only
+        old = {"command": old, "ranks": ranks, "scene_sha256": key["scene_sha256"], "code": None}
     if old is not None and _same_command(old, key, code=not only_finished):
         if old.get("code") != key["code"] and (summary.exists() or stopped.exists()):
             _STALE_RUNS.append(f"{out} ({old.get('study') or 'an unrecorded command'})")
@@ -191,7 +193,8 @@ def _same_command(a, b, code=True) -> bool:
     """Two study stamps (run_scene) are the same run if their commands differ at most in where the scene
     file lies (a study resumed from another checkout of psph) and in how the output directory is spelled
     (the stamp lies in that directory, so it names it already), on the same rank count, with the same scene
-    file contents and (code) psph source. A stamp of an older psph (a bare command) matches nothing."""
+    file contents and (code) psph source. A stamp of an older psph (a bare command) matches nothing here;
+    run_scene(only_finished=True) reads it by its command, as a run of other source."""
     def key(cmd):
         cmd = [c for k, c in enumerate(cmd) if k == 0 or cmd[k - 1] != "--out"]
         return [Path(c).name if c.endswith(".toml") else c for c in cmd]
@@ -286,7 +289,8 @@ def write_table(path, header, rows, title="", note="") -> str:
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(fmt(v).replace("|", "\\|") for v in row) + " |" for row in rows]
     if "Command: " not in note:
-        note = (note + " " if note else "") + "Command: " + command_line()
+        note = (note.rstrip() + ("" if not note or note.rstrip().endswith(".") else ".") + " " if note else "") \
+            + "Command: " + command_line()
     if _STALE_RUNS:
         note += " Read back from runs of other psph source: " + "; ".join(sorted(set(_STALE_RUNS))) + "."
     if note:

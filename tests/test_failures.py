@@ -68,6 +68,35 @@ def test_escaped_particles_are_counted_over_every_rank_with_step_and_time(tmp_pa
     assert "36 particle(s) left the domain [step 1, t = 0, particle gid" in proc.stderr, proc.stderr
 
 
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_a_static_run_that_ends_worse_than_it_started_is_one_line_on_any_rank_count(tmp_path, ranks):
+    """A review: the error was one rank's, and 2 ranks ended in MPI_ABORT with every rank's line and no log."""
+    from tests.helpers import run_psph
+
+    proc = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path, "--quiet", "--set",
+                    "shifting.method=iips", "--set", "domain.dx=0.05", "--set", "domain.kernel=cubic_spline",
+                    ranks=ranks)
+    assert proc.returncode == 3, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("psph:")]
+    assert len(lines) == 1 and lines[0].startswith("psph: error: the shifting left the distribution worse than it "
+                                                   "started: L2(grad C) 0.0548 -> "), proc.stderr
+    assert "it diverged (a kernel that pairs particles" in lines[0] and "MPI_ABORT" not in proc.stderr
+    assert "the shifting left the distribution worse" in (tmp_path / "psph.log").read_text()
+
+
+def test_a_static_run_that_converged_and_drifted_away_is_told_where_to_stop(tmp_path):
+    """A review: a near-lattice start iterated 30 times reaches 1.7e-7 at iteration 3, then wanders up past its
+    start (the printed operator is not the exact Jacobian): not a divergence of the kind the message named."""
+    from tests.helpers import run_psph
+
+    proc = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path, "--quiet", "--set",
+                    "shifting.method=iips", "--set", "domain.dx=0.05", "--set", "initial.sigma_over_dx=0.0001",
+                    "--set", "iips.max_newton=30")
+    assert proc.returncode == 3, proc.stderr
+    assert "(lowest 1.7e-07 at iteration 3): it converged and then drifted away (fewer iterations, " \
+           "iips.threshold, iips.backtrack or diagnostics.stop_at_cartesian stop near iteration 3)" in proc.stderr
+
+
 def test_a_non_finite_position_stops_before_the_neighbour_search(tmp_path):
     """A NaN position is outside no box: it reached the neighbour search, which never returned."""
     from mpi4py import MPI

@@ -113,6 +113,12 @@ def test_a_resumed_study_runs_again_on_other_ranks_scene_or_code(tmp_path, monke
     assert "| nan |" in text and "| - |" in text
     assert f"Read back from runs of other psph source: {tmp_path / 'done'} (x.py)." in text
     assert "Command: " in text
+    path.write_text(json.dumps(stamp["command"]))  # an older psph's stamp: the bare command
+    with pytest.raises(AssertionError, match="made again"):
+        studies.run_scene(scene, tmp_path / "done", sets=SETS, reuse=True)
+    path.write_text(json.dumps(stamp["command"]))
+    assert studies.run_scene(scene, tmp_path / "done", sets=SETS, only_finished=True).summary == done.summary
+    assert f"{tmp_path / 'done'} (an unrecorded command)" in "".join(studies._STALE_RUNS)
 
 
 def test_a_study_ends_a_refused_run_in_one_line_and_a_nonzero_exit(tmp_path):

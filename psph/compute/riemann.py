@@ -89,13 +89,13 @@ def low_dissipation_pressure(rho_l, u_l, rho_r, u_r, c0, rho0, tait):
     z (u_L - u_R) / 2 with the sound speed replaced by beta = min(3 max(u_L - u_R, 0), c): none where the
     particles separate, and second order in the jump where they approach. (Zhang et al. average p and rho
     weighted by the other side's density; psph takes the plain means, which agree to first order in the
-    density jump.) No lower than p(0), as acoustic_riemann."""
+    density jump.) Never below p(0): the states' mean is not, and the dissipation adds only where they
+    approach."""
     rho_bar = 0.5 * (rho_l + rho_r)
     c = _sound_speed(rho_bar, c0, rho0, tait)
     beta = min(3.0 * max(u_l - u_r, 0.0), c)
-    p_s = 0.5 * (_pressure(rho_l, c0, rho0, tait) + _pressure(rho_r, c0, rho0, tait)) + 0.5 * rho_bar * beta * (
+    return 0.5 * (_pressure(rho_l, c0, rho0, tait) + _pressure(rho_r, c0, rho0, tait)) + 0.5 * rho_bar * beta * (
         u_l - u_r)
-    return max(p_s, _pressure(0.0, c0, rho0, tait))
 
 
 def _compile(d):

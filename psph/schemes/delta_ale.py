@@ -47,10 +47,10 @@ class DeltaALE:
         self.nu = phys.kinematic_viscosity(scene.domain)
         self.mu = self.rho0 * self.nu
         self.delta, self.delta_m = phys.delta, phys.delta_m
-        # D^rho or D^m act (eq. 14); a term reads the density gradient: without them (standard SPH) it is
-        # neither computed nor sent (the Riemann scheme's reconstruction always reads it)
+        # D^rho or D^m act (eq. 14); a term reads the density gradient (D^rho's only): without it (standard
+        # SPH) it is neither computed nor sent (the Riemann scheme's reconstruction always reads it)
         self.diffusive = self.delta > 0.0 or (self.variant == 0 and self.delta_m > 0.0)
-        self.reads_grad_rho = self.diffusive
+        self.reads_grad_rho = self.delta > 0.0
         dim = scene.domain.dimension
         self.gravity = np.zeros(dim) if not phys.gravity else np.asarray(phys.gravity, dtype=np.float64)
         self.tensile = phys.tensile_switch

@@ -34,6 +34,7 @@ Triggering and stopping (thesis Algorithms 1-3, eq. 8.34-8.35):
 """
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -441,7 +442,8 @@ def pre_procedure(spec, comm, system, iips=None, surface=None):
         system.where = {"stage": "pre-procedure", "iteration": info["newton"] + 1}
 
     label({"newton": 0})
-    temporary = None if iips is not None else ImplicitShifting(spec, comm, surface=surface)
+    # a temporary pre-procedure sets no beta threshold: the run's shifting is not IIPS, and reads no iips.beta
+    temporary = None if iips is not None else ImplicitShifting(replace(spec, beta=0.0), comm, surface=surface)
     try:
         shifting = iips or temporary
         return shifting.prepare(system, on_iteration=label), shifting.pre_iterations
