@@ -1,6 +1,6 @@
 """Particle container: structure of arrays, owned particles first, then halo copies."""
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import IntEnum
 
 import numpy as np
@@ -20,11 +20,13 @@ class Kind(IntEnum):
 
 @dataclass(frozen=True)
 class FieldSpec:
-    """A per-particle field: `shape` is () for scalars, ("d",) for vectors, ("d", "d") for tensors."""
+    """A per-particle field: `shape` is () for scalars, ("d",) for vectors, ("d", "d") for tensors.
+    scratch: a solver's working state, which checkpoints keep and snapshots (what ParaView shows) leave out."""
 
     name: str
     shape: tuple = ()
     dtype: type = np.float64
+    scratch: bool = field(default=False, compare=False)
 
     def array_shape(self, n: int, dim: int) -> tuple:
         return (n,) + tuple(dim if s == "d" else int(s) for s in self.shape)
@@ -60,6 +62,7 @@ class ParticleSet:
         if spec.name in self.specs:
             if self.specs[spec.name] != spec:
                 raise ValueError(f"field {spec.name!r} already registered with another shape or type")
+            self.specs[spec.name] = spec  # (a checkpoint's field learns that it is scratch)
             return
         self.specs[spec.name] = spec
         self._arrays[spec.name] = np.full(spec.array_shape(self.n_local, self.dim), fill, dtype=spec.dtype)

@@ -130,7 +130,7 @@ class KinematicDriver(Driver):
                                 ksp=totals["linear_iterations"])
                 if t >= next_output - 1e-12 * self.dt:
                     sim.history.flush()
-                    sim.snapshots.write(system.particles, step=step, time=t)
+                    sim.snapshots.write(system.particles, step=step, time=t, extra={"grad_c": grad_c(system)})
                     next_output += every
                 written = None  # this step's checkpoint, if one was due
                 if step < self.n_steps and sim.checkpoint_due(step, last_checkpoint):

@@ -139,9 +139,10 @@ class SnapshotWriter:
         write_text_atomic(self.out_dir / XDMF_NAME, xdmf_document(self._present(), self.domain.dim))
 
     def write(self, particles, step: int, time: float, extra=None, names=None, exclude=("row",)) -> Path:
-        """Write owned particles' fields (all but `exclude`, or `names`) plus `extra` owned arrays."""
+        """Write owned particles' fields (all but `exclude` and the scratch fields, or `names`) plus `extra` owned
+        arrays."""
         if names is None:
-            names = [n for n in particles.names if n not in exclude]
+            names = [n for n in particles.names if n not in exclude and not particles.specs[n].scratch]
         data = {n: particles.owned(n) for n in names}
         data["position"] = data["position"].copy()
         self.domain.wrap(data["position"])

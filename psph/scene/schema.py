@@ -825,10 +825,10 @@ class Scene:
         return ""
 
     def _bare_faces(self) -> list:
-        """The bounded faces of the domain ("x-", "y+", ...) that the fill region reaches, with no body in the
-        scene to wall them (a drop reaches none)."""
+        """The bounded faces of the domain ("x-", "y+", ...) that the fill region reaches, with no container
+        (a box or polygon around the fluid) to wall them (an immersed body walls none; a drop reaches none)."""
         d, lo, hi = self.domain, self.initial.fill_lower, self.initial.fill_upper
-        if self.bodies or self.initial.drop_radius > 0:
+        if any(b.container for b in self.bodies) or self.initial.drop_radius > 0:
             return []
         faces = []
         for a in range(d.dimension):

@@ -52,11 +52,11 @@ from psph.solvers.petsc import destroy_at_exit, petsc
 
 SHIFT_FIELD = FieldSpec("iips_shift", ("d",))
 # the call's displacement at its iterate of lowest Linf(grad C) (a field: it migrates with the particles)
-BEST_FIELD = FieldSpec("iips_best_shift", ("d",))
+BEST_FIELD = FieldSpec("iips_best_shift", ("d",), scratch=True)
 # each particle's first Newton step of the last call: the next call's initial guess
-GUESS_FIELD = FieldSpec("iips_first_step", ("d",))
+GUESS_FIELD = FieldSpec("iips_first_step", ("d",), scratch=True)
 # the last Newton step (iips.backtrack halves it back; a field, so that it follows the particles)
-STEP_FIELD = FieldSpec("iips_step", ("d",))
+STEP_FIELD = FieldSpec("iips_step", ("d",), scratch=True)
 # block rows per rank of the trial system (trial)
 TRIAL_ROWS = 4
 # particles closer than COINCIDENT h count as coincident and are first nudged NUDGE h apart

@@ -252,3 +252,24 @@ def test_static_iips_keeps_a_drops_free_surface(tmp_path):
     explicit = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "x", "--set",
                         "shifting.method=explicit_iterative", "--set", "initial.drop_radius=0.25")
     assert "shifting.method: explicit_iterative has no free-surface treatment" in one_line(explicit, 2)
+
+
+def test_snapshots_show_no_solver_scratch_and_every_snapshot_has_grad_c(tmp_path):
+    """A drivers audit: every kinematic snapshot carried IIPS's working fields (its best and first steps), which
+    only a checkpoint needs, and only the first and last had grad C. After a restart too."""
+    run = ["run", CASES / "kinematic_tgv.toml", "--quiet", *KINEMATIC, "--set", "time.t_end=0.05", "--set",
+           "output.every=0.01", "--set", "output.checkpoint_every=20"]
+    res = run_psph(*run, "--out", tmp_path / "a")
+    assert res.returncode == 0, res.stderr
+    checkpoint = sorted((tmp_path / "a").glob("checkpoint_*.h5"))[-1]
+    with h5py.File(checkpoint) as f:
+        assert {"iips_best_shift", "iips_first_step"} <= set(f["particles"])
+    again = run_psph("run", "--restart", checkpoint, "--out", tmp_path / "b", "--quiet")
+    assert again.returncode == 0, again.stderr
+    for out in ("a", "b"):
+        snapshots = sorted((tmp_path / out).glob("snapshot_*.h5"))
+        assert len(snapshots) >= (5 if out == "a" else 1)  # (the continuation's own, after its checkpoint)
+        for path in snapshots:
+            with h5py.File(path) as f:
+                names = set(f["particles"])
+            assert "grad_c" in names and not names & {"iips_best_shift", "iips_first_step", "iips_step", "row"}

@@ -455,3 +455,20 @@ def test_a_container_shorter_than_a_periodic_axis_is_refused():
     with pytest.raises(SceneError) as info:
         load_scene(CASES / "couette.toml", ["bodies.0.size=[0.4, 1.0]"])
     assert info.value.key == "bodies[0].size" and "periodic axis 0" in str(info.value)
+
+
+@pytest.mark.parametrize("sets, bare", [
+    (["domain.periodic=[false, false]"], "x-, x+, y-, y+"),
+    (["domain.periodic=[true, false]", "initial.fill_upper=[1.0, 0.8]"], "y-"),
+    (["domain.periodic=[false, false]", 'bodies=[{name="c", shape="ellipse", center=[0.5, 0.5], size=[0.1, 0.1]}]'],
+     "x-, x+, y-, y+"),  # an immersed body walls no face
+])
+def test_static_shifting_at_a_bare_bounded_face_is_refused_by_face(sets, bare):
+    """A drivers audit: IIPS pushed the particles of a bounded face with no wall out of the domain (exit 3 at
+    iteration 1); a container, a periodic axis or a free surface (the fill region short of the face) is needed."""
+    with pytest.raises(SceneError) as info:
+        load_scene(CASES / "static_perturbed.toml", ["shifting.method=iips", *sets])
+    assert info.value.key == "domain.periodic" and f"the bounded face(s) {bare} have no neighbour" in str(info.value)
+    walled = ["domain.periodic=[false, false]",
+              'bodies=[{name="box", shape="box", center=[0.5, 0.5], size=[1.0, 1.0]}]']
+    assert load_scene(CASES / "static_perturbed.toml", ["shifting.method=iips", *walled]).bodies
