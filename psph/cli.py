@@ -198,6 +198,8 @@ def _scene_and_restart(args, comm):
         for item in sets:
             if not item.startswith(RESTART_KEYS):
                 raise UsageError(f"--set {item!r}: a restart may change only time.*, output.* and neighbours.* keys")
+            if item.split("=", 1)[0].strip() == "time.integrator":  # the method, mid-run: not a continuation
+                raise UsageError(f"--set {item!r}: a restart continues with the checkpoint's time integrator")
         restart = read_checkpoint(comm, args.restart)
         try:  # the checkpoint's own scene first: an error there is the file's, not an override's
             saved = scene_from_table(restart[0]["scene"])

@@ -21,9 +21,10 @@ class Probes:
         self.points = np.asarray(scene.output.probes, dtype=np.float64).reshape(-1, scene.domain.dimension)
         self.dim = scene.domain.dimension
         self.path = None if out_dir is None else out_dir / NAME
+        self.said = ""  # what a restart did to the file's old rows (for the log)
         if self.path is not None:
             names = [f"{q}_{k}" for k in range(len(self.points)) for q in ("p", *"uvw"[: self.dim])]
-            start_series(self.path, "time," + ",".join(names), resumed_at)
+            self.said = start_series(self.path, "time," + ",".join(names), resumed_at)
 
     def sample(self, system) -> np.ndarray:
         """(probes, 1 + d): pressure and velocity at every probe (nan where no fluid reaches). Collective."""

@@ -75,9 +75,10 @@ def requested(comm) -> int:
     return int(comm.allreduce(_state["signum"], op=_max()))
 
 
-def checkpoint_message(step: int, t: float, path) -> str:
-    """What a time-dependent run says when it stops: where, and how to continue."""
-    return f"state at step {step}, t = {t:.6g} saved in {path}; continue with: psph run --restart {path}"
+def checkpoint_message(step: int, t: float, path, ranks: int = 1) -> str:
+    """What a time-dependent run says when it stops: where, and how to continue (on as many ranks)."""
+    launch = f"mpiexec -n {ranks} " if ranks > 1 else ""
+    return f"state at step {step}, t = {t:.6g} saved in {path}; continue with: {launch}psph run --restart {path}"
 
 
 def _max():

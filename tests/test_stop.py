@@ -143,3 +143,11 @@ def test_sigterm_stops_a_static_run_after_the_iteration(tmp_path):
                                       f"{out / 'snapshot_000001.h5'} (static runs write no checkpoint)")
     assert [row["iteration"] for row in read_history(out / "history.csv")] == [0, 1, 2]
     assert latest_checkpoint(out) is None
+
+
+def test_the_continue_hint_names_the_rank_count():
+    """An I/O audit: a 2-rank run was told to continue with a bare `psph run --restart`."""
+    from psph.stop import checkpoint_message
+
+    assert checkpoint_message(7, 0.5, "OUT/c.h5", 2).endswith("continue with: mpiexec -n 2 psph run --restart OUT/c.h5")
+    assert checkpoint_message(7, 0.5, "OUT/c.h5").endswith("continue with: psph run --restart OUT/c.h5")

@@ -31,6 +31,7 @@ from psph.initial import reset_initial_fields
 from psph.io.history import start_series
 from psph.parallel.comm import allreduce_max, allreduce_min, allreduce_sum, raise_if_any
 from psph.particles import Kind
+from psph.probes import NAME as PROBES_NAME
 from psph.probes import Probes
 from psph.profiling import phase
 from psph.schemes import make_scheme
@@ -262,6 +263,12 @@ class FluidDriver(Driver):
         if scene.output.probes:
             self.probes = Probes(scene, self.sim.out_dir if comm.rank == 0 else None,
                                  resumed_at=self.resumed["time"] if restart else None)
+            if self.probes.said:
+                self.sim.log(f"psph: {self.probes.said}")
+        elif restart and comm.rank == 0 and (self.sim.out_dir / PROBES_NAME).exists():
+            # an in-place continuation without probes: the interrupted run's rows past the checkpoint go
+            path = self.sim.out_dir / PROBES_NAME
+            start_series(path, path.read_text().partition("\n")[0], resumed_at=self.resumed["time"])
         # the potential energy, where gravity has no component along a periodic axis (x wraps there)
         g = self.scheme.gravity
         self.potential = bool(np.any(g)) and not any(g[a] and scene.domain.periodic[a] for a in range(len(g)))
@@ -592,7 +599,8 @@ class FluidDriver(Driver):
                     last_checkpoint = time.monotonic()
                 if t < t_end * (1.0 - 1e-12) and sim.stop_requested():
                     progress.close()
-                    sim.stop(checkpoint_message(step, t, written or self.checkpoint(step, t, totals, next_output)))
+                    sim.stop(checkpoint_message(step, t, written or self.checkpoint(step, t, totals, next_output),
+                                                sim.comm.size))
                 progress.update(step, t, dt, **({"newton": totals["iips_newton"], "ksp": totals["iips_linear"]}
                                                 if self.iips is not None else {}))
             progress.close()

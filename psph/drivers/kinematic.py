@@ -139,7 +139,7 @@ class KinematicDriver(Driver):
                 if step < self.n_steps and sim.stop_requested():
                     progress.close()
                     sim.stop(checkpoint_message(step, t, written or self.checkpoint(step, t, totals, next_output,
-                                                                                   report)))
+                                                                                   report), sim.comm.size))
             progress.close()
         step, t = state["step"], state["time"]
         sim.history.flush()

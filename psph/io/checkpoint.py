@@ -67,8 +67,13 @@ def write_checkpoint(comm, out_dir, system, step: int, time: float, state: dict,
     data = {name: p.owned(name) for name in p.names}
     start = exclusive_scan(comm, p.n_owned)
     total = int(allreduce_sum(comm, p.n_owned))
-    write_particle_file(comm, str(tmp), start, total, data, {"format": FORMAT, "step": int(step), "time": float(time)},
-                        extra={"state": blob})
+    try:
+        write_particle_file(comm, str(tmp), start, total, data,
+                            {"format": FORMAT, "step": int(step), "time": float(time)}, extra={"state": blob})
+    except BaseException:  # (a full disk) no partial checkpoint is left; the previous one stays
+        if comm.rank == 0:
+            tmp.unlink(missing_ok=True)
+        raise
     comm.Barrier()
     if comm.rank == 0:
         replace_atomically(tmp, path)

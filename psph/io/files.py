@@ -22,9 +22,14 @@ def replace_atomically(tmp, final) -> None:
 
 
 def write_text_atomic(path, text: str) -> None:
+    """Write `path` whole or not at all (the old file stays, and no temporary file is left, if it fails)."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
+    try:
+        tmp.write_text(text)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     replace_atomically(tmp, path)
 
 

@@ -73,14 +73,38 @@ def _fmt(value):
     return value
 
 
-def start_series(path, header: str, resumed_at=None) -> None:
+def start_series(path, header: str, resumed_at=None) -> str:
     """Start a CSV time series at `path` (its first column is the time): with the `header` line only, or, on
-    a restart at time `resumed_at`, with the rows up to it kept (the rows after it are written again)."""
+    a restart at time `resumed_at`, with the rows up to it kept (the rows after it are written again). Rows
+    that do not parse or have another column count (a line torn by a kill or a full disk) are dropped; a
+    file with another header (the restart changed output.probes) is moved aside to NAME_upto_tT.csv, not
+    mixed with the new columns. Returns what it did to the old rows, for the log ("" if nothing)."""
     path = Path(path)
-    kept = []
+    kept, said = [], ""
     if resumed_at is not None and path.exists():
-        kept = [r for r in path.read_text().splitlines()[1:] if float(r.split(",")[0]) <= resumed_at]
+        lines = path.read_text().splitlines()
+        if lines and lines[0] != header:
+            aside = path.with_name(f"{path.stem}_upto_t{resumed_at:g}{path.suffix}")
+            path.replace(aside)
+            said = f"{path.name} had other columns: its rows are in {aside.name}"
+        else:
+            width = header.count(",") + 1
+            good = [r for r in lines[1:] if _time_of(r, width) is not None]
+            kept = [r for r in good if _time_of(r, width) <= resumed_at]
+            if len(good) < len(lines) - 1:
+                said = f"{path.name}: dropped {len(lines) - 1 - len(good)} damaged row(s)"
     path.write_text(header + "\n" + "".join(r + "\n" for r in kept))
+    return said
+
+
+def _time_of(row: str, width: int):
+    """The time of a CSV row of `width` fields whose every field is a number, or None."""
+    fields = row.split(",")
+    try:
+        values = [float(v) for v in fields]
+    except ValueError:
+        return None
+    return values[0] if len(fields) == width else None
 
 
 def read_history(path) -> list:

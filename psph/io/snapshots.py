@@ -11,6 +11,7 @@ directory starts its series there at the checkpoint (the earlier snapshots stay 
 listed by its own psph.xdmf).
 """
 
+import errno
 import os
 import re
 from pathlib import Path
@@ -75,6 +76,35 @@ def write_particle_file(comm, path, start, total, data, attrs, extra=None) -> No
     dataset must be collective: rank 0 writes `extra`, the others an empty block), or, for an h5py without
     MPI, rank 0 gathers the blocks (in rank order) and writes."""
     extra = comm.bcast(extra or {}, root=0)
+    _check_space(comm, path, data, extra)
+    try:
+        _write_particle_file(comm, path, start, total, data, attrs, extra)
+    except (ValueError, RuntimeError) as err:  # h5py's words for a write the system refused (a full disk)
+        if "write failed" not in str(err) and "errno" not in str(err):
+            raise
+        raise OSError(f"writing {path} failed: {' '.join(str(err).split())}") from err
+
+
+# room a particle file needs beyond its arrays: HDF5's metadata, the chunk index and checksums
+FILE_OVERHEAD = 1.05, 2**16
+
+
+def _check_space(comm, path, data, extra) -> None:
+    """Refuse a write the disk cannot hold before it starts, on every rank alike (a write that fails half-way
+    leaves the ranks of a parallel HDF5 file waiting for each other in its collective close). Collective."""
+    need = comm.allreduce(sum(np.asarray(a).nbytes for a in data.values()))
+    need = FILE_OVERHEAD[0] * (need + sum(np.asarray(a).nbytes for a in extra.values())) + FILE_OVERHEAD[1]
+    free = None
+    if comm.rank == 0:
+        stat = os.statvfs(Path(path).parent)
+        free = stat.f_bavail * stat.f_frsize
+    free = comm.bcast(free, root=0)
+    if free < need:
+        raise OSError(errno.ENOSPC, f"No space left on device: {path} needs about {need / 2**20:.1f} MiB, "
+                      f"{free / 2**20:.1f} MiB are free")
+
+
+def _write_particle_file(comm, path, start, total, data, attrs, extra) -> None:
     if h5py_has_mpi():
         with h5py.File(path, "w", driver="mpio", comm=comm) as f:
             grp = f.create_group("particles")

@@ -152,6 +152,8 @@ def test_restart_errors_are_one_line(tmp_path):
         and "Traceback" not in done.stderr
     done = run_psph("run", "--restart", bad, "--set", "domain.dx=0.1")
     assert done.returncode == 2 and "may change only time.*, output.* and neighbours.*" in done.stderr
+    done = run_psph("run", "--restart", bad, "--set", "time.integrator=rk4")  # (an I/O audit: it was accepted)
+    assert done.returncode == 2 and "a restart continues with the checkpoint's time integrator" in done.stderr
     done = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "s", "--checkpoint-every", "5")
     assert done.returncode == 2 and "checkpoint_every: checkpoints are written by time-dependent runs" in done.stderr
     assert not (tmp_path / "s").exists()

@@ -30,3 +30,40 @@ def test_a_checkpoint_written_after_such_a_restart_restores(tmp_path):
     h.append({"time": 2.0, "a": 3.0, "b": 5.0}, flush=True)
     rows = read_history(tmp_path / "history.csv")
     assert [r["b"] for r in rows] == [None, 4.0, 5.0]
+
+
+def test_a_series_restarted_keeps_its_good_rows_and_sets_another_layout_aside(tmp_path):
+    """An I/O audit: a torn last line (a kill or a full disk mid-write) crashed a restart on rank 0 alone, or
+    stayed in the file; a restart that changed output.probes kept the old rows under the new header."""
+    from psph.io.history import start_series
+
+    path = tmp_path / "probes.csv"
+    path.write_text("time,p_0,u_0\n0.1,1.0,2.0\n0.2,nan,nan\n0.3,1.5,2.5\n\n0.4\n0.35,1.0,x\n")
+    said = start_series(path, "time,p_0,u_0", resumed_at=0.25)
+    assert path.read_text() == "time,p_0,u_0\n0.1,1.0,2.0\n0.2,nan,nan\n" and "dropped 3 damaged row(s)" in said
+    said = start_series(path, "time,p_0,u_0,p_1,u_1", resumed_at=0.15)
+    assert path.read_text() == "time,p_0,u_0,p_1,u_1\n"
+    aside = tmp_path / "probes_upto_t0.15.csv"
+    assert aside.read_text() == "time,p_0,u_0\n0.1,1.0,2.0\n0.2,nan,nan\n" and aside.name in said
+    assert start_series(path, "time,p_0,u_0,p_1,u_1") == "" and path.read_text() == "time,p_0,u_0,p_1,u_1\n"
+
+
+def test_a_particle_file_the_disk_cannot_hold_is_refused_before_it_is_written(tmp_path, monkeypatch):
+    """An I/O audit: a full disk during a checkpoint hung a 2-rank run in HDF5's collective close, and on one
+    rank h5py's ValueError went out as an internal error with a segfault. The space is checked first, on every
+    rank alike, and the error is an OSError (psph run: one line, exit 1); no partial file is left."""
+    import os
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from psph.io.snapshots import write_particle_file
+
+    data = {"position": np.zeros((1000, 2))}
+    monkeypatch.setattr(os, "statvfs", lambda path: SimpleNamespace(f_bavail=10, f_frsize=4096))
+    with pytest.raises(OSError, match=r"No space left on device: .*a.h5 needs about 0.1 MiB, 0.0 MiB are free"):
+        write_particle_file(MPI.COMM_SELF, str(tmp_path / "a.h5"), 0, 1000, data, {})
+    assert not list(tmp_path.iterdir())
+    monkeypatch.setattr(os, "statvfs", lambda path: SimpleNamespace(f_bavail=10**6, f_frsize=4096))
+    write_particle_file(MPI.COMM_SELF, str(tmp_path / "a.h5"), 0, 1000, data, {})
+    assert (tmp_path / "a.h5").stat().st_size > 16000

@@ -100,3 +100,4 @@ def test_history_rewrites_atomically(comm, mpi_tmp_path):
     rows = read_history(mpi_tmp_path / "history.csv")
     assert [r["time"] for r in rows] == [0.0, 0.1] and rows[0]["a"] == 1.0 and np.isnan(rows[1]["a"])
     assert not list(mpi_tmp_path.glob("*.tmp"))
+
