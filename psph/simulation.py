@@ -66,6 +66,8 @@ class Simulation:
         self.show_progress = progress
         _warm_up(self.comm, scene)
         state, particles, decomposition = restart or (None, None, None)
+        # the wall time of the segments before this one (a checkpoint of an older psph carries none: 0)
+        self.earlier_wall_time = float((state or {}).get("wall_time_s", 0.0))
         self.system = build_system(scene, self.comm, specs, halo_fields, particles, decomposition)
         self.snapshots = SnapshotWriter(self.comm, self.out_dir, self.system.domain)
         self.history = History(self.comm, self.out_dir)
@@ -100,6 +102,10 @@ class Simulation:
             return bool(self.comm.bcast(time.monotonic() - last_wall >= 60.0 * out.checkpoint_minutes, root=0))
         return False
 
+    def wall_time(self) -> float:
+        """The run's wall time so far, the segments before its restarts included (rank 0's clock)."""
+        return self.comm.bcast(time.perf_counter() - self.started + self.earlier_wall_time, root=0)
+
     def checkpoint(self, step, t, driver: dict) -> Path:
         """Rebuild the lists (a restart must rebuild them, so the continued run stays bit for bit) and write
         OUT/checkpoint_NNNNNN.h5 with the particles, history, snapshot index, scene and the driver's
@@ -109,7 +115,8 @@ class Simulation:
         self.system.rebuild(rebalance=False)
         path = write_checkpoint(self.comm, self.out_dir, self.system, step, t, {
             "scene": to_table(self.scene), "driver": driver, "history": self.history.rows,
-            "snapshots": self.snapshots.checkpoint_state()}, replaces=self.replaced_checkpoints)
+            "snapshots": self.snapshots.checkpoint_state(), "wall_time_s": self.wall_time()},
+            replaces=self.replaced_checkpoints)
         self.replaced_checkpoints = [path]
         self.log(f"step {step}, t = {t:.4g}: checkpoint {path.name}")
         return path
@@ -169,7 +176,7 @@ class Simulation:
             "ranks": self.comm.size,
             "n_particles": self.n_particles,
             "steps": steps,
-            "wall_time_s": time.perf_counter() - self.started,
+            "wall_time_s": self.wall_time(),
             "neighbour_rebuilds": self.system.rebuilds,
             # resident memory at its peak (profiling.memory): the largest rank's, and all ranks' summed (an
             # upper bound: shared pages count on every rank, and the ranks peak at different moments)

@@ -264,8 +264,11 @@ def test_snapshots_show_no_solver_scratch_and_every_snapshot_has_grad_c(tmp_path
     checkpoint = sorted((tmp_path / "a").glob("checkpoint_*.h5"))[-1]
     with h5py.File(checkpoint) as f:
         assert {"iips_best_shift", "iips_first_step"} <= set(f["particles"])
+        before = json.loads(f["state"][()].tobytes())["wall_time_s"]
     again = run_psph("run", "--restart", checkpoint, "--out", tmp_path / "b", "--quiet")
     assert again.returncode == 0, again.stderr
+    # (an I/O audit: a continuation's wall_time_s was its own segment's, its step times the whole run's)
+    assert json.loads((tmp_path / "b" / "summary.json").read_text())["wall_time_s"] > before > 0.0
     for out in ("a", "b"):
         snapshots = sorted((tmp_path / out).glob("snapshot_*.h5"))
         assert len(snapshots) >= (5 if out == "a" else 1)  # (the continuation's own, after its checkpoint)
