@@ -147,6 +147,20 @@ def plot_probes(run_dir: Path, fig_dir: Path):
     return _save(plt, fig, fig_dir / "probes.png", f"{run_dir.name}: probes (output.probes)")
 
 
+def _run_scene_table(run_dir: Path):
+    """The run's scene (a table): summary.json's, or a stopped run's newest checkpoint's; None without either."""
+    if (run_dir / "summary.json").is_file():
+        return _summary(run_dir)["scene"]
+    from psph.io.checkpoint import latest_checkpoint
+    from psph.io.snapshots import h5py
+
+    path = latest_checkpoint(run_dir)
+    if path is None:
+        return None
+    with h5py.File(path) as f:
+        return json.loads(bytes(f["state"][()]).decode())["scene"]
+
+
 def _grad_c_magnitude(run_dir: Path, data: dict):
     """|grad C| h of the snapshot's particles (serial system with the run's kernel), or None."""
     from mpi4py import MPI
@@ -160,10 +174,10 @@ def _grad_c_magnitude(run_dir: Path, data: dict):
 
     n = len(data["gid"])
     volume = data.get("volume", np.ones(n))
-    if not (run_dir / "summary.json").is_file() or not (np.isfinite(data["position"]).all()
-                                                        and np.isfinite(volume).all()):
+    table = _run_scene_table(run_dir)
+    if table is None or not (np.isfinite(data["position"]).all() and np.isfinite(volume).all()):
         return None  # a failed run's state: a NaN position would stall the neighbour search
-    scene = scene_from_table(_summary(run_dir)["scene"])
+    scene = scene_from_table(table)
     d = scene.domain
     particles = ParticleSet(d.dimension)
     particles.set_owned({"position": data["position"], "gid": data["gid"], "kind": data["kind"],

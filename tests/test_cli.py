@@ -491,3 +491,20 @@ def test_a_set_key_the_run_does_not_read_is_warned_about(tmp_path):
     assert quiet.returncode == 0 and "does not read" not in quiet.stderr, quiet.stderr
     info = run_psph("info", CASES / "dam_break.toml")
     assert "# keys set that this run does not read (another method's?): iips.procedure, iips.threshold" in info.stdout
+
+
+def test_a_stopped_runs_fields_have_grad_c_from_its_checkpoints_scene(tmp_path):
+    """An I/O audit: a run stopped by a signal has no summary.json, and its fields.png left out |grad C| h
+    without a word; the newest checkpoint holds the scene too."""
+    from psph import plot
+    from psph.studies import last_snapshot
+
+    res = run_psph("run", CASES / "taylor_green.toml", "--out", tmp_path, "--quiet", "--set", "domain.dx=0.1",
+                   "--set", "time.t_end=0.05", "--set", "output.every=0.02", "--checkpoint-every", "10")
+    assert res.returncode == 0, res.stderr
+    data, _ = last_snapshot(tmp_path)
+    finished = plot._grad_c_magnitude(tmp_path, data)
+    (tmp_path / "summary.json").unlink()  # as a stopped run leaves it
+    stopped = plot._grad_c_magnitude(tmp_path, data)
+    assert finished is not None and stopped is not None and np.array_equal(stopped, finished)
+    assert np.abs(stopped).max() > 0.0
