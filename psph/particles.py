@@ -18,6 +18,11 @@ class Kind(IntEnum):
     FRAME = 6  # fixed particles closing a free surface during the particle packing (removed after it)
 
 
+# solvers' working state (IIPS's best, first and backtracked steps): checkpoints keep these fields, snapshots
+# leave them out (FieldSpec.scratch; a checkpoint's fields get the flag back by name)
+SCRATCH_FIELDS = ("iips_best_shift", "iips_first_step", "iips_step")
+
+
 @dataclass(frozen=True)
 class FieldSpec:
     """A per-particle field: `shape` is () for scalars, ("d",) for vectors, ("d", "d") for tensors.

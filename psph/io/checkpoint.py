@@ -29,7 +29,7 @@ from psph.io.snapshots import SNAPSHOT_NAME, h5py, write_particle_file
 from psph.parallel.comm import allreduce_sum, exclusive_scan
 from psph.parallel.decomposition import Decomposition, Split
 from psph.parallel.ordering import block_range
-from psph.particles import FieldSpec, Kind, ParticleSet
+from psph.particles import SCRATCH_FIELDS, FieldSpec, Kind, ParticleSet
 from psph.scene.load import scene_from_table
 
 FORMAT = "psph-checkpoint-1"
@@ -215,7 +215,7 @@ def read_checkpoint(comm, path) -> tuple:
             _check_rows(f, arrays, start, gids=comm.rank == 0)
         particles = ParticleSet(dim, specs=())
         for name, (shape, dtype) in state["fields"].items():
-            particles.add_field(FieldSpec(name, tuple(shape), np.dtype(dtype).type))
+            particles.add_field(FieldSpec(name, tuple(shape), np.dtype(dtype).type, scratch=name in SCRATCH_FIELDS))
         particles.set_owned(arrays)
         same = len(counts) == comm.size
         result = state, particles, (_decomposition(state["decomposition"]) if same else None)

@@ -83,10 +83,15 @@ def start_series(path, header: str, resumed_at=None) -> str:
     kept, said = [], ""
     if resumed_at is not None and path.exists():
         lines = path.read_text().splitlines()
-        if lines and lines[0] != header:
-            aside = path.with_name(f"{path.stem}_upto_t{resumed_at:g}{path.suffix}")
-            path.replace(aside)
-            said = f"{path.name} had other columns: its rows are in {aside.name}"
+        if lines and lines[0] != header:  # its rows up to the restart, under their own header, in a new file
+            width = lines[0].count(",") + 1
+            old = [r for r in lines[1:] if (t := _time_of(r, width)) is not None and t <= resumed_at]
+            aside, k = path.with_name(f"{path.stem}_upto_t{resumed_at:g}{path.suffix}"), 1
+            while aside.exists():
+                k += 1
+                aside = path.with_name(f"{path.stem}_upto_t{resumed_at:g}_{k}{path.suffix}")
+            aside.write_text(lines[0] + "\n" + "".join(r + "\n" for r in old))
+            said = f"{path.name} had other columns: its rows up to t = {resumed_at:g} are in {aside.name}"
         else:
             width = header.count(",") + 1
             good = [r for r in lines[1:] if _time_of(r, width) is not None]

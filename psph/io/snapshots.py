@@ -94,12 +94,20 @@ def _check_space(comm, path, data, extra) -> None:
     leaves the ranks of a parallel HDF5 file waiting for each other in its collective close). Collective."""
     need = comm.allreduce(sum(np.asarray(a).nbytes for a in data.values()))
     need = FILE_OVERHEAD[0] * (need + sum(np.asarray(a).nbytes for a in extra.values())) + FILE_OVERHEAD[1]
-    free = None
+    free = error = None
     if comm.rank == 0:
-        stat = os.statvfs(Path(path).parent)
-        free = stat.f_bavail * stat.f_frsize
-    free = comm.bcast(free, root=0)
-    if free < need:
+        try:
+            stat = os.statvfs(Path(path).parent)
+            # root may use the reserved blocks too; a file system that counts no blocks (an unlimited tmpfs,
+            # some network ones) says nothing: not checked
+            blocks = stat.f_bfree if os.geteuid() == 0 else stat.f_bavail
+            free = blocks * stat.f_frsize if stat.f_blocks else None
+        except OSError as err:  # (the directory taken away: every rank raises it, none waits)
+            error = err
+    free, error = comm.bcast((free, error), root=0)
+    if error is not None:
+        raise error
+    if free is not None and free < need:
         raise OSError(errno.ENOSPC, f"No space left on device: {path} needs about {need / 2**20:.1f} MiB, "
                       f"{free / 2**20:.1f} MiB are free")
 

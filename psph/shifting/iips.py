@@ -41,7 +41,7 @@ import numpy as np
 from psph.boundaries.free_surface import NoFreeSurface
 from psph.errors import NumericalError, SceneError, SolverError
 from psph.parallel.comm import allreduce_max, allreduce_sum
-from psph.particles import FieldSpec
+from psph.particles import SCRATCH_FIELDS, FieldSpec
 from psph.profiling import phase
 from psph.scene.schema import ROUNDOFF_LINF
 from psph.shifting.base import Shifting, ShiftReport, measure
@@ -52,11 +52,11 @@ from psph.solvers.petsc import destroy_at_exit, petsc
 
 SHIFT_FIELD = FieldSpec("iips_shift", ("d",))
 # the call's displacement at its iterate of lowest Linf(grad C) (a field: it migrates with the particles)
-BEST_FIELD = FieldSpec("iips_best_shift", ("d",), scratch=True)
+BEST_FIELD = FieldSpec(SCRATCH_FIELDS[0], ("d",), scratch=True)
 # each particle's first Newton step of the last call: the next call's initial guess
-GUESS_FIELD = FieldSpec("iips_first_step", ("d",), scratch=True)
+GUESS_FIELD = FieldSpec(SCRATCH_FIELDS[1], ("d",), scratch=True)
 # the last Newton step (iips.backtrack halves it back; a field, so that it follows the particles)
-STEP_FIELD = FieldSpec("iips_step", ("d",), scratch=True)
+STEP_FIELD = FieldSpec(SCRATCH_FIELDS[2], ("d",), scratch=True)
 # block rows per rank of the trial system (trial)
 TRIAL_ROWS = 4
 # particles closer than COINCIDENT h count as coincident and are first nudged NUDGE h apart

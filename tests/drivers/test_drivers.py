@@ -276,3 +276,13 @@ def test_snapshots_show_no_solver_scratch_and_every_snapshot_has_grad_c(tmp_path
             with h5py.File(path) as f:
                 names = set(f["particles"])
             assert "grad_c" in names and not names & {"iips_best_shift", "iips_first_step", "iips_step", "row"}
+    # a flow whose only IIPS is its pre-procedure: the restart's fields learn that they are scratch by name
+    flow = ["run", CASES / "taylor_green.toml", "--quiet", "--set", "domain.dx=0.1", "--set",
+            "shifting.method=delta_plus", "--set", "iips.update=none", "--set", "initial.sigma_over_dx=0.25", "--set",
+            "iips.pre_newton=5", "--set", "time.t_end=0.1", "--set", "output.every=0.02", "--checkpoint-every", "10"]
+    assert run_psph(*flow, "--out", tmp_path / "c").returncode == 0
+    checkpoint = sorted((tmp_path / "c").glob("checkpoint_*.h5"))[-1]
+    assert run_psph("run", "--restart", checkpoint, "--out", tmp_path / "d", "--quiet").returncode == 0
+    for path in sorted((tmp_path / "c").glob("snapshot_*.h5")) + sorted((tmp_path / "d").glob("snapshot_*.h5")):
+        with h5py.File(path) as f:
+            assert not set(f["particles"]) & {"iips_best_shift", "iips_first_step", "iips_step"}, path
