@@ -22,7 +22,8 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(message)
 
 
-def _positive_int(text: str) -> int:
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1 (a rank count, a size; also the benchmarks')."""
     try:
         value = int(text)
     except ValueError:
@@ -61,7 +62,7 @@ def _parser() -> argparse.ArgumentParser:
                      "afresh); messages and errors are appended")
     info = sub.add_parser("info", help="print the resolved scene, its model terms and estimated size")
     scene_args(info)
-    info.add_argument("--ranks", type=_positive_int, metavar="N",
+    info.add_argument("--ranks", type=positive_int, metavar="N",
                       help="estimate the memory for this many ranks (default: the ranks psph info runs on)")
     sub.add_parser("keys", help="list every scene key with its type, default and meaning")
     plot = sub.add_parser("plot", help="PNG figures of a run (fields, history) or of a study directory of runs")

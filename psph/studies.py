@@ -101,19 +101,6 @@ def parse_args(parser, argv=None):
     return args
 
 
-def positive_int(text) -> int:
-    """argparse type: an integer >= 1 (a size, a count)."""
-    import argparse
-
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a positive integer")
-    return value
-
-
 def study_command(scene, out, sets=(), petsc=(), ranks=1, quiet=True) -> list:
     """The command line of `psph run scene --out out --overwrite --set ... [PETSc options]` on `ranks` MPI
     ranks, the study's command line's --set and PETSc options (parse_args) after `sets` and `petsc`."""

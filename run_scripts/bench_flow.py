@@ -20,11 +20,11 @@ import numpy as np
 from mpi4py import MPI
 
 from psph import profiling
+from psph.cli import positive_int
 from psph.scene.load import scene_from_table
 from psph.scene.schema import FLUID_SCHEMES
 from psph.schemes import make_scheme
 from psph.simulation import build_system
-from psph.studies import positive_int
 
 
 def diffusion(scheme, delta) -> dict:

@@ -24,8 +24,7 @@ import time
 import numpy as np
 from numba import njit
 
-from psph.cli import split_petsc_options
-from psph.studies import positive_int
+from psph.cli import positive_int, split_petsc_options
 
 
 @njit(cache=True)

@@ -19,13 +19,13 @@ import numpy as np
 from mpi4py import MPI
 from numba import njit
 
+from psph.cli import positive_int
 from psph.compute import sums
 from psph.compute.field_update import mls_interpolate
 from psph.compute.neighbours import build_cross_lists, build_neighbour_lists
 from psph.compute.smoothing import kernel_f
 from psph.scene.load import scene_from_table
 from psph.simulation import build_system
-from psph.studies import positive_int
 
 
 @njit(cache=True)
