@@ -3,6 +3,7 @@ and write tables (Markdown and CSV) and convergence rates. Every figure a study 
 it makes itself."""
 
 import csv
+import functools
 import hashlib
 import json
 import math
@@ -66,17 +67,15 @@ def run_study(main) -> None:
         sys.exit(code)
 
 
+@functools.cache
 def code_version() -> str:
     """A hash of psph's source (every psph/**/*.py): a study resumed on other code runs again."""
-    if not _CODE_VERSION:
-        digest = hashlib.sha256()
-        for path in sorted((ROOT / "psph").rglob("*.py")):
-            digest.update(str(path.relative_to(ROOT)).encode() + b"\0" + path.read_bytes())
-        _CODE_VERSION.append(digest.hexdigest()[:16])
-    return _CODE_VERSION[0]
+    digest = hashlib.sha256()
+    for path in sorted((ROOT / "psph").rglob("*.py")):
+        digest.update(str(path.relative_to(ROOT)).encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()[:16]
 
 
-_CODE_VERSION = []
 # studies' runs that a table was made from although they are of other code (run_scene(only_finished=True))
 _STALE_RUNS = []
 

@@ -77,8 +77,9 @@ def start_series(path, header: str, resumed_at=None) -> str:
     """Start a CSV time series at `path` (its first column is the time): with the `header` line only, or, on
     a restart at time `resumed_at`, with the rows up to it kept (the rows after it are written again). Rows
     that do not parse or have another column count (a line torn by a kill or a full disk) are dropped; a
-    file with another header (the restart changed output.probes) is moved aside to NAME_upto_tT.csv, not
-    mixed with the new columns. Returns what it did to the old rows, for the log ("" if nothing)."""
+    file with another header (the restart changed output.probes) keeps its rows up to the restart in
+    NAME_upto_tT.csv (a name no file has), not mixed with the new columns. Returns what it did to the old
+    rows, for the log ("" if nothing)."""
     path = Path(path)
     kept, said = [], ""
     if resumed_at is not None and path.exists():
@@ -94,8 +95,8 @@ def start_series(path, header: str, resumed_at=None) -> str:
             said = f"{path.name} had other columns: its rows up to t = {resumed_at:g} are in {aside.name}"
         else:
             width = header.count(",") + 1
-            good = [r for r in lines[1:] if _time_of(r, width) is not None]
-            kept = [r for r in good if _time_of(r, width) <= resumed_at]
+            good = [(r, t) for r in lines[1:] if (t := _time_of(r, width)) is not None]
+            kept = [r for r, t in good if t <= resumed_at]
             if len(good) < len(lines) - 1:
                 said = f"{path.name}: dropped {len(lines) - 1 - len(good)} damaged row(s)"
     path.write_text(header + "\n" + "".join(r + "\n" for r in kept))
