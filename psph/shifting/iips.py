@@ -300,8 +300,9 @@ class ImplicitShifting(Shifting):
             t0 = time.perf_counter()
             try:
                 its = self.newton_iteration(system, grad, first=report.iterations == 0)
-            except SolverError as err:
+            except SolverError as err:  # its KSP iterations were done, and count
                 failure = err
+                report.linear_iterations += err.iterations
                 where = self._place(system, grad, where)
                 break
             previous = l2

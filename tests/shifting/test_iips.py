@@ -163,6 +163,17 @@ def test_stall_is_reported_and_handled_as_configured():
     assert report.failed and not report.rejected and report.iterations == 2
 
 
+def test_a_rejected_call_counts_the_failed_solves_iterations():
+    """A KSP failure (here -iips_ksp_max_it 1) with iips.on_failure = "reject" undoes the call, and the
+    iterations the failed solve did are counted in the call's report (the kinematic totals add them)."""
+    scene = periodic_scene(n=20, sigma=0.1, iips={"on_failure": "reject"})
+    with petsc_options(iips_ksp_max_it=1):
+        shifting = ImplicitShifting(scene.iips, MPI.COMM_SELF)
+    report = shifting.correct(build_system(scene, MPI.COMM_SELF))
+    assert report.rejected and "DIVERGED_MAX_IT after 1 iterations" in report.message
+    assert report.iterations == 0 and report.linear_iterations == 1
+
+
 def test_stall_keeps_the_iterate_of_lowest_grad_c():
     """on_stall = "best": the call ends at the iterate of lowest Linf(grad C) it visited, re-measured."""
     scene = periodic_scene(n=20, sigma=0.1, iips={"max_newton": 4, "threshold": 1e-9})
