@@ -3,7 +3,7 @@ method keeps their distribution regular (thesis 000 section 8.3.2, Algorithms 2-
 
 Each step: one shifting call (IIPS Procedure A or B; explicit shifting = Procedure C), then the
 displacement of thesis eq. 8.33, dx_i = u(x_i) dt with the Taylor-Green field at t = 0 (explicit
-Euler), dt = cfl dx / c0. Before the first step the shifting's static pre-procedure runs
+Euler), dt = cfl dx / c0, the last step shortened to end at t_end. Before the first step the shifting's static pre-procedure runs
 (`iips.pre_newton`). history.csv: one row every `output.history_every` steps with Linf/L2(grad C) and
 L2(d f/dx) after the shifting (Algorithms 2-3, line 9), at the time the shifting was applied (the step's
 start: the step's advection follows), Newton and KSP iterations, and cumulative shifting and step times;
@@ -24,14 +24,21 @@ from psph.simulation import Simulation
 from psph.stop import checkpoint_message
 
 
+def step_count(t_end, dt) -> int:
+    """Steps of dt to reach t_end, the last one shortened (a step shorter than 1e-9 dt is not taken)."""
+    return max(1, math.ceil(t_end / dt - 1e-9))
+
+
 class KinematicDriver(Driver):
     @staticmethod
     def describe(scene) -> list:
         p, t = scene.physics, scene.time
         dt = t.cfl * scene.domain.dx / p.sound_speed
+        n_steps = step_count(t.t_end, dt)
+        last = t.t_end - (n_steps - 1) * dt
         return [f"physics kinematic: frozen {p.velocity_field} field (thesis eq. 8.33), U = {p.reference_velocity:g}, "
-                f"explicit Euler, dt = {t.cfl:g} dx / c0 = {dt:.4g}, {math.ceil(t.t_end / dt - 1e-9)} steps to "
-                f"t = {t.t_end:g}",
+                f"explicit Euler, dt = {t.cfl:g} dx / c0 = {dt:.4g}, {n_steps} steps to t = {t.t_end:g}"
+                + (f" (the last of {last:.4g})" if abs(last - dt) > 1e-9 * dt else ""),
                 f"diagnostics: Linf/L2(grad C), L2(d f/dx) (wavelength {scene.diagnostics.test_wavelength:g})"]
 
     def __init__(self, scene, comm, out_dir, log=None, progress=False, restart=None):
@@ -45,16 +52,20 @@ class KinematicDriver(Driver):
                 self.shifting.restore(self.resumed["shifting"])
         d, p = scene.domain, scene.physics
         self.dt = scene.time.cfl * d.dx / p.sound_speed
-        self.n_steps = math.ceil(scene.time.t_end / self.dt - 1e-9)
+        self.n_steps = step_count(scene.time.t_end, self.dt)
         self.length = d.upper[0] - d.lower[0]
 
-    def advect(self):
-        """Move the owned particles by the frozen field (thesis eq. 8.33) and refresh. Collective."""
+    def step_time(self, step) -> float:
+        """The time at the end of step `step` (1-based): step dt, the last step's end t_end."""
+        return self.scene.time.t_end if step >= self.n_steps else step * self.dt
+
+    def advect(self, dt):
+        """Move the owned particles over dt by the frozen field (thesis eq. 8.33) and refresh. Collective."""
         system = self.sim.system
         pos = system.particles.owned("position")
         vel, _ = taylor_green(pos, 0.0, U=self.scene.physics.reference_velocity, L=self.length,
                               lower=self.scene.domain.lower)
-        pos += self.dt * vel
+        pos += dt * vel
         system.update()
 
     def start(self, totals) -> dict:
@@ -100,7 +111,7 @@ class KinematicDriver(Driver):
             else:
                 report = self.start(totals)
                 self.report_time = 0.0
-            progress = sim.progress(state["time"], self.n_steps * self.dt)
+            progress = sim.progress(state["time"], scene.time.t_end)
             last_checkpoint = time.monotonic()
             for step in range(state["step"] + 1, self.n_steps + 1):
                 state["step"] = step
@@ -116,9 +127,10 @@ class KinematicDriver(Driver):
                 record = step % scene.output.history_every == 0 or step == self.n_steps
                 if record:  # the shifted distribution, before this step's advection
                     report, self.report_time = distribution_report(system, wavelength), state["time"]
+                t = self.step_time(step)
                 with phase("advect"):
-                    self.advect()
-                state["time"] = t = step * self.dt
+                    self.advect(t - state["time"])
+                state["time"] = t
                 totals["shifting_time_s"] += shift_time
                 totals["step_time_s"] += time.perf_counter() - start
                 totals["newton_iterations"] += shift.iterations

@@ -72,6 +72,20 @@ def test_kinematic_iips_procedures(tmp_path, procedure):
     assert summary["failed_calls"] == 0 and all(below)  # every step meets the threshold
 
 
+def test_a_kinematic_run_ends_at_t_end(tmp_path):
+    """A drivers audit: with t_end not a multiple of dt the last step overshot t_end (here to 0.021); it is
+    shortened, so the run, its last snapshot and its summary end at t_end, and `psph info` says so."""
+    args = [*KINEMATIC, "--set", "time.t_end=0.0205"]  # dt = 0.001
+    res = run_psph("run", CASES / "kinematic_tgv.toml", "--out", tmp_path, *args, "--quiet")
+    assert res.returncode == 0, res.stderr
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["steps"] == 21 and summary["end_time"] == 0.0205
+    with h5py.File(sorted(tmp_path.glob("snapshot_*.h5"))[-1]) as last:
+        assert last.attrs["step"] == 21 and last.attrs["time"] == 0.0205
+    info = run_psph("info", CASES / "kinematic_tgv.toml", *args)
+    assert "21 steps to t = 0.0205 (the last of 0.0005)" in info.stdout, info.stdout
+
+
 def test_kinematic_explicit_procedure_c_lets_the_distribution_degrade(tmp_path):
     iips, explicit = tmp_path / "iips", tmp_path / "explicit"
     common = ["--set", "domain.dx=0.05", "--set", "time.t_end=0.1", "--set", "iips.pre_newton=20",
