@@ -192,9 +192,10 @@ def _grad_c_magnitude(run_dir: Path, data: dict):
 
 
 def plot_fields(run_dir: Path, fig_dir: Path):
+    from psph.io.snapshots import snapshot_files
     from psph.studies import last_snapshot
 
-    snaps = sorted(run_dir.glob("snapshot_*.h5"))
+    snaps = snapshot_files(run_dir)
     if not snaps:
         return None
     try:

@@ -353,9 +353,9 @@ def first_iteration(history, predicate):
 
 def last_snapshot(out, index=-1) -> tuple:
     """(fields by name, time) of the last snapshot a run wrote in `out` (index -2: the one before it)."""
-    import h5py
+    from psph.io.snapshots import h5py, snapshot_files
 
-    path = sorted(Path(out).glob("snapshot_*.h5"))[index]
+    path = snapshot_files(out)[index]
     with h5py.File(path) as f:
         return {k: f["particles"][k][:] for k in f["particles"]}, float(f.attrs["time"])
 

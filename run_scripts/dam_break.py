@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import trapezoid
 
+from psph.io.snapshots import snapshot_files
 from psph.particles import Kind
 from psph.studies import (
     CASES,
@@ -116,7 +117,7 @@ def snapshots_figure(path, out, times):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    files = sorted(Path(out).glob("snapshot_*.h5"))
+    files = snapshot_files(out)
     stamps = []
     for f in files:
         with h5py.File(f) as h:

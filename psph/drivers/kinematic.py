@@ -3,12 +3,12 @@ method keeps their distribution regular (thesis 000 section 8.3.2, Algorithms 2-
 
 Each step: one shifting call (IIPS Procedure A or B; explicit shifting = Procedure C), then the
 displacement of thesis eq. 8.33, dx_i = u(x_i) dt with the Taylor-Green field at t = 0 (explicit
-Euler), dt = cfl dx / c0, the last step shortened to end at t_end. Before the first step the shifting's static pre-procedure runs
-(`iips.pre_newton`). history.csv: one row every `output.history_every` steps with Linf/L2(grad C) and
-L2(d f/dx) after the shifting (Algorithms 2-3, line 9), at the time the shifting was applied (the step's
-start: the step's advection follows), Newton and KSP iterations, and cumulative shifting and step times;
-summary.json's final values are the last row's (with its time), while the last snapshot holds the state
-after the last advection, at t_end.
+Euler), dt = cfl dx / c0, the last step shortened to end at t_end. Before the first step the shifting's
+static pre-procedure runs (`iips.pre_newton`). history.csv: one row every `output.history_every` steps with
+Linf/L2(grad C) and L2(d f/dx) after the shifting (Algorithms 2-3, line 9), at the time the shifting was
+applied (the step's start: the step's advection follows), Newton and KSP iterations, and cumulative
+shifting and step times; summary.json's final values are the last row's (with its time), while the last snapshot
+holds the state after the last advection, at t_end.
 """
 
 import math

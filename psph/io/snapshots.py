@@ -37,6 +37,13 @@ def snapshot_name(index: int) -> str:
     return f"snapshot_{index:06d}.h5"
 
 
+def snapshot_files(directory) -> list:
+    """The complete snapshot files in `directory`, in the order written (by index: a name sort put
+    snapshot_1000000.h5 before snapshot_999999.h5)."""
+    found = [(SNAPSHOT_NAME.fullmatch(p.name), p) for p in Path(directory).glob("snapshot_*.h5")]
+    return [p for _, p in sorted((int(m.group(1)), p) for m, p in found if m)]
+
+
 def _write_rows(ds, start, arr) -> None:
     """Write `arr` to rows [start, start + len(arr)) of `ds` in one collective MPI-IO call, which every rank
     must make: h5py's ds[a:a] = arr returns without one for an empty block (a rank holding no particle, as

@@ -6,7 +6,7 @@ import pytest
 from mpi4py import MPI
 
 from psph.io.history import History, read_history
-from psph.io.snapshots import XDMF_NAME, SnapshotWriter
+from psph.io.snapshots import XDMF_NAME, SnapshotWriter, snapshot_files
 from psph.simulation import build_system
 from tests.conftest import periodic_scene
 
@@ -101,3 +101,13 @@ def test_history_rewrites_atomically(comm, mpi_tmp_path):
     assert [r["time"] for r in rows] == [0.0, 0.1] and rows[0]["a"] == 1.0 and np.isnan(rows[1]["a"])
     assert not list(mpi_tmp_path.glob("*.tmp"))
 
+
+
+def test_snapshot_files_are_listed_in_the_order_written(tmp_path):
+    """By index, not by name (snapshot_1000000.h5 sorted before snapshot_999999.h5), without a file being
+    written (.tmp) or another name."""
+    for name in ("snapshot_1000000.h5", "snapshot_999999.h5", "snapshot_000003.h5", "snapshot_000004.h5.tmp",
+                 "snapshot_x.h5", "checkpoint_000005.h5"):
+        (tmp_path / name).write_bytes(b"")
+    assert [p.name for p in snapshot_files(tmp_path)] == ["snapshot_000003.h5", "snapshot_999999.h5",
+                                                         "snapshot_1000000.h5"]
