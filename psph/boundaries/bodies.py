@@ -208,10 +208,10 @@ def check_placement(scene) -> None:
     t = 0 and along its prescribed motion to t_end, an immersed body leaving the domain (but past an outflow
     face, where its solid particles stop a kernel support plus dx out: the fluid is gone by then) or coming within
     one kernel support of a periodic edge (shapes and their nearest-node search do not wrap), coming
-    within dx of a container's walls, overlapping another immersed body, or (moving) entering an inflow
-    buffer. The motion is sampled so that no
-    point of a body moves more than dx between samples (every law's speed stays within its velocity and
-    angular velocity), over one period when every moving body oscillates with the same period, and with
+    within dx of a container's walls, overlapping another immersed body or coming within dx of it (no fluid
+    particle between them: they acted as one body), or (moving) entering an inflow buffer. The motion is
+    sampled so that no point of a body moves more than dx between samples (every law's speed stays within its
+    velocity and angular velocity), over one period when every moving body oscillates with the same period, and with
     at most MOTION_SAMPLES samples (coarser for a longer motion). An oscillation shorter than
     PERIOD_STEPS time steps (cfl h / c0, the largest a run takes) is refused: it would not be resolved."""
     from psph.errors import SceneError
@@ -277,9 +277,9 @@ def check_placement(scene) -> None:
         samples = min(MOTION_SAMPLES, reach * horizon / dx + 2.0)  # float: a huge velocity is no overflow
         times = np.linspace(0.0, horizon, int(samples))
     for t in times:
-        nodes = {k: body.nodes(t)[0] for k, body in immersed}
+        nodes = {k: body.nodes(t)[:2] for k, body in immersed}
         for k, body in immersed:
-            x = nodes[k]
+            x, normals = nodes[k]  # (the normals point into the body)
             # later than t = 0, the motion took it there (its own, or the other body's in an overlap)
             key = f"bodies[{k}].center" if t == 0.0 or not body.moves else f"bodies[{k}].motion"
             for a in range(2):
@@ -295,6 +295,11 @@ def check_placement(scene) -> None:
                 if j != k and np.any(_inside(other, t, x)):
                     culprit = f"bodies[{j}].motion" if t > 0.0 and other.moves and not body.moves else key
                     raise SceneError(culprit, f"{body.name!r} overlaps bodies[{j}] ({other.name!r}) at t = {t:g}")
+            for j, other in immersed:  # a gap below dx holds no fluid particle: the two would act as one body
+                if j != k and np.any(_inside(other, t, x - (1.0 - 1e-9) * dx * normals)):
+                    culprit = f"bodies[{j}].motion" if t > 0.0 and other.moves and not body.moves else key
+                    raise SceneError(culprit, f"{body.name!r} comes within dx of bodies[{j}] ({other.name!r}) at "
+                                     f"t = {t:g}: no fluid particle would fit between them")
             for j, (lo, hi) in enumerate(buffers):  # at t = 0 the scene's buffer check names the buffer
                 if t > 0.0 and body.moves and np.any(np.all((x > lo) & (x < hi), axis=1)):
                     raise SceneError(key, f"{body.name!r} enters inflow[{j}]'s buffer at t = {t:g}")

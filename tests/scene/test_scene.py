@@ -274,11 +274,17 @@ def ellipse_with(*sets, second=None):
      {"center": [5.0, 5.0], "size": [0.3, 0.2]}, "bodies[1].center", "overlaps bodies[0]"),
     (["bodies.0.center=[5.0, 5.0]", "bodies.0.size=[0.3, 0.2]", "bodies.0.angle=0"],
      {"center": [5.0, 5.0], "size": [1.0, 0.8]}, "bodies[0].center", "overlaps bodies[1]"),
-    # a moving body runs into a fixed one: the moving body's motion is named, whichever is listed first
+    # a moving body runs into a fixed one: the moving body's motion is named, whichever is listed first (it
+    # comes within dx before it overlaps)
     (["bodies.0.center=[5.0, 5.0]"], {"center": [8.0, 5.0], "motion": {"law": "constant", "velocity": [-1.0, 0.0]}},
-     "bodies[1].motion", "overlaps bodies[1]"),
+     "bodies[1].motion", "comes within dx of bodies[1]"),
     (["bodies.0.center=[8.0, 5.0]", "bodies.0.motion.law=constant", "bodies.0.motion.velocity=[-1.0, 0.0]"],
-     {"center": [5.0, 5.0], "motion": {}}, "bodies[0].motion", "overlaps bodies[1]"),
+     {"center": [5.0, 5.0], "motion": {}}, "bodies[0].motion", "comes within dx of bodies[1]"),
+    # a gap of 0.5 dx holds no fluid particle: the two bodies acted as one (axes 0.5 x 0.2, dx = 0.1)
+    (["bodies.0.center=[5.0, 5.0]", "bodies.0.angle=0"], {"center": [6.05, 5.0], "angle": 0.0}, "bodies[0].center",
+     "comes within dx of bodies[1]"),
+    (["bodies.0.center=[5.0, 5.0]", "bodies.0.angle=0"], {"center": [5.0, 5.45], "angle": 0.0}, "bodies[0].center",
+     "comes within dx of bodies[1]"),
 ])
 def test_overlapping_and_wrapping_bodies_are_refused(sets, second, key, words):
     with pytest.raises(SceneError) as info:
@@ -289,6 +295,8 @@ def test_overlapping_and_wrapping_bodies_are_refused(sets, second, key, words):
 def test_well_placed_bodies_are_accepted():
     """Two bodies apart, a fixed body with an explicit zero velocity, a turning body far from the walls."""
     scene_from_table(ellipse_with("bodies.0.center=[5.0, 5.0]", second={"center": [8.0, 5.0]}))
+    scene_from_table(ellipse_with("bodies.0.center=[5.0, 5.0]", "bodies.0.angle=0",  # a gap of 1.5 dx
+                                  second={"center": [6.15, 5.0], "angle": 0.0}))
     scene_from_table(ellipse_with("bodies.0.motion.velocity=[0.0, 0.0]"))
     load_scene(CASES / "moving_square.toml", ["domain.dx=0.1", "bodies.1.center=[5.0, 2.5]",
                                               "bodies.1.motion.law=ramp", "bodies.1.motion.velocity=[]",
