@@ -2,13 +2,15 @@
 allocating (psph.simulation.estimate_resources; a scene estimated above 80% of the machine's memory is
 refused without --allow-large).
 
-    .venv/bin/python run_scripts/bench_memory.py [--ranks 1 2] [--cases static_mf tgv ...]
+    .venv/bin/python run_scripts/bench_memory.py [--ranks 1 2] [--cases static_mf tgv ...] [--dx 0.1 0.05]
 
 Each case runs at two sizes, each in its own `psph run` (its own processes, so each peak is that run's
 alone: summary.json's peak_memory_mib, the largest rank's resident-memory peak). The script prints, per
 run, the measured peak and the estimate per rank and their ratio, and per case the measured growth per
 particle between the two sizes against the estimate's bytes per particle. Target: every estimate at least
-the measured peak (it guards the machine) and at most 1.5 times it.
+the measured peak (it guards the machine) and at most 1.5 times it. --dx gives every case the same two grid
+spacings instead of its own (coarse ones make a smoke run, tests/test_run_scripts.py: their peaks are mostly
+the interpreter's and the libraries', so the ratios then say little).
 """
 
 import argparse
@@ -70,6 +72,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ranks", type=int, nargs="+", default=[1])
     parser.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
+    parser.add_argument("--dx", type=float, nargs=2, metavar=("DX0", "DX1"),
+                        help="the two grid spacings of every case (default: each case's own)")
     args = parser.parse_args()
     mib = 2**20
     print(f"{'case':>14} {'ranks':>5} {'particles':>9} {'peak/rank MiB':>13} {'estimate MiB':>12} {'ratio':>6}   "
@@ -79,7 +83,7 @@ def main():
         for ranks in args.ranks:
             for name in args.cases:
                 scene, sets, sizes = CASES[name]
-                for dx in sizes:
+                for dx in args.dx or sizes:
                     settings = sets + [f"domain.dx={dx!r}"]
                     summary = run(scene, settings, ranks, Path(tmp) / name)
                     peak = summary["peak_memory_mib"] * mib

@@ -1,6 +1,6 @@
 """Pair throughput of the grad C sum on 2-D periodic lattices (10k, 40k, 160k particles; C6, h = 2 dx).
 
-    .venv/bin/python run_scripts/bench_sums.py                       # one core
+    .venv/bin/python run_scripts/bench_sums.py [--sizes 100 200 400] [--min-time 0.3]   # one core
     mpiexec -n 2 .venv/bin/python run_scripts/bench_sums.py          # per rank on 2 ranks
 
 Prints, per lattice, the pair evaluations per second per core of psph's sum (sorted particles, reused
@@ -9,7 +9,8 @@ pairs in the list (support + skin), and, for comparison, a naive numba cell-list
 cells at every evaluation; and the building of the neighbour lists themselves (compute.neighbours, owned
 rows over owned and halo particles, list radius = support + skin), in list pairs written per second; and
 the MLS-II field update (compute.field_update, 4 fields) in microseconds per particle. Times are the best of
-several repetitions of at least 0.3 s each.
+several repetitions of at least --min-time seconds (0.3) each; a smaller one (`--sizes 10 --min-time 0.01`, the
+smoke run of tests/test_run_scripts.py) prints the same figures, less steady.
 """
 
 import argparse
@@ -87,6 +88,8 @@ def lattice_scene(n):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=positive_int, nargs="+", default=[100, 200, 400], help="particles per side")
+    parser.add_argument("--min-time", type=float, default=0.3,
+                        help="minimum wall time of each timed repetition, in seconds (default 0.3)")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     if comm.rank == 0:
@@ -100,18 +103,18 @@ def main():
         out = np.zeros((p.n_owned, 2))
         rows = np.repeat(np.arange(p.n_owned), np.diff(ptr))
         useful = int(np.count_nonzero(np.linalg.norm(pos[rows] - pos[idx], axis=1) < k.support))
-        t = best_time(lambda: sums.grad_concentration(pos, vol, ptr, idx, k.params, out))  # noqa: B023
+        t = best_time(lambda: sums.grad_concentration(pos, vol, ptr, idx, k.params, out), args.min_time)  # noqa: B023
         naive_out = np.zeros((p.n_local, 2))
-        t_naive = best_time(lambda: naive_grad_c(pos, vol, k.params, k.support, naive_out))  # noqa: B023
+        t_naive = best_time(lambda: naive_grad_c(pos, vol, k.params, k.support, naive_out), args.min_time)  # noqa: B023
         # the naive loop also sums halo rows; count only owned rows' pairs for a fair rate
         assert np.allclose(naive_out[: p.n_owned], out, atol=1e-9 * np.abs(out).max() + 1e-12)
-        t_build = best_time(lambda: build_neighbour_lists(pos, p.n_owned, system.list_radius))  # noqa: B023
+        t_build = best_time(lambda: build_neighbour_lists(pos, p.n_owned, system.list_radius), args.min_time)  # noqa: B023
         # the MLS-II field update of 2 + d fields at positions moved by 0.1 dx (shifting.field_update)
         moved = pos[: p.n_owned] + 0.1 / n
         near_ptr, near_idx = build_cross_lists(moved, pos, k.support)
         fields, fitted = np.ones((p.n_local, 4)), np.zeros((p.n_owned, 4))
         t_mls = best_time(lambda: mls_interpolate(moved, pos, vol, fields, near_ptr, near_idx, k.params, 2,  # noqa: B023
-                                                  fitted))  # noqa: B023
+                                                  fitted), args.min_time)  # noqa: B023
         rates = np.array([useful / t, len(idx) / t, useful / t_naive, len(idx) / t_build]) / 1e6
         t_mls = comm.allreduce(t_mls / p.n_owned, op=MPI.MAX)
         worst = np.empty(4)

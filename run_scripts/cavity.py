@@ -65,9 +65,12 @@ def centrelines(run, ratio, dx):
 
 def kinetic_energy_change(rows, fraction=0.2) -> float:
     """Relative change of the kinetic energy over the last `fraction` of the run's time: KE(t_end) / KE(t1) - 1
-    with t1 the last history row at or before (1 - fraction) t_end. Near zero once the flow is steady."""
+    with t1 the last history row at or before (1 - fraction) t_end. Near zero once the flow is steady; nan when
+    that row is the fluid at rest (a run so short that the history's only row before t1 is t = 0's)."""
     t_end = rows[-1]["time"]
     start = [r for r in rows if r["time"] <= (1.0 - fraction) * t_end][-1]
+    if start["kinetic_energy"] == 0.0:
+        return float("nan")
     return rows[-1]["kinetic_energy"] / start["kinetic_energy"] - 1.0
 
 

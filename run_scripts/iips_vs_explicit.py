@@ -3,6 +3,7 @@ iterations, and shifting wall time, to bring L2(d f/dx) within 5% of its Cartesi
 dx/L = 0.0125 (6400 particles), sigma/dx = 0.1, h/dx = 2, C6.
 
     .venv/bin/python run_scripts/iips_vs_explicit.py [--ranks 1 2] [--out results/iips_vs_explicit]
+                                                     [--repeats 5] [--wavelengths 0.125 0.25 0.5] [--dx 0.0125]
 
 Wavelengths l = 0.125, 0.25, 0.5 L: 10, 20, 40 particles per wavelength (the thesis' lambda/L = 0.25,
 0.5, 1 with its stated particle counts). A run that does not get within 5% shows the ratio it reached.
@@ -28,6 +29,10 @@ The last two columns are the budget the thesis' speed-ups (40 / 110 / 475) leave
 explicit iteration: the IIPS time they would need, and that time per Newton iteration counted in explicit
 iterations. A Newton iteration evaluates grad C at the moved positions, as an explicit iteration does, so
 only the excess over 1 is left for the pairs' Hessians and the linear solve.
+
+--dx sets another dx/L (particles per wavelength and the thesis' speed-up then follow l / dx): a coarse one,
+with one wavelength, one repeat and one rank, is a smoke run (tests/test_run_scripts.py: `--dx 0.05
+--wavelengths 0.5 --repeats 1 --ranks 1`).
 """
 
 import argparse
@@ -39,7 +44,7 @@ import numpy as np
 from psph.studies import CASES, RunStopped, parse_args, run_scene, stop_message, write_table
 
 SCENE = CASES / "static_perturbed.toml"
-COMMON = ["domain.dx=0.0125", "initial.sigma_over_dx=0.1", "diagnostics.stop_at_cartesian=1.05"]
+COMMON = ["initial.sigma_over_dx=0.1", "diagnostics.stop_at_cartesian=1.05"]  # after domain.dx (--dx)
 BASELINES = {0.5: 2000, 0.4: 5000, 0.01: 20000}  # D / h^2: iteration cap
 THESIS_SPEED_UP = {10: 40, 20: 110, 40: 475}  # particles per wavelength: thesis Table 8.2
 # IIPS settings: name, scene overrides, PETSc options (the first is the scene's own)
@@ -62,6 +67,7 @@ def main():
     parser.add_argument("--ranks", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--repeats", type=int, default=5, help="IIPS runs per setting (their median time)")
     parser.add_argument("--wavelengths", type=float, nargs="+", default=[0.125, 0.25, 0.5])
+    parser.add_argument("--dx", type=float, default=0.0125, help="dx/L (default: the thesis' 0.0125)")
     args = parse_args(parser)
     for operator in ("matrix_free", "assembled"):
         run_scene(SCENE, args.out / "warmup", sets=["shifting.method=iips", "iips.max_newton=1",
@@ -70,7 +76,8 @@ def main():
     rows = []
     for ranks in args.ranks:
         for wavelength in args.wavelengths:
-            sets = COMMON + [f"diagnostics.test_wavelength={wavelength}"]
+            sets = [f"domain.dx={args.dx}", *COMMON, f"diagnostics.test_wavelength={wavelength}"]
+            per_wavelength = round(wavelength / args.dx)  # particles
             explicit = []
             for diffusion, cap in BASELINES.items():
                 try:
@@ -92,13 +99,13 @@ def main():
                                     sets=sets + ["shifting.method=iips", "iips.max_newton=20", *iips_sets])
                     times.append(imp.summary["shifting_time_s"])
                 t_i = float(np.median(times))
-                row = [ranks, round(wavelength / 0.0125), name,
+                row = [ranks, per_wavelength, name,
                        imp.summary["steps"] if reached(imp) else f"not in {imp.summary['steps']} ({ratio(imp):.2f} x)",
                        imp.summary["linear_iterations"], 1e3 * t_i]
                 for its, t_e in explicit:
                     row += [its, 1e3 * t_e, t_e / t_i] if t_e is not None else [its, "-", "-"]
                 its, t_e = explicit[-1]  # D = 0.01 h^2, the thesis' counts: what its speed-up leaves IIPS
-                target = THESIS_SPEED_UP.get(round(wavelength / 0.0125))
+                target = THESIS_SPEED_UP.get(per_wavelength)
                 row += ([1e3 * t_e / target, its / target / imp.summary["steps"]]
                         if t_e is not None and target and reached(imp) else ["-", "-"])
                 rows.append(row)
@@ -110,7 +117,7 @@ def main():
     print(write_table(
         args.out / "table_8_2", header, rows,
         title="Iterations and shifting time to reach Cartesian accuracy within 5% (thesis Table 8.2)",
-        note="dx/L = 0.0125 (6400 particles), sigma/dx = 0.1, h/dx = 2, Wendland C6; "
+        note=f"dx/L = {args.dx:g} ({round(1 / args.dx) ** 2} particles), sigma/dx = 0.1, h/dx = 2, Wendland C6; "
              "IIPS: KSP BCGS + Jacobi; scene: matrix-free operator, rtol 1e-2, the default skin; tuned: the "
              "same with rtol 1e-1 and neighbours.skin = 0.2; assembled_tuned: iips.operator = assembled, "
              "rtol 1e-1, neighbours.skin = 0. "

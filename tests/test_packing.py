@@ -81,6 +81,25 @@ def test_packing_leaves_a_full_lattice_and_the_walls_alone():
     assert p.n_owned == n and solids() == before and len(before) > 0
 
 
+def test_the_frame_meets_an_off_lattice_tanks_walls_and_the_fill_keeps_its_volume():
+    """A packing audit: in a tank 1.95 wide at dx = 0.05 (sides off the fluid's lattice) the frame stood on
+    the fluid's lattice, 1.5 dx from each wall's first solid row, and the packing drove fluid particles up
+    that gap, above the free surface; and V0 = dx^2 made N V0 = 1.90 for 1.95 of water. The frame now
+    stands on the walls' fitted rows, and V0 = V_tot / N (seed 002, after eq. 2.17)."""
+    scene = load_scene(CASES / "hydrostatic_tank.toml", ["domain.dx=0.05", "bodies.0.size=[1.95, 1.2]",
+                                                         "packing.iterations=1500"])
+    frame = frame_positions(scene)
+    assert frame[:, 0].min() == pytest.approx(0.05) and frame[:, 0].max() == pytest.approx(1.95)  # dx from
+    system = build_system(scene, MPI.COMM_SELF)  # the first solid rows, at -0.025 + 0.025 and 1.975 + 0.025
+    report = pack(scene, system)
+    fluid = fluid_mask(system)
+    n = np.count_nonzero(fluid)
+    assert report["volume"] * n == pytest.approx(1.95, rel=1e-12)
+    assert np.allclose(system.particles.owned("volume")[fluid], report["volume"])
+    assert report["Linf_grad_gamma"] < 1e-3 * report["Linf_grad_gamma_start"]
+    assert system.particles.owned("position")[fluid][:, 1].max() < 1.0
+
+
 def test_packing_stops_at_the_kinetic_energy_tolerance():
     scene = drop_scene(10, "packing.iterations=5000", "packing.tolerance=1e-4")
     report = pack(scene, build_system(scene, MPI.COMM_SELF))
