@@ -8,6 +8,7 @@ import pytest
 from mpi4py import MPI
 
 from psph.diagnostics import fluid_mask
+from psph.errors import NumericalError
 from psph.packing import frame_positions, pack
 from psph.particles import Kind
 from psph.scene.load import load_scene
@@ -98,6 +99,32 @@ def test_the_frame_meets_an_off_lattice_tanks_walls_and_the_fill_keeps_its_volum
     assert np.allclose(system.particles.owned("volume")[fluid], report["volume"])
     assert report["Linf_grad_gamma"] < 1e-3 * report["Linf_grad_gamma_start"]
     assert system.particles.owned("position")[fluid][:, 1].max() < 1.0
+
+
+def test_a_packing_that_pairs_particles_stops(monkeypatch):
+    """A packing audit: the cubic spline at h/dx = 2 (now refused by the scene) stacked particles on each
+    other with grad Gamma small, and the run went on. Any kernel's pairing stops the run, naming a particle:
+    here a pair made by hand (packing.iterations = 1, and one particle put on its neighbour each iteration)."""
+    from psph import packing
+
+    scene = drop_scene(10, "packing.iterations=1")
+    system = build_system(scene, MPI.COMM_SELF)
+    check = packing._check_no_pairs
+
+    def paired(scene, system, spacing, iteration):
+        p = system.particles
+        a, b = np.flatnonzero(fluid_mask(system))[:2]
+        p.owned("position")[b] = p.owned("position")[a] + [0.3 * spacing, 0.0]
+        system.update()
+        check(scene, system, spacing, iteration)
+
+    monkeypatch.setattr(packing, "_check_no_pairs", paired)
+    with pytest.raises(NumericalError, match=r"packing paired particles at iteration 1: two lie 0.3 V0\^\(1/d\) "
+                                             r"apart .*wendland_c6.*\[particle gid \d+"):
+        pack(scene, system)
+    monkeypatch.setattr(packing, "_check_no_pairs", check)
+    scene = drop_scene(10, "packing.iterations=200")
+    assert pack(scene, build_system(scene, MPI.COMM_SELF))["iterations"] == 200  # a good packing passes
 
 
 def test_packing_stops_at_the_kinetic_energy_tolerance():

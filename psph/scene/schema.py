@@ -17,6 +17,9 @@ from psph.scene.validate import option
 # side is noise, which the solve cannot reduce by rtol (BCGS ended DIVERGED_DTOL or BREAKDOWN, on some rank
 # counts and not others); a threshold below it is never reached
 ROUNDOFF_LINF = 1e-12
+# the largest h/dx at which the particle packing does not pair particles with the cubic spline (a packing
+# audit's sweep of a drop at dx = 0.1: closest pair 0.88, 0.77, 0.23, 0.00 dx at h/dx = 1.0, 1.2, 1.3, 1.5)
+CUBIC_PACKING_H_OVER_DX = 1.2
 
 OUTFLOW_FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
 
@@ -633,11 +636,21 @@ class Scene:
             if not fluid:
                 raise SceneError("packing.iterations", "packing initialises a flow: it needs a fluid scheme, not "
                                  f"physics.scheme = {self.physics.scheme!r}")
-            axis = self.free_surface_axis()
-            if axis is not None and d.periodic[axis]:
-                raise SceneError("packing.iterations", f"the fill region's free surface lies along periodic axis "
-                                 f"{axis}: its far side faces the empty band across the periodic edge, which the "
-                                 "packing's frame does not close")
+            for axis in self.free_surface_axes():  # (every one: a packing audit found the second unchecked)
+                if d.periodic[axis]:
+                    raise SceneError("packing.iterations", f"the fill region's free surface lies along periodic "
+                                     f"axis {axis}: its far side faces the empty band across the periodic edge, "
+                                     "which the packing's frame does not close")
+            bare = self._bare_faces()
+            if bare:
+                raise SceneError("packing.iterations", f"the fill region reaches the bounded face(s) "
+                                 f"{', '.join(bare)} with no wall there, and the packing pushes the particles along "
+                                 "it out of the domain (a packing audit: 'diverged, lower packing.cfl' at any cfl): "
+                                 "put a container body around the fluid, or make the axis periodic")
+            if d.kernel == "cubic_spline" and d.h_over_dx > CUBIC_PACKING_H_OVER_DX:
+                raise SceneError("domain.kernel", f"the packing pairs particles with the cubic spline at h/dx = "
+                                 f"{d.h_over_dx:g} (its pairing instability, from h/dx = 1.3; measured): use a "
+                                 f"Wendland kernel, or h/dx <= {CUBIC_PACKING_H_OVER_DX:g}")
             ghosts = [k for k, b in enumerate(self.bodies) if b.model == "ghost"]
             if ghosts:
                 raise SceneError(f"bodies[{ghosts[0]}].model", "packing holds the fluid with the walls' solid "
@@ -839,14 +852,15 @@ class Scene:
                     faces.append("xyz"[a] + "+")
         return faces
 
-    def free_surface_axis(self):
-        """The first axis along which the fluid's fill region stops short of the domain (a free surface
-        there), or None."""
+    def free_surface_axes(self) -> list:
+        """The axes along which the fluid's fill region stops short of the domain (a free surface there)."""
         d, lo, hi = self.domain, self.initial.fill_lower, self.initial.fill_upper
-        for a in range(d.dimension):
-            if (lo and lo[a] > d.lower[a] + 0.5 * d.dx) or (hi and hi[a] < d.upper[a] - 0.5 * d.dx):
-                return a
-        return None
+        return [a for a in range(d.dimension)
+                if (lo and lo[a] > d.lower[a] + 0.5 * d.dx) or (hi and hi[a] < d.upper[a] - 0.5 * d.dx)]
+
+    def free_surface_axis(self):
+        """The first of free_surface_axes, or None."""
+        return next(iter(self.free_surface_axes()), None)
 
     def _check_hydrostatic_surface(self):
         """A hydrostatic start whose free surface (initial.fill_upper, or the domain's top) lies above the

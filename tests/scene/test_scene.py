@@ -368,6 +368,16 @@ def test_every_case_file_is_a_valid_scene(case):
     ("taylor_green", ["initial.velocity=zero", "shifting.method=none", "iips.update=none",
                       "initial.fill_upper=[1.0, 0.5]", "packing.iterations=10"],
      "packing.iterations", "periodic axis 1"),
+    # (a packing audit) the free surface along periodic y is the second one: only the first was checked
+    ("taylor_green", ["initial.velocity=zero", "shifting.method=none", "iips.update=none", "packing.iterations=10",
+                      "domain.periodic=[false, true]", "initial.fill_lower=[0.25, 0.0]",
+                      "initial.fill_upper=[0.75, 0.5]"], "packing.iterations", "periodic axis 1"),
+    # a fill reaching two bounded faces with no wall (the packing "diverged" there at any cfl)
+    ("taylor_green", ["initial.velocity=zero", "shifting.method=none", "iips.update=none", "packing.iterations=10",
+                      "domain.periodic=[false, false]", "initial.fill_upper=[0.5, 0.5]"], "packing.iterations",
+     "bounded face(s) x-, y- with no wall"),
+    # the cubic spline's pairing instability (the packing stacked particles on each other, and went on)
+    ("elliptical_drop", ["domain.kernel=cubic_spline"], "domain.kernel", "pairs particles with the cubic spline"),
     ("static_perturbed", ["domain.dimension=3", "domain.lower=[0, 0, 0]", "domain.upper=[1, 1, 1]",
                           "domain.periodic=[true, true, true]", "domain.dx=0.1", "initial.drop_radius=0.2"],
      "initial.drop_radius", "domain.dimension must be 2"),
@@ -384,6 +394,8 @@ def test_drops_and_packing_are_refused_where_they_do_not_apply(scene, sets, key,
 def test_packing_is_accepted_with_clone_walls_and_a_free_surface():
     for scene in ("lid_driven_cavity", "hydrostatic_tank", "moving_square"):
         assert load_scene(CASES / f"{scene}.toml", ["packing.iterations=10"]).packing.iterations == 10
+    assert load_scene(DROP := CASES / "elliptical_drop.toml", ["domain.kernel=cubic_spline", "domain.h_over_dx=1.2"])
+    assert load_scene(DROP, ["domain.kernel=cubic_spline", "packing.iterations=0"])
 
 
 @pytest.mark.parametrize("scene,sets,key,words", [
