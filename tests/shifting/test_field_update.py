@@ -98,6 +98,37 @@ def test_mls_increment_does_not_smooth(tmp_path):
     assert increment < 0.2 * plain, (increment, plain)
 
 
+@pytest.mark.parametrize("update", ["mls1", "mls2", "mls1_increment", "mls2_increment"])
+def test_mls_reproduces_a_linear_field_beside_walls(tmp_path, update):
+    """A field-update audit: the fit weighed the clone walls' solid particles with their stored rho0 and zero
+    velocity, so near every wall it was wrong (the cavity's linear shear u = y came back 0.27 U off under the
+    moving lid with mls2 and no displacement; the tank's hydrostatic density 0.47 rho0 g H off along its
+    walls after a 0.05 dx shift with mls1). The fit is the fluid's: every order reproduces a linear field to
+    round-off at every fluid particle, walls or not, without and with a small shift."""
+    from psph.scene.load import load_scene
+    from tests.helpers import CASES
+
+    for shift in (0.0, 0.05):
+        scene = load_scene(CASES / "lid_driven_cavity.toml", ["domain.dx=0.05", "shifting.method=iips",
+                                                               f"iips.update={update}", "time.t_end=0.1"])
+        with FluidDriver(scene, MPI.COMM_SELF, tmp_path / f"{shift}") as driver:
+            system, p = driver.system, driver.system.particles
+            fluid = p.owned("kind") == Kind.FLUID
+            x = p.owned("position")
+            p.owned("velocity")[fluid] = np.stack([x[fluid, 1], 0.5 * x[fluid, 0]], axis=1)
+            p.owned("density")[fluid] = 1.0 + 0.1 * x[fluid, 1]
+            system.refresh(["velocity", "density"])
+            driver.update.before(system, driver.scheme)
+            angle = np.random.default_rng(1).uniform(0.0, 2.0 * np.pi, np.count_nonzero(fluid))
+            x[fluid] += shift * scene.domain.dx * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+            system.update()
+            driver.update.after(system, driver.scheme)
+            fluid = p.owned("kind") == Kind.FLUID
+            x = p.owned("position")[fluid]
+            assert np.abs(p.owned("velocity")[fluid] - np.stack([x[:, 1], 0.5 * x[:, 0]], axis=1)).max() < 1e-12
+            assert np.abs(p.owned("density")[fluid] - (1.0 + 0.1 * x[:, 1])).max() < 1e-12
+
+
 @pytest.mark.parametrize("update", ["mls2", "nfts"])
 @pytest.mark.parametrize("scheme", ["delta_ale", "riemann_ale"])
 def test_a_field_update_leaves_the_halo_copies_current(tmp_path, update, scheme):
