@@ -458,6 +458,27 @@ def test_a_plain_mls_remap_with_a_free_surface_is_warned_about(tmp_path, update,
         res.stderr
 
 
+def test_nfts_from_a_perturbed_start_without_pre_procedure_is_warned_about(tmp_path):
+    """A field-update audit: NFTS's mass and volume lines differ by 2 rho V s . grad C (thesis eq. 9.7), so the
+    first calls on a perturbed start change a uniform density. The thesis' Taylor-Green (sigma = 0.25 dx)
+    without its pre-procedure leaves the weakly compressible range at step 1; with it, the run goes on, and
+    its summary counts the NFTS sub-steps of eq. 9.6 (N = ceil(max|dx| / (time.cfl dx)), time.cfl 0.1 here)."""
+    tgv = CASES / "taylor_green_thesis.toml"
+    sets = ["--set", "domain.dx=0.05", "--set", "time.t_end=0.01", "--set", "output.every=0", "--quiet"]
+    bare = run_psph("run", tgv, "--out", tmp_path / "bare", *sets, "--set", "iips.pre_newton=0")
+    assert bare.returncode == 3 and "density left the weakly compressible range" in bare.stderr, bare.stderr
+    assert "warning: initial.sigma_over_dx = 0.25 with iips.update = nfts and no iips.pre_newton" in bare.stderr
+    kept = run_psph("run", tgv, "--out", tmp_path / "kept", *sets, "--set", "iips.procedure=A",
+                    "--set", "time.cfl=0.1")
+    assert kept.returncode == 0 and "warning" not in kept.stderr, kept.stderr
+    summary = json.loads((tmp_path / "kept" / "summary.json").read_text())
+    assert summary["iips_calls"] > 0 and summary["nfts_substeps"] >= summary["iips_calls"]
+    from psph.scene.load import load_scene
+    from psph.shifting.field_update import make_field_update
+
+    assert make_field_update(load_scene(tgv, ["time.cfl=0.05"])).cfl == 0.05  # (it was 0.2 whatever time.cfl)
+
+
 def test_the_iips_solver_the_options_give_is_reported(tmp_path):
     """A drivers audit: psph info said "default bcgs + jacobi" whatever the options, and a run recorded
     neither the solver nor whether iips.operator = "auto" chose the matrix-free or the assembled operator."""

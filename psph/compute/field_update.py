@@ -5,9 +5,14 @@ NFTS, the fictitious time step (eq. 9.5-9.7): with s_i = dx_i / N, one of the N 
     (V rho)_i'  = (V rho)_i + V_i sum_j (rho_i s_i + rho_j s_j) . grad_i W_ij V_j
     (V rho u)_i' = (V rho u)_i + V_i sum_j (rho_i u_i (s_i . grad_i W_ij) + rho_j u_j (s_j . grad_i W_ij)) V_j
 followed by x_i' = x_i + s_i. The thesis prints the mass and momentum lines with a minus sign; with the
-grad_i W_ij its volume line uses, only the plus sign keeps a uniform state uniform (moving a volume through
-fluid at rest gains the mass it sweeps: d(m) = rho dV); tests/compute/test_field_update.py checks it and the
-exact conservation of total mass and momentum.
+grad_i W_ij its volume line uses, only the plus sign keeps a uniform state uniform where grad C = 0 (moving
+a volume through fluid at rest gains the mass it sweeps: d(m) = rho dV); tests/compute/test_field_update.py
+checks it and the exact conservation of total mass and momentum. Where grad C_i = sum_j grad_i W_ij V_j is
+not zero, the mass line exceeds rho x the volume line by 2 rho V_i s_i . grad C_i, with either sign: the
+displacement that IIPS computed to level C is the one whose flux misses it, so a call from a disordered
+state changes a uniform density (at rest from sigma = 0.1 dx, one call moving particles up to 0.31 dx:
+rho in [0.944, 1.013]; a field-update audit). psph warns when a flow with NFTS starts perturbed without
+iips.pre_newton; the thesis itself calls the NFTS pressure "quite noisy" (section 10.1).
 
 MLS re-interpolation (eq. 9.8 first order, 9.9 second order): for the new position x_i of a particle and
 the old particles j around it, solve sum_j W_ij V_j P_ij P_ij^T a = sum_j phi_j W_ij V_j P_ij with

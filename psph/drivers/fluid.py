@@ -329,11 +329,14 @@ class FluidDriver(Driver):
             "iips": self.iips.checkpoint_state() if self.iips is not None else None,
             "open": self.open.checkpoint_state(), "retry": [self.halvings, self.calm]})
 
-    @staticmethod
-    def new_totals() -> dict:
-        """The run's counters and times at its start, which advance and run add to (history and summary)."""
-        return {"iips_time_s": 0.0, "iips_newton": 0, "iips_linear": 0, "iips_calls": 0, "iips_failures": 0,
-                "retries": 0, "steps_redone": 0, "wall_reflections": 0, "step_time_s": 0.0}
+    def new_totals(self) -> dict:
+        """The run's counters and times at its start, which advance and run add to (history and summary):
+        with IIPS + NFTS, the fictitious sub-steps too (thesis eq. 9.6)."""
+        totals = {"iips_time_s": 0.0, "iips_newton": 0, "iips_linear": 0, "iips_calls": 0, "iips_failures": 0,
+                  "retries": 0, "steps_redone": 0, "wall_reflections": 0, "step_time_s": 0.0}
+        if self.iips is not None and self.update.name == "nfts":
+            totals["nfts_substeps"] = 0
+        return totals
 
     def advance(self, state, dt, vmax, totals) -> None:
         """One time step of size dt from state (step, time): integrate, shift, check. Collective."""
@@ -373,7 +376,9 @@ class FluidDriver(Driver):
                 # best iterate was its start (on_stall = "best")
                 moved = self.iips.max_shift(system) if report.iterations and not report.rejected else 0.0
                 if moved > 0.0:
-                    self.update.after(system, self.scheme)
+                    substeps = self.update.after(system, self.scheme)
+                    if "nfts_substeps" in totals:
+                        totals["nfts_substeps"] += substeps
                     self.open.extrapolate(system)  # the outflow buffer from the shifted fluid
             totals["iips_time_s"] += time.perf_counter() - t0
             totals["iips_newton"] += report.iterations

@@ -2,7 +2,8 @@
 
     none   positions change, fields do not (the thesis' "implicit iterative shifting")
     nfts   fictitious time step (eq. 9.7): the displacements are swept in N = ceil(max|dx| / (CFL dx))
-           sub-steps whose ALE fluxes update volume, mass and momentum (delta_ale only: the variants fix
+           sub-steps (eq. 9.6, CFL = time.cfl; the run's total is summary.json's nfts_substeps) whose ALE
+           fluxes update volume, mass and momentum (delta_ale only: the variants fix
            masses or volumes); IIPS then levels the concentration of the reference volumes V0
     mls1   first-order MLS re-interpolation (eq. 9.8) of volume, density and velocity from the pre-shift
            positions; mass = rho V (delta_ale), or V = m / rho (constant mass), or m = V0 rho
@@ -76,17 +77,18 @@ class FictitiousTimeStep(NoFieldUpdate):
         return (FieldSpec("nfts_step", ("d",)),)
 
     def __init__(self, cfl, dx):
+        """cfl: the run's time.cfl, which bounds each sub-step's largest displacement to cfl dx (eq. 9.6)."""
         self.cfl, self.dx = cfl, dx
-        self.substeps = 0
 
-    def after(self, system, scheme):
+    def after(self, system, scheme) -> int:
+        """Sweep the call's displacements in N = ceil(max|dx| / (cfl dx)) sub-steps (thesis eq. 9.6-9.7);
+        returns N. Collective."""
         p = system.particles
         shift = p.owned(SHIFT_FIELD.name)
         largest = largest_shift(system)
         if largest == 0.0:
-            return
+            return 0
         n = max(1, math.ceil(largest / (self.cfl * self.dx)))
-        self.substeps += n
         p.owned("position")[:] -= shift  # back to the pre-shift positions, then sweep in n steps
         p.owned("nfts_step")[:] = shift / n
         p.owned(SHIFT_FIELD.name)[:] = 0.0
@@ -111,6 +113,7 @@ class FictitiousTimeStep(NoFieldUpdate):
             p.owned("position")[:] += p.owned("nfts_step")
             system.update()
         self.refresh(system)
+        return n
 
 
 SOLID_KINDS = (Kind.WALL, Kind.BODY)
@@ -167,8 +170,12 @@ class MovingLeastSquares(NoFieldUpdate):
         if self.increment:
             new += p.owned("old_fields")[fluid, 1:] - self._fit(system, owned_old[fluid], old_pos, old)
         error = None
-        if not np.all(np.isfinite(new)):
-            error = NumericalError("MLS update: a particle has no old neighbour to interpolate from")
+        bad = np.flatnonzero(~np.all(np.isfinite(new), axis=1))
+        if len(bad):  # (a field-update audit: the error named no step, time or particle)
+            k = np.flatnonzero(fluid)[bad[0]]
+            error = NumericalError(f"MLS update: {len(bad)} particle(s) with no old neighbour to interpolate from "
+                                   "(moved farther than a kernel support from every old position)", **system.where,
+                                   gid=int(p.owned("gid")[k]), position=p.owned("position")[k])
         raise_if_any(system.comm, error)
         vol, rho, mass = p.owned("volume"), p.owned("density"), p.owned("mass")
         rho[fluid] = new[:, 1]
@@ -187,7 +194,7 @@ class MovingLeastSquares(NoFieldUpdate):
 def make_field_update(scene):
     mode = scene.iips.update
     if mode == "nfts":
-        return FictitiousTimeStep(0.2, scene.domain.dx)
+        return FictitiousTimeStep(scene.time.cfl, scene.domain.dx)  # (a field-update audit: it was 0.2 always)
     if mode.startswith("mls"):
         return MovingLeastSquares(int(mode[3]), increment=mode.endswith("_increment"))
     return NoFieldUpdate()

@@ -129,6 +129,29 @@ def test_mls_reproduces_a_linear_field_beside_walls(tmp_path, update):
             assert np.abs(p.owned("density")[fluid] - (1.0 + 0.1 * x[:, 1])).max() < 1e-12
 
 
+def test_an_mls_update_with_nothing_to_interpolate_from_names_the_step_and_particle(tmp_path):
+    """A field-update audit: a particle moved out of reach of every old particle stopped the run with
+    "MLS update: a particle has no old neighbour to interpolate from", and no step, time or particle."""
+    from psph.errors import NumericalError
+    from psph.scene.load import load_scene
+    from tests.helpers import CASES
+
+    scene = load_scene(CASES / "hydrostatic_tank.toml", ["domain.dx=0.05", "shifting.method=iips",
+                                                         "iips.update=mls2", "time.t_end=0.1"])
+    with FluidDriver(scene, MPI.COMM_SELF, tmp_path) as driver:
+        system, p = driver.system, driver.system.particles
+        system.where = {"step": 7, "time": 0.3}
+        driver.update.before(system, driver.scheme)
+        fluid = np.flatnonzero(p.owned("kind") == Kind.FLUID)
+        k = fluid[np.argmax(p.owned("position")[fluid, 1])]
+        gid = int(p.owned("gid")[k])
+        p.owned("position")[k] = [1.0, 1.19]  # a support (0.2) above the top row (y = 0.975)
+        system.update()
+        with pytest.raises(NumericalError, match=rf"MLS update: 1 particle\(s\) with no old neighbour .* \[step 7, "
+                                                 rf"t = 0.3, particle gid {gid}, at \(1, 1.19\)\]"):
+            driver.update.after(system, driver.scheme)
+
+
 @pytest.mark.parametrize("update", ["mls2", "nfts"])
 @pytest.mark.parametrize("scheme", ["delta_ale", "riemann_ale"])
 def test_a_field_update_leaves_the_halo_copies_current(tmp_path, update, scheme):
