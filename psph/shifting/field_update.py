@@ -93,11 +93,13 @@ class FictitiousTimeStep(NoFieldUpdate):
         p.owned("nfts_step")[:] = shift / n
         p.owned(SHIFT_FIELD.name)[:] = 0.0
         system.update()
-        names = p.names
-        # normals of the solid neighbours (clones, see nfts_increments); none: no walls
-        normal = p["normal"] if "normal" in names else np.zeros((1, p.dim))
+        walls = "normal" in p.names
         for _ in range(n):
             system.refresh(["position", "volume", "density", "velocity", "nfts_step"])
+            # normals of the solid neighbours (clones, see nfts_increments; none: no walls), read after each
+            # sub-step's update: a rebuild there replaces every field array and reorders the rows (a parallel
+            # audit: the sweep's later sub-steps read the normals of other particles, rank-dependently)
+            normal = p["normal"] if walls else np.zeros((1, p.dim))
             vol, rho, vel = p.owned("volume"), p.owned("density"), p.owned("velocity")
             d_vol, d_mass = np.zeros(p.n_owned), np.zeros(p.n_owned)
             d_mom = np.zeros((p.n_owned, p.dim))

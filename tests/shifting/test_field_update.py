@@ -129,6 +129,42 @@ def test_mls_reproduces_a_linear_field_beside_walls(tmp_path, update):
             assert np.abs(p.owned("density")[fluid] - (1.0 + 0.1 * x[:, 1])).max() < 1e-12
 
 
+def test_nfts_reads_the_walls_normals_after_a_rebuild_within_its_sweep(tmp_path, monkeypatch):
+    """A parallel audit: NFTS read the solid particles' normals once before its sub-steps; a sub-step's update
+    that rebuilt the lists (reordered and resized rows) left the later sub-steps reading other particles'
+    normals (the cavity's velocity 0.037 off on 1 rank, and rank-dependent). Every sub-step gets the current
+    array; with a small skin some sweeps do rebuild."""
+    from psph.scene.load import load_scene
+    from psph.shifting import field_update
+    from tests.helpers import CASES
+
+    seen = {"calls": 0, "stale": 0, "rebuilt": 0}
+    increments = field_update.nfts_increments
+
+    def checked(pos, vol, rho, vel, step, kind, normal, *rest):
+        seen["calls"] += 1
+        seen["stale"] += normal is not system.particles["normal"]
+        return increments(pos, vol, rho, vel, step, kind, normal, *rest)
+
+    monkeypatch.setattr(field_update, "nfts_increments", checked)
+    scene = load_scene(CASES / "lid_driven_cavity.toml", ["domain.dx=0.05", "time.t_end=0.05", "output.every=0",
+                                                           "initial.sigma_over_dx=0.1", "iips.threshold=0.02",
+                                                           "neighbours.skin=0.02"])
+    with FluidDriver(scene, MPI.COMM_SELF, tmp_path) as driver:
+        system = driver.system
+        after = driver.update.after
+
+        def counted(system, scheme):
+            before = system.rebuilds
+            n = after(system, scheme)
+            seen["rebuilt"] += system.rebuilds - before > 1  # (one at the sweep's start: back to the old places)
+            return n
+
+        driver.update.after = counted
+        driver.run()
+    assert seen["calls"] > 0 and seen["rebuilt"] > 0 and seen["stale"] == 0, seen
+
+
 def test_an_mls_update_with_nothing_to_interpolate_from_names_the_step_and_particle(tmp_path):
     """A field-update audit: a particle moved out of reach of every old particle stopped the run with
     "MLS update: a particle has no old neighbour to interpolate from", and no step, time or particle."""
