@@ -523,3 +523,14 @@ def test_the_output_cadence_changes_no_bit(tmp_path, case):
     assert final["dense"]["time"] == final["sparse"]["time"]
     for key in ("position", "velocity", "density", "volume"):
         assert np.array_equal(final["dense"][key], final["sparse"][key]), key
+
+
+def test_a_last_step_cut_short_to_reach_t_end_is_no_collapse(tmp_path):
+    """A smoke test of run_scripts/bench_walls.py: the moving square's second step ends 3.7e-10 short of this
+    t_end, and the third, cut to that to land on t_end, was taken for a collapsed time step (exit 3). The
+    collapse check reads the step the CFL conditions allowed, not the part of it left to t_end."""
+    res = run_psph("run", CASES / "moving_square.toml", "--out", tmp_path, "--quiet", "--set", "domain.dx=0.05",
+                   "--set", "output.every=0", "--set", "time.t_end=0.0025000000000000005")
+    assert res.returncode == 0, res.stderr
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["steps"] == 3 and summary["final"]["time"] == 0.0025000000000000005
