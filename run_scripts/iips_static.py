@@ -10,7 +10,7 @@ function f = sin(2 pi x / l) + cos(2 pi y / l) with wavelength l (l / dx particl
 thesis' lambda reads as l = lambda / 2, matching its "40, 20, 10 particles per wavelength" at
 dx = 0.0125); KSP rtol 1e-2 (the default). Resolutions dx/L: 0.05, 0.025, 0.0125 (Table 8.1 adds 0.00625);
 --quick: 0.05 and 0.025 in both; --resolutions: the given ones in both. --ratios: the h/dx of Table 8.1
-(2, 1.6, 1.3). `--resolutions 0.1 0.05 --ratios 2` is the smoke run of tests/test_run_scripts.py.
+(2, 1.6, 1.3). `--resolutions 0.1 --ratios 2` is the smoke run of tests/test_run_scripts.py.
 """
 
 import argparse

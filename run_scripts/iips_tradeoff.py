@@ -92,9 +92,8 @@ def kinematic_sweep(out, ranks, sweep=FULL):
             run = run_scene(CASES / "kinematic_tgv.toml",
                             out / (f"kin_h{ratio}_b{beta}" + ("" if default else f"_{pc}_{rtol}")), ranks=ranks,
                             sets=[f"domain.dx={sweep['kinematic_dx']}", f"domain.h_over_dx={ratio}",
-                                  f"time.t_end={sweep['t_end']}",
-                                  f"iips.beta={beta}", "iips.max_newton=50", "iips.on_failure=warn",
-                                  "iips.on_stall=warn", "output.every=0", *PCS[pc][1]],
+                                  f"time.t_end={sweep['t_end']}", f"iips.beta={beta}", "iips.max_newton=50",
+                                  "iips.on_failure=warn", "iips.on_stall=warn", "output.every=0", *PCS[pc][1]],
                             petsc=[] if default else ["-iips_pc_type", PCS[pc][0], "-iips_ksp_rtol", str(rtol)])
         except RunStopped as exc:  # a diverged KSP solve stops even a "warn" run: a result of the sweep
             rows.append([ratio, beta, pc, rtol, "failed: " + stop_message(exc)[:80]] + ["-"] * 6)

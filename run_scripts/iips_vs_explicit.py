@@ -4,6 +4,7 @@ dx/L = 0.0125 (6400 particles), sigma/dx = 0.1, h/dx = 2, C6.
 
     .venv/bin/python run_scripts/iips_vs_explicit.py [--ranks 1 2] [--out results/iips_vs_explicit]
                                                      [--repeats 5] [--wavelengths 0.125 0.25 0.5] [--dx 0.0125]
+                                                     [--settings scene tuned assembled_tuned]
 
 Wavelengths l = 0.125, 0.25, 0.5 L: 10, 20, 40 particles per wavelength (the thesis' lambda/L = 0.25,
 0.5, 1 with its stated particle counts). A run that does not get within 5% shows the ratio it reached.
@@ -30,9 +31,10 @@ explicit iteration: the IIPS time they would need, and that time per Newton iter
 iterations. A Newton iteration evaluates grad C at the moved positions, as an explicit iteration does, so
 only the excess over 1 is left for the pairs' Hessians and the linear solve.
 
---dx sets another dx/L (particles per wavelength and the thesis' speed-up then follow l / dx): a coarse one,
-with one wavelength, one repeat and one rank, is a smoke run (tests/test_run_scripts.py: `--dx 0.05
---wavelengths 0.5 --repeats 1 --ranks 1`).
+--dx sets another dx/L (particles per wavelength and the thesis' speed-up then follow l / dx) and --settings
+runs some of the IIPS settings only: a coarse dx, with one wavelength, setting, repeat and rank, is a smoke run
+(tests/test_run_scripts.py: `--dx 0.05 --wavelengths 0.5 --settings assembled_tuned --repeats 1
+--ranks 1`).
 """
 
 import argparse
@@ -68,6 +70,8 @@ def main():
     parser.add_argument("--repeats", type=int, default=5, help="IIPS runs per setting (their median time)")
     parser.add_argument("--wavelengths", type=float, nargs="+", default=[0.125, 0.25, 0.5])
     parser.add_argument("--dx", type=float, default=0.0125, help="dx/L (default: the thesis' 0.0125)")
+    parser.add_argument("--settings", nargs="+", default=[name for name, _, _ in IIPS],
+                        choices=[name for name, _, _ in IIPS], help="the IIPS settings run (default: all)")
     args = parse_args(parser)
     for operator in ("matrix_free", "assembled"):
         run_scene(SCENE, args.out / "warmup", sets=["shifting.method=iips", "iips.max_newton=1",
@@ -91,7 +95,7 @@ def main():
                     continue
                 explicit.append((exp.summary["steps"], exp.summary["shifting_time_s"]) if reached(exp) else
                                 (f"not in {exp.summary['steps']} ({ratio(exp):.3g} x)", None))
-            for name, iips_sets, options in IIPS:
+            for name, iips_sets, options in [setting for setting in IIPS if setting[0] in args.settings]:
                 times = []
                 for k in range(args.repeats):  # a call of 30-150 ms: its time varies by up to 50% from run to run
                     imp = run_scene(SCENE, args.out / f"iips_{name}_l{wavelength}_n{ranks}", ranks=ranks,

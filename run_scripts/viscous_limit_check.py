@@ -29,7 +29,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/viscous_limit"))
     parser.add_argument("--ratios", type=float, nargs="+", default=[1.2, 1.5, 2.0, 2.5], help="h/dx")
-    parser.add_argument("--kernels", nargs="+", default=list(KERNEL_NAMES), choices=KERNEL_NAMES)
+    parser.add_argument("--kernels", nargs="+", default=list(KERNEL_NAMES), choices=KERNEL_NAMES,
+                        help="the kernels checked (default: all)")
     args = parser.parse_args()
     rng = np.random.default_rng(3)
     rows, ratios = [], []
