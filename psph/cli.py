@@ -243,6 +243,7 @@ def cmd_run(args, petsc_options, comm) -> int:
     from psph.drivers import driver_for
     from psph.io.checkpoint import results_after
     from psph.io.files import holds_results
+    from psph.parallel.comm import raise_if_any
     from psph.simulation import check_resources, iips_runs
     from psph.solvers.petsc import initialize
 
@@ -251,7 +252,12 @@ def cmd_run(args, petsc_options, comm) -> int:
     node = comm.Split_type(MPI.COMM_TYPE_SHARED)  # the ranks on this machine
     node_ranks = node.Get_size()
     node.Free()
-    check_resources(scene, allow_large=args.allow_large, ranks=comm.size, node_ranks=node_ranks)
+    refusal = None
+    try:  # each node judges its own memory: one node's refusal is every rank's (a parallel audit: the other
+        check_resources(scene, allow_large=args.allow_large, ranks=comm.size, node_ranks=node_ranks)
+    except SceneError as err:  # ranks waited for the refusing ones in the next collective, for ever)
+        refusal = err
+    raise_if_any(comm, refusal)
     if not (restart or args.out or SAFE_NAME.fullmatch(scene.name)):  # "../x" or "a/b" would write elsewhere
         raise SceneError("name", f"{scene.name!r} names no output directory ./NAME_out: give --out, or a name of "
                          f"letters, digits, '.', '_' and '-' that starts with a letter or digit")

@@ -156,3 +156,26 @@ def test_an_assembled_matrix_that_would_not_fit_is_refused_before_the_run():
         check_resources(big, ranks=4, node_ranks=1)  # a quarter of it here
         with pytest.raises(SceneError, match=r"on this machine \(3 of the run's 4 ranks\)"):
             check_resources(big, ranks=4, node_ranks=3)
+
+
+def test_one_nodes_memory_refusal_stops_every_rank(tmp_path):
+    """A parallel audit: each node judges its own memory, and a refusal by some ranks only (a node with less
+    memory, or more of the ranks) left the others waiting in the next collective, silently, for ever. Rank 1
+    is given a 256 MiB machine: both ranks stop with the one-line refusal, exit 2."""
+    import subprocess
+    import sys
+
+    from tests.helpers import ROOT, mpi_environment
+
+    script = tmp_path / "small_node.py"
+    script.write_text("import sys\nfrom mpi4py import MPI\nimport psph.simulation\n"
+                      "if MPI.COMM_WORLD.rank == 1:\n    psph.simulation.machine_memory = lambda: 2**28\n"
+                      "from psph.cli import main\nsys.exit(main(sys.argv[1:]))\n")
+    res = subprocess.run(["mpiexec", "-n", "2", "--oversubscribe", sys.executable, str(script), "run",
+                          str(ROOT / "cases" / "couette.toml"), "--set", "time.t_end=0.01", "--out",
+                          str(tmp_path / "out"), "--quiet"], capture_output=True, text=True, timeout=120, cwd=ROOT,
+                         env=mpi_environment())
+    assert res.returncode == 2, res.stderr
+    lines = [line for line in res.stderr.splitlines() if line.startswith("psph:")]
+    assert lines == [lines[0]] and "domain.dx: 200 particles need about" in lines[0] and \
+        "this machine's 0.25 GiB" in lines[0], res.stderr
