@@ -111,7 +111,8 @@ class ParticleSystem:
             attach_halo(self.comm, p, self.pattern, self.halo_fields)
         self._check_index_range()
         with phase("neighbour_search"):
-            self.nbr_ptr, self.nbr_idx = build_neighbour_lists(p["position"], p.n_owned, self.list_radius)
+            self.nbr_ptr, self.nbr_idx = build_neighbour_lists(p["position"], p.n_owned, self.list_radius,
+                                                               p["gid"])
         self._reference = p.owned("position").copy()
         self.rebuilds += 1
 

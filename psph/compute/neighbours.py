@@ -30,15 +30,19 @@ _MARGIN = 1e-6
 
 @njit(cache=True)
 def _cell_grid(pos, size):
-    """Lower corner and cell counts of a grid of cells of side >= `size` over `pos` (coarsened while the
-    cells would outnumber _MAX_CELLS_PER_PARTICLE per point). The counts are right-aligned in 3 slots
-    (ncell[3 - d:] are the d axes, the rest 1), so that cell (a0, a1, a2) is (a0 ncell[1] + a1) ncell[2] + a2
-    in any dimension and the last used axis is always slot 2."""
+    """(base, ncell, size): a grid of cells of side `size` (coarsened while the cells would outnumber
+    _MAX_CELLS_PER_PARTICLE per point) over `pos`, aligned with the global grid of cells [k size, (k + 1)
+    size): its first cell along axis a is base[a] (a whole number, as a float) and a point's cell is
+    floor(x / size) - base, so that two ranks put a particle in the same cell of space whatever else they
+    hold. The counts are right-aligned in 3 slots (ncell[3 - d:] are the d axes, the rest 1), so that cell
+    (a0, a1, a2) is (a0 ncell[1] + a1) ncell[2] + a2 in any dimension and the last used axis is always
+    slot 2."""
     n, d = pos.shape
-    lo = np.zeros(d)
+    base = np.zeros(d)
     ncell = np.ones(3, dtype=np.int64)
     if n == 0:
-        return lo, ncell, size
+        return base, ncell, size
+    lo = np.zeros(d)
     hi = np.zeros(d)
     for a in range(d):
         lo[a] = pos[0, a]
@@ -54,33 +58,34 @@ def _cell_grid(pos, size):
     while True:
         total = 1.0  # in floating point: a runaway particle's extent would overflow an integer product
         for a in range(d):
-            total *= np.floor((hi[a] - lo[a]) / size) + 1.0
+            total *= np.floor(hi[a] / size) - np.floor(lo[a] / size) + 1.0
         if total <= limit:
             break
         size *= 1.5
     for a in range(d):
-        ncell[3 - d + a] = int((hi[a] - lo[a]) / size) + 1
-    return lo, ncell, size
+        base[a] = np.floor(lo[a] / size)
+        ncell[3 - d + a] = int(np.floor(hi[a] / size) - base[a]) + 1
+    return base, ncell, size
 
 
 @njit(cache=True)
-def _cell_index(pos, lo, ncell, size):
+def _cell_index(pos, base, ncell, size):
     n, d = pos.shape
     cell = np.empty(n, dtype=np.int64)
     for i in range(n):
         c = 0
         for a in range(d):
-            k = int((pos[i, a] - lo[a]) / size)
-            if k >= ncell[3 - d + a]:
-                k = ncell[3 - d + a] - 1
+            k = int(np.floor(pos[i, a] / size) - base[a])
+            k = min(max(k, 0), ncell[3 - d + a] - 1)
             c = c * ncell[3 - d + a] + k
         cell[i] = c
     return cell
 
 
 @njit(cache=True)
-def _bin(cell, ntotal):
-    """Counting sort of the points by cell: start (ntotal + 1,) and members (points in cell order)."""
+def _bin(cell, ntotal, key):
+    """Counting sort of the points by cell, each cell's points by `key` (a particle's gid: a few points per
+    cell, an insertion sort): start (ntotal + 1,) and members (points in cell order)."""
     start = np.zeros(ntotal + 1, dtype=np.int64)
     for i in range(cell.size):
         start[cell[i] + 1] += 1
@@ -91,6 +96,14 @@ def _bin(cell, ntotal):
     for i in range(cell.size):
         members[fill[cell[i]]] = i
         fill[cell[i]] += 1
+    for c in range(ntotal):
+        for m in range(start[c] + 1, start[c + 1]):
+            j = members[m]
+            k = m
+            while k > start[c] and key[members[k - 1]] > key[j]:  # (stable: images of one gid keep their order)
+                members[k] = members[k - 1]
+                k -= 1
+            members[k] = j
     return start, members
 
 
@@ -171,19 +184,20 @@ _BALL = (2.0, np.pi, 4.0 / 3.0 * np.pi)
 
 
 @njit(cache=True)
-def _lists(query, n_rows, data, radius, exclude_self):
-    """CSR lists of the `data` points within `radius` (> 0) of query points 0..n_rows-1, ascending in cell
-    order; with exclude_self, query i is data i and is left out of its own row."""
+def _lists(query, n_rows, data, radius, exclude_self, key):
+    """CSR lists of the `data` points within `radius` (> 0) of query points 0..n_rows-1, in cell order (the
+    global grid's, _cell_grid), each cell's points by `key`; with exclude_self, query i is data i and is
+    left out of its own row."""
     if not radius > 0.0:
         raise ValueError("the neighbour-list radius must be positive")
     if data.shape[0] > INDEX_LIMIT:
         raise ValueError("more local particles than 32-bit neighbour indices address")
     d = data.shape[1]
-    lo, ncell, size = _cell_grid(np.concatenate((data, query[:n_rows])),
-                                 radius / _CELLS_PER_RADIUS * (1.0 + 4.0 * _MARGIN))
+    base, ncell, size = _cell_grid(np.concatenate((data, query[:n_rows])),
+                                   radius / _CELLS_PER_RADIUS * (1.0 + 4.0 * _MARGIN))
     reach = int(np.ceil(radius / size + _MARGIN))
-    start, members = _bin(_cell_index(data, lo, ncell, size), ncell[0] * ncell[1] * ncell[2])
-    qcell = _cell_index(query[:n_rows], lo, ncell, size)
+    start, members = _bin(_cell_index(data, base, ncell, size), ncell[0] * ncell[1] * ncell[2], key)
+    qcell = _cell_index(query[:n_rows], base, ncell, size)
     # the data in cell order, padded to three coordinates
     sorted_pos = np.zeros((members.size, 3))
     for m in range(members.size):
@@ -196,22 +210,25 @@ def _lists(query, n_rows, data, radius, exclude_self):
                  expected)
 
 
-def build_neighbour_lists(pos, n_rows, radius):
+def build_neighbour_lists(pos, n_rows, radius, gid=None):
     """CSR neighbour lists (ptr, idx) of rows 0..n_rows-1 over all particles in `pos`.
 
-    pos: (n, d) positions of owned then halo particles; radius: list radius (support + skin).
-    Returns ptr (n_rows + 1,) int64 and idx (ptr[-1],) int32 (a view of a buffer at most a quarter longer); row i is
-    idx[ptr[i]:ptr[i+1]], ascending in cell order, j != i.
+    pos: (n, d) positions of owned then halo particles; radius: list radius (support + skin); gid: the
+    particles' global ids (None: their rows). Returns ptr (n_rows + 1,) int64 and idx (ptr[-1],) int32 (a
+    view of a buffer at most a quarter longer); row i is idx[ptr[i]:ptr[i+1]], j != i, in the order of the
+    cells of space around i (_cell_grid), each cell's particles by gid: the same order on every rank count,
+    so that a particle's sums are too, to the last bit (unless a rank's grid was coarsened: _cell_grid).
 
     (This and build_cross_lists call _lists from Python, where exclude_self is a bool: from a numba function
     each constant would be a literal type, and the search compiled once for each, 9 s more on a cold cache.)
     """
-    return _lists(pos, int(n_rows), pos, float(radius), True)
+    key = np.arange(len(pos), dtype=np.int64) if gid is None else np.ascontiguousarray(gid, dtype=np.int64)
+    return _lists(pos, int(n_rows), pos, float(radius), True, key)
 
 
 def build_cross_lists(query, data, radius):
     """CSR lists of the `data` points within `radius` of each `query` point (two different point sets)."""
-    return _lists(query, query.shape[0], data, float(radius), False)
+    return _lists(query, query.shape[0], data, float(radius), False, np.arange(len(data), dtype=np.int64))
 
 
 @njit(cache=True, inline="always")
@@ -270,8 +287,8 @@ def spatial_order(pos, cell_size):
 
     Applied to owned particles after each neighbour-list rebuild so that neighbours sit close in memory.
     """
-    lo, ncell, size = _cell_grid(pos, cell_size)
-    cell = _cell_index(pos, lo, ncell, size)
+    base, ncell, size = _cell_grid(pos, cell_size)
+    cell = _cell_index(pos, base, ncell, size)
     return np.argsort(cell, kind="mergesort")
 
 

@@ -69,7 +69,7 @@ def test_spatial_order_is_a_permutation_grouping_cells():
     pos = rng.uniform(0, 1, (500, 2))
     order = spatial_order(pos, 0.1)
     assert sorted(order) == list(range(500))
-    cells = np.floor((pos[order] - pos.min(axis=0)) / 0.1).astype(int)
+    cells = np.floor(pos[order] / 0.1).astype(int)  # the global grid's cells, [k 0.1, (k + 1) 0.1)
     key = cells[:, 0] * 1000 + cells[:, 1]
     assert np.all(np.diff(key) >= 0)
 
@@ -119,3 +119,26 @@ def test_lists_at_any_scale_of_the_coordinates(scale):
     ptr, idx = build_neighbour_lists(pos, 200, 0.2 * scale)
     expect = brute_force(pos, 200, 0.2 * scale)
     assert [set(idx[ptr[i]:ptr[i + 1]]) for i in range(200)] == expect
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+def test_a_rows_order_is_the_same_on_any_rank(dim):
+    """Rows list their neighbours by the cells of space (a grid aligned with x = k size, not with each rank's
+    own particles) and, within a cell, by gid: a particle's row holds the same gids in the same order whether
+    the rank holds all the particles, in any order, or only some, with the rest as its halo (so a particle's
+    sums agree between rank counts to the last bit: tests/drivers/test_fluid_parallel.py)."""
+    rng = np.random.default_rng(dim)
+    n = {1: 200, 2: 600, 3: 1500}[dim]
+    pos = rng.uniform(0.3, 1.7, (n, dim))
+    gid = rng.permutation(n).astype(np.int64)
+    radius = 0.35
+    ptr, idx = build_neighbour_lists(pos, n, radius, gid)
+    rows = {int(gid[i]): gid[idx[ptr[i]:ptr[i + 1]]].tolist() for i in range(n)}
+    for trial in range(3):  # a "rank": the points left of a cut, in a shuffled order, and a halo beyond it
+        cut = 0.7 + 0.3 * trial
+        owned = rng.permutation(np.flatnonzero(pos[:, 0] < cut))
+        halo = rng.permutation(np.flatnonzero((pos[:, 0] >= cut) & (pos[:, 0] < cut + radius)))
+        local = np.concatenate([owned, halo])
+        p, i_ = build_neighbour_lists(pos[local], len(owned), radius, gid[local])
+        for k, g in enumerate(gid[owned]):
+            assert gid[local][i_[p[k]:p[k + 1]]].tolist() == rows[int(g)]
