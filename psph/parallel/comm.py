@@ -54,15 +54,19 @@ def alltoallv(comm, data: np.ndarray, send_counts: np.ndarray, recv_counts: np.n
         return np.array(data, copy=True)
     data = np.ascontiguousarray(data)
     tail = data.shape[1:]
-    width = int(np.prod(tail)) if tail else 1
     out = np.empty((int(recv_counts.sum()),) + tail, dtype=data.dtype)
-    sc = np.asarray(send_counts, dtype=np.int64) * width
-    rc = np.asarray(recv_counts, dtype=np.int64) * width
-    sd = np.concatenate(([0], np.cumsum(sc)[:-1]))
-    rd = np.concatenate(([0], np.cumsum(rc)[:-1]))
-    flat_send = data.reshape(-1)
-    flat_recv = out.reshape(-1)
-    comm.Alltoallv([flat_send, (sc, sd)], [flat_recv, (rc, rd)])
+    # counts and displacements in rows, of an MPI type one row long: MPI takes them as C ints, and in bytes
+    # (or elements) they passed 2^31 from about 10 M rows of a migration (a parallel audit: OverflowError)
+    row = MPI.BYTE.Create_contiguous(max(int(np.prod(tail, dtype=np.int64)), 1) * data.dtype.itemsize).Commit()
+    try:
+        sc = np.asarray(send_counts, dtype=np.int64)
+        rc = np.asarray(recv_counts, dtype=np.int64)
+        sd = np.concatenate(([0], np.cumsum(sc)[:-1]))
+        rd = np.concatenate(([0], np.cumsum(rc)[:-1]))
+        comm.Alltoallv([data.view(np.uint8).reshape(-1), (sc, sd), row],
+                       [out.view(np.uint8).reshape(-1), (rc, rd), row])
+    finally:
+        row.Free()
     return out
 
 
