@@ -168,8 +168,8 @@ def test_extremes_run_stably_or_stop_with_a_diagnosis(tmp_path, sets, outcome):
     """Each extreme has its expected outcome: a stable run, or a diagnosis (one line naming step and time,
     exit code 3, the state saved), so neither can turn into the other unnoticed."""
     res, out = tgv(tmp_path, "x", *sets, t_end=0.3)
-    if outcome == "stops":
-        lines = res.stderr.strip().splitlines()
+    if outcome == "stops":  # (a perturbed start with NFTS and no pre-procedure is warned about first)
+        lines = [line for line in res.stderr.strip().splitlines() if not line.startswith("psph: warning:")]
         assert res.returncode == 3 and len(lines) == 1 and "[step " in lines[0], res.stderr
         assert "Traceback" not in res.stderr and list(out.glob("snapshot_*.h5"))
         return
