@@ -33,6 +33,7 @@ from dataclasses import replace
 import numpy as np
 
 from psph.boundaries.bodies import bounds
+from psph.compute.neighbours import closest_pair
 from psph.diagnostics import fluid_mask, grad_c, norms
 from psph.errors import NumericalError
 from psph.parallel.comm import allreduce_max, allreduce_sum, raise_if_any
@@ -199,15 +200,8 @@ def _check_no_pairs(scene, system, spacing, iteration) -> None:
     audit: the cubic spline at h/dx = 2 stacked 176 of a drop's 316 particles within 0.01 dx of another,
     with grad Gamma small, and the run went on). Collective."""
     p = system.particles
-    kind, pos, gid = p["kind"], p["position"], p["gid"]
-    counts = np.diff(system.nbr_ptr)
-    i = np.repeat(np.arange(len(counts)), counts)
-    j = system.nbr_idx[: len(i)]
-    pairs = ((kind[i] == Kind.FLUID) | (kind[j] == Kind.FLUID)) & (i != j)
-    i, j = i[pairs], j[pairs]
-    r = np.linalg.norm(pos[i] - pos[j], axis=1)
-    k = int(np.argmin(r)) if len(r) else -1
-    local = (float(r[k]), int(gid[i[k]]), pos[i[k]].copy()) if len(r) else (np.inf, 0, None)
+    r, k = closest_pair(p["position"], p["kind"] == Kind.FLUID, system.nbr_ptr, system.nbr_idx)
+    local = (float(r), int(p["gid"][k]), p["position"][k].copy()) if k >= 0 else (np.inf, 0, None)
     close, gid_min, where = min(system.comm.allgather(local), key=lambda item: (item[0], item[1]))
     if close < PAIRED * spacing:
         error = NumericalError(f"particle packing paired particles at iteration {iteration}: two lie "

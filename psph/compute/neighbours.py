@@ -293,6 +293,26 @@ def spatial_order(pos, cell_size):
 
 
 @njit(cache=True)
+def closest_pair(pos, flagged, ptr, idx):
+    """(distance, row) of the closest pair over the owned rows' lists with at least one flagged particle
+    (inf, -1 if none). pos, flagged: every local particle's."""
+    best, row = np.inf, -1
+    d = pos.shape[1]
+    for i in range(ptr.size - 1):
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            if not (flagged[i] or flagged[j]):
+                continue
+            r2 = 0.0
+            for a in range(d):
+                t = pos[i, a] - pos[j, a]
+                r2 += t * t
+            if r2 < best:
+                best, row = r2, i
+    return np.sqrt(best), row
+
+
+@njit(cache=True)
 def max_displacement(pos, ref, n):
     """max_i |pos_i - ref_i| over the first n particles."""
     d = pos.shape[1]
