@@ -4,7 +4,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from psph.parallel.comm import allreduce_sum
+from psph.parallel.comm import allreduce_max, allreduce_min, allreduce_sum
 
 
 @dataclass(frozen=True)
@@ -63,6 +63,21 @@ def _weighted_splits(comm, coords, weights, lo, hi, target, iterations=60):
     return np.where(np.isnan(value), 0.5 * (lo + hi), value)
 
 
+def _split_axes(comm, pos, nodes):
+    """Per node, the axis along which its particles spread furthest (collective).
+
+    The particles' extent, not the box's: a thin layer at the bottom of a tall tank is cut across
+    its length, not into thin slabs whose boundary every sloshing wave crosses (a parallel audit).
+    A node without particles on any rank falls back to its box's longest side.
+    """
+    d = pos.shape[1]
+    lows = np.array([pos[m].min(axis=0) if m.any() else np.full(d, np.inf) for *_, m in nodes]).reshape(-1, d)
+    highs = np.array([pos[m].max(axis=0) if m.any() else np.full(d, -np.inf) for *_, m in nodes]).reshape(-1, d)
+    extent = allreduce_max(comm, highs) - allreduce_min(comm, lows)
+    return [int(np.argmax(e)) if np.isfinite(e).all() else int(np.argmax(b_hi - b_lo))
+            for e, (_, _, b_lo, b_hi, _) in zip(extent, nodes)]
+
+
 def _bisect_levels(comm, pos, domain, weights):
     """Build the split list level by level; every rank takes part in every split (collective)."""
     lower = np.asarray(domain.lower, dtype=np.float64)
@@ -77,7 +92,7 @@ def _bisect_levels(comm, pos, domain, weights):
         todo = [nd for nd in nodes if nd[1] - nd[0] > 1]
         if not todo:
             break
-        axes = [int(np.argmax(b_hi - b_lo)) for _, _, b_lo, b_hi, _ in todo]
+        axes = _split_axes(comm, pos, todo)
         totals = allreduce_sum(comm, np.array([weights[m].sum() for *_, m in todo], dtype=np.float64))
         fractions = np.array([((r_lo + r_hi) // 2 - r_lo) / (r_hi - r_lo) for r_lo, r_hi, *_ in todo])
         values = _weighted_splits(
@@ -108,8 +123,8 @@ def _bisect_levels(comm, pos, domain, weights):
 def recursive_bisection(comm, pos: np.ndarray, domain, weights=None) -> Decomposition:
     """Balance particle counts (or `weights`) over the ranks by recursive coordinate bisection.
 
-    Each split cuts the longest side of the current box at the weighted median. Collective; the
-    positions are this rank's particles (wrapped into the domain).
+    Each split cuts the current node's particles across their longest extent at the weighted median.
+    Collective; the positions are this rank's particles (wrapped into the domain).
     """
     if weights is None:
         weights = np.ones(len(pos), dtype=np.float64)

@@ -265,3 +265,14 @@ def test_rcb_splits_weights_evenly(comm):
         assert lo[1] == -np.inf or lo[1] > 0.0  # outer faces of the non-periodic axis are open
         assert hi[1] == np.inf or hi[1] < 1.0
         assert 0.0 <= lo[0] < hi[0] <= 1.0  # the periodic axis stays inside the box
+
+
+def test_rcb_cuts_a_thin_layer_across_its_length(comm):
+    """A layer 0.1 deep at the bottom of a tank 4 tall is cut across its length (x), not into slabs along the
+    box's longest side (y) whose boundary every wave crosses; the counts stay even."""
+    rng = np.random.default_rng(comm.rank)
+    pos = rng.uniform(0.0, 1.0, (800, 2)) * [1.0, 0.1]
+    dec = recursive_bisection(comm, pos, Domain((0.0, 0.0), (1.0, 4.0), (False, False)))
+    assert all(s.axis == 0 for s in dec.splits)
+    counts = comm.allreduce(np.bincount(dec.rank_of(pos), minlength=comm.size))
+    assert counts.max() - counts.min() <= 1
