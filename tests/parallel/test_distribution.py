@@ -276,3 +276,23 @@ def test_rcb_cuts_a_thin_layer_across_its_length(comm):
     assert all(s.axis == 0 for s in dec.splits)
     counts = comm.allreduce(np.bincount(dec.rank_of(pos), minlength=comm.size))
     assert counts.max() - counts.min() <= 1
+
+
+@pytest.mark.parametrize("empty_rank", [False, True])
+def test_gid_blocks_are_contiguous_and_sorted_with_sparse_gids(comm, empty_rank):
+    """Gids with gaps (an outlet removed some), dealt at random over the ranks (one possibly empty): the blocks,
+    in rank order, are the global ascending-gid order, and each row's data travels with its gid."""
+    from psph.parallel.ordering import to_gid_blocks
+
+    rng = np.random.default_rng(7)
+    every = np.sort(rng.choice(10_000, size=500, replace=False)) + 3
+    holder = rng.integers(0, comm.size, size=len(every))
+    if empty_rank:
+        holder[holder == comm.size - 1] = 0
+    mine = rng.permutation(every[holder == comm.rank])
+    start, total, out = to_gid_blocks(comm, mine, {"twice": 2.0 * mine, "pair": np.stack([mine, -mine], axis=1)})
+    assert total == len(every)
+    blocks = comm.allgather((start, out["twice"] / 2.0, out["pair"]))
+    assert [b[0] for b in blocks] == list(np.cumsum([0] + [len(b[1]) for b in blocks])[:-1])
+    assert np.array_equal(np.concatenate([b[1] for b in blocks]), every)
+    assert np.array_equal(np.concatenate([b[2] for b in blocks]), np.stack([every, -every], axis=1))
