@@ -456,6 +456,8 @@ def test_a_plain_mls_remap_with_a_free_surface_is_warned_about(tmp_path, update,
     assert res.returncode == 0, res.stderr
     assert (f"warning: iips.update = {update} remaps every field at every IIPS call" in res.stderr) is warned, \
         res.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary.get("mls_fallbacks") == (0 if update.startswith("mls") else None)  # (a full support everywhere)
 
 
 def test_nfts_from_a_perturbed_start_without_pre_procedure_is_warned_about(tmp_path):

@@ -120,7 +120,8 @@ def _first_column_of_inverse(a, m, g, pivot_tol):
 def mls_interpolate(new_pos, old_pos, old_vol, old_fields, ptr, idx, kp, order, out):
     """MLS reconstruction (order 1 or 2) of the columns of old_fields at new_pos (rows of ptr/idx index
     old particles). Falls back to first order, then to the Shepard average, where the moment matrix is
-    singular (too few neighbours); NaN where no old particle is within the support.
+    singular (too few neighbours); NaN where no old particle is within the support. Returns the number of
+    particles fitted below `order` (the fallbacks, which the run's summary counts).
 
     With the moment matrix M = sum_j w_j P_j P_j^T (w_j = W_ij V_j) the fit is phi_i = e_0^T M^-1 sum_j w_j
     P_j phi_j = sum_j w_j (g . P_j) phi_j, g = M^-1 e_0 (M is symmetric): one solve per particle, whatever the
@@ -138,6 +139,7 @@ def mls_interpolate(new_pos, old_pos, old_vol, old_fields, ptr, idx, kp, order, 
     a = np.empty((size, size))
     g = np.empty(size)
     xij = np.empty(d)
+    fallbacks = 0
     for i in range(ptr.size - 1):
         n = 0
         for k in range(ptr[i], ptr[i + 1]):
@@ -178,6 +180,8 @@ def mls_interpolate(new_pos, old_pos, old_vol, old_fields, ptr, idx, kp, order, 
                 break
             if not _first_column_of_inverse(a, m, g, 1e-10):
                 continue
+            if ord_try < order:
+                fallbacks += 1
             for f in range(nf):
                 out[i, f] = 0.0
             for t in range(n):
@@ -189,3 +193,4 @@ def mls_interpolate(new_pos, old_pos, old_vol, old_fields, ptr, idx, kp, order, 
                 for f in range(nf):
                     out[i, f] += c * old_fields[j, f]
             break
+    return fallbacks

@@ -331,11 +331,12 @@ class FluidDriver(Driver):
 
     def new_totals(self) -> dict:
         """The run's counters and times at its start, which advance and run add to (history and summary):
-        with IIPS + NFTS, the fictitious sub-steps too (thesis eq. 9.6)."""
+        with IIPS, its field update's counters too (NFTS's fictitious sub-steps, thesis eq. 9.6; MLS's
+        fits below the order)."""
         totals = {"iips_time_s": 0.0, "iips_newton": 0, "iips_linear": 0, "iips_calls": 0, "iips_failures": 0,
                   "retries": 0, "steps_redone": 0, "wall_reflections": 0, "step_time_s": 0.0}
-        if self.iips is not None and self.update.name == "nfts":
-            totals["nfts_substeps"] = 0
+        if self.iips is not None:
+            totals.update(dict.fromkeys(self.update.counters, 0))
         return totals
 
     def advance(self, state, dt, vmax, totals, allowed=None) -> None:
@@ -378,9 +379,8 @@ class FluidDriver(Driver):
                 # best iterate was its start (on_stall = "best")
                 moved = self.iips.max_shift(system) if report.iterations and not report.rejected else 0.0
                 if moved > 0.0:
-                    substeps = self.update.after(system, self.scheme)
-                    if "nfts_substeps" in totals:
-                        totals["nfts_substeps"] += substeps
+                    for name, count in self.update.after(system, self.scheme).items():
+                        totals[name] += count
                     self.open.extrapolate(system)  # the outflow buffer from the shifted fluid
             totals["iips_time_s"] += time.perf_counter() - t0
             totals["iips_newton"] += report.iterations

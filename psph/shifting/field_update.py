@@ -6,7 +6,9 @@
            fluxes update volume, mass and momentum (delta_ale only: the variants fix
            masses or volumes); IIPS then levels the concentration of the reference volumes V0
     mls1   first-order MLS re-interpolation (eq. 9.8) of volume, density and velocity from the pre-shift
-           positions; mass = rho V (delta_ale), or V = m / rho (constant mass), or m = V0 rho
+           positions; mass = rho V (delta_ale), or V = m / rho (constant mass), or m = V0 rho. Where a moment
+           matrix is singular the fit falls back to a lower order (Shepard last); the run's count of such
+           fits is summary.json's mls_fallbacks
     mls2   second-order MLS re-interpolation (eq. 9.9), same fields
     mls1_increment, mls2_increment
            the MLS fit's increment only: f_i += MLS[f](x_i') - MLS[f](x_i), the Taylor-series correction of
@@ -25,7 +27,7 @@ import numpy as np
 from psph.compute.field_update import mls_interpolate, nfts_increments
 from psph.compute.neighbours import build_cross_lists
 from psph.errors import NumericalError
-from psph.parallel.comm import raise_if_any
+from psph.parallel.comm import allreduce_sum, raise_if_any
 from psph.parallel.halo import build_halo_pattern, halo_copies
 from psph.particles import FieldSpec, Kind
 from psph.shifting.iips import SHIFT_FIELD, largest_shift
@@ -33,6 +35,8 @@ from psph.shifting.iips import SHIFT_FIELD, largest_shift
 
 class NoFieldUpdate:
     name = "none"
+    # the run's counters this update adds to (history and summary); after() returns their increments
+    counters = ()
     # the volumes weighting the concentration C = sum_j W_ij V_j that IIPS levels (ImplicitShifting.volume)
     concentration_volume = "volume"
 
@@ -44,8 +48,8 @@ class NoFieldUpdate:
         for spec in self.specs(system.particles.dim):
             system.particles.add_field(spec)
 
-    def after(self, system, scheme):
-        pass
+    def after(self, system, scheme) -> dict:
+        return {}
 
     # what an update changes: after it, their halo copies are refreshed, so that what reads them before the
     # next step refreshes its fields (the history's grad C, a snapshot's halo-based diagnostics) sees the
@@ -72,6 +76,7 @@ class FictitiousTimeStep(NoFieldUpdate):
 
     name = "nfts"
     concentration_volume = "volume0"
+    counters = ("nfts_substeps",)
 
     def specs(self, dim):
         return (FieldSpec("nfts_step", ("d",)),)
@@ -80,14 +85,14 @@ class FictitiousTimeStep(NoFieldUpdate):
         """cfl: the run's time.cfl, which bounds each sub-step's largest displacement to cfl dx (eq. 9.6)."""
         self.cfl, self.dx = cfl, dx
 
-    def after(self, system, scheme) -> int:
+    def after(self, system, scheme) -> dict:
         """Sweep the call's displacements in N = ceil(max|dx| / (cfl dx)) sub-steps (thesis eq. 9.6-9.7);
-        returns N. Collective."""
+        returns {"nfts_substeps": N}. Collective."""
         p = system.particles
         shift = p.owned(SHIFT_FIELD.name)
         largest = largest_shift(system)
         if largest == 0.0:
-            return 0
+            return {"nfts_substeps": 0}
         n = max(1, math.ceil(largest / (self.cfl * self.dx)))
         p.owned("position")[:] -= shift  # back to the pre-shift positions, then sweep in n steps
         p.owned("nfts_step")[:] = shift / n
@@ -115,13 +120,15 @@ class FictitiousTimeStep(NoFieldUpdate):
             p.owned("position")[:] += p.owned("nfts_step")
             system.update()
         self.refresh(system)
-        return n
+        return {"nfts_substeps": n}
 
 
 SOLID_KINDS = (Kind.WALL, Kind.BODY)
 
 
 class MovingLeastSquares(NoFieldUpdate):
+    counters = ("mls_fallbacks",)
+
     def __init__(self, order, increment=False):
         self.order = order
         self.increment = increment
@@ -147,12 +154,13 @@ class MovingLeastSquares(NoFieldUpdate):
         old[np.isin(p.owned("kind"), SOLID_KINDS), 0] = 0.0
 
     def _fit(self, system, at, old_pos, old):
-        """The MLS fit of the old fields (columns 1:, weighted by the volumes of column 0) at `at`."""
+        """The MLS fit of the old fields (columns 1:, weighted by the volumes of column 0) at `at`, and the
+        number of its points fitted below the order."""
         ptr, idx = build_cross_lists(at, old_pos, system.kernel.support)
         out = np.zeros((len(at), old.shape[1] - 1))
-        mls_interpolate(at, old_pos, old[:, 0], np.ascontiguousarray(old[:, 1:]), ptr, idx, system.kernel.params,
-                        self.order, out)
-        return out
+        fallbacks = mls_interpolate(at, old_pos, old[:, 0], np.ascontiguousarray(old[:, 1:]), ptr, idx,
+                                    system.kernel.params, self.order, out)
+        return out, fallbacks
 
     def after(self, system, scheme):
         """Re-interpolate at the new positions from the old ones. The old positions reach other ranks
@@ -168,9 +176,11 @@ class MovingLeastSquares(NoFieldUpdate):
         old = np.concatenate([p.owned("old_fields"), got["old_fields"]])
         # the fluid's rows only: solids and inflow particles keep their own fields (IIPS moved neither)
         fluid = p.owned("kind") == Kind.FLUID
-        new = self._fit(system, p.owned("position")[fluid], old_pos, old)
+        new, fallbacks = self._fit(system, p.owned("position")[fluid], old_pos, old)
         if self.increment:
-            new += p.owned("old_fields")[fluid, 1:] - self._fit(system, owned_old[fluid], old_pos, old)
+            at_old, more = self._fit(system, owned_old[fluid], old_pos, old)
+            new += p.owned("old_fields")[fluid, 1:] - at_old
+            fallbacks += more
         error = None
         bad = np.flatnonzero(~np.all(np.isfinite(new), axis=1))
         if len(bad):  # (a field-update audit: the error named no step, time or particle)
@@ -191,6 +201,7 @@ class MovingLeastSquares(NoFieldUpdate):
             mass[fluid] = p.owned("volume0")[fluid] * rho[fluid]
         p.owned("pressure")[fluid] = scheme.eos.pressure(rho[fluid])
         self.refresh(system)
+        return {"mls_fallbacks": int(allreduce_sum(system.comm, fallbacks))}
 
 
 def make_field_update(scene):
