@@ -323,6 +323,16 @@ def cmd_run(args, petsc_options, comm) -> int:
                     "NFTS's mass line exceeds rho x its volume line by 2 rho V s . grad C (thesis eq. 9.7), so they "
                     "change a uniform density (at rest, sigma = 0.1 dx: by -5.6% / +1.3% in one call); give "
                     "iips.pre_newton")
+    if scene.shifting.method in ("explicit_iterative", "lind"):
+        from psph.shifting.explicit import stability_limit
+
+        dom = scene.domain
+        limit = stability_limit(dom.kernel, dom.dimension, dom.h_over_dx)
+        if scene.shifting.diffusion > limit:
+            _warn(comm, f"psph: warning: shifting.diffusion = {scene.shifting.diffusion:g} exceeds {limit:.3g}, the "
+                        f"limit above which dx = -D grad C (thesis eq. 6.13) amplifies the shortest waves on the "
+                        f"lattice ({dom.kernel}, h/dx = {dom.h_over_dx:g}, {dom.dimension}-D): the distribution "
+                        "degrades instead of relaxing")
     phys = scene.physics
     mach = phys.reference_velocity / phys.sound_speed if phys.sound_speed > 0 else 1.0
     if phys.scheme == "riemann_ale" and phys.riemann_dissipation == "full" and mach < 0.05:

@@ -424,13 +424,20 @@ SHIFTING_METHODS = ("none", "iips", "explicit_iterative", "lind", "skillen", "og
 EXPLICIT_LAWS = ("lind", "skillen", "oger", "delta_plus", "neuhauser")
 
 
+def _methods_named(doc: str) -> set:
+    """The shifting methods a key's text begins with ("lind and oger: ..."), or none."""
+    named = set(doc.split(":")[0].replace(" and ", ", ").split(", "))
+    return named if named <= set(SHIFTING_METHODS) else set()
+
+
 @dataclass(frozen=True)
 class ShiftingSpec:
     method: str = option("none", doc="particle shifting: none, iips, explicit_iterative (static and kinematic "
                          "runs), or an explicit law inside a fluid scheme: lind, skillen, oger, delta_plus, "
                          "neuhauser", choices=SHIFTING_METHODS)
-    diffusion: float = option(0.4, doc="explicit_iterative: D / h^2 in dx = -D grad C (thesis eq. 6.13). Lind "
-                              "et al.'s 0.5 diverges with Wendland C6 at h/dx = 2 (stable up to ~0.46, measured)",
+    diffusion: float = option(0.4, doc="explicit_iterative and lind: D / h^2 in dx = -D grad C (thesis eq. 6.13, "
+                              "6.16). Lind et al.'s 0.5 diverges with Wendland C6 at h/dx = 2 (stable up to 0.47; "
+                              "0.40 at h/dx = 1.6, 0.27 at 1.3: a run above its kernel's limit is warned about)",
                               gt=0.0, le=10.0)
     max_iterations: int = option(1000, doc="explicit_iterative: iterations of a static run", ge=1)
     iterations_per_step: int = option(1, doc="explicit_iterative: iterations per time step", ge=1)
@@ -808,7 +815,7 @@ class Scene:
         scheme, method = self.physics.scheme, self.shifting.method
         fluid = scheme in FLUID_SCHEMES
         keys = [f"shifting.{name}" for name, f in ShiftingSpec.__dataclass_fields__.items()
-                if f.metadata["doc"].split(":")[0] in SHIFTING_METHODS and f.metadata["doc"].split(":")[0] != method]
+                if _methods_named(f.metadata["doc"]) and method not in _methods_named(f.metadata["doc"])]
         if method != "iips":
             pre = self.iips.pre_newton > 0 and scheme != "none"
             keys += [f"iips.{name}" for name in IIPSSpec.__dataclass_fields__
@@ -998,6 +1005,11 @@ class Scene:
         if not fluid and method in EXPLICIT_LAWS:
             raise SceneError("shifting.method", f"{method} shifts inside a fluid scheme; physics.scheme is "
                              f"{self.physics.scheme!r}")
+        if (method == "neuhauser" and self.shifting.fictitious_pressure
+                and self.physics.scheme == "delta_ale_const_volume"):  # (an audit of the explicit laws)
+            raise SceneError("shifting.fictitious_pressure", "P^F = p_ref V0 / V (thesis eq. 7.3) is p_ref "
+                             "throughout under physics.scheme = \"delta_ale_const_volume\", whose volumes stay V0: "
+                             "it would be Neuhauser with P_S = 1 (set shifting.neuhauser_ps = 1 for that)")
         if fluid and self.time.t_end <= 0.0:
             raise SceneError("time.t_end", "a fluid run needs t_end > 0")
         if self.iips.update != "none" and not (fluid and method == "iips"):

@@ -32,7 +32,7 @@ REAL_AXIS_REACH = {"rk3": 2.5127453266183286, "rk4": 2.785293563405282}
 SAFETY = 0.8
 
 
-def _lattice_offsets(kernel, dim: int, dx: float) -> tuple:
+def lattice_offsets(kernel, dim: int, dx: float) -> tuple:
     """The Cartesian lattice's neighbour offsets within the support, their lengths and weights V F_j."""
     reach = int(np.ceil(kernel.support / dx))
     axis = np.arange(-reach, reach + 1)
@@ -51,7 +51,7 @@ def lattice_symbol(kernel, dim: int, dx: float, morris: bool) -> tuple:
     Morris: 2 sum_j V F_j (1 - cos k.x_j); pi_ij: the largest eigenvalue of 2 (d + 2) sum_j V F_j
     (1 - cos k.x_j) e_j e_j^T (e_j = x_j / |x_j|), over k in [0, pi / dx]^d (the symbols are even in each
     component of k)."""
-    offsets, r, weight = _lattice_offsets(kernel, dim, dx)
+    offsets, r, weight = lattice_offsets(kernel, dim, dx)
     waves = np.linspace(0.0, np.pi / dx, 33 if dim < 3 else 17)
     k = np.stack(np.meshgrid(*[waves] * dim, indexing="ij"), axis=-1).reshape(-1, dim)
     c = (1.0 - np.cos(k @ offsets.T)) * weight  # (wave, neighbour)

@@ -2,10 +2,12 @@
 
 Each iteration moves every free particle down the concentration gradient (Lind et al. 2012, thesis
 eq. 6.13):  dx_i = -D grad C_i,  D = `shifting.diffusion` h^2. Lind et al. (and the thesis) use
-0.5 h^2; with Wendland C6 at h/dx = 2 that iteration diverges (measured: stable up to about 0.46 h^2),
-so psph's default is 0.4 h^2. Above that limit the iteration amplifies the shortest wavelengths: a call
-whose L2(grad C) grows past GROWTH times its start has diverged (at 0.5 h^2 it grows by at most 1.95 in
-2000 iterations, where the static study lets it run; at 5 h^2 it grows 7-fold at the first iteration).
+0.5 h^2; with Wendland C6 at h/dx = 2 that iteration diverges (stable up to 0.47 h^2: stability_limit;
+measured about 0.46 h^2), so psph's default is 0.4 h^2, which in turn exceeds the limit at smaller h/dx
+(0.40 h^2 at 1.6, 0.27 h^2 at 1.3: a run above it is warned about). Above that limit the iteration
+amplifies the shortest wavelengths: a call whose L2(grad C) grows past GROWTH times its start has
+diverged (at 0.5 h^2 it grows by at most 1.95 in 2000 iterations, where the static study lets it run; at
+5 h^2 it grows 7-fold at the first iteration).
 The static study iterates it (`shifting.max_iterations`); time-dependent runs apply
 `shifting.iterations_per_step` iterations per step. One iteration per step with D = (c0 dt)^2 is the
 thesis' non-iterative explicit shifting of eq. 8.36 (Procedure C), whose printed sign is read as moving
@@ -21,6 +23,26 @@ from psph.particles import Kind
 from psph.shifting.base import Shifting, ShiftReport, measure
 
 GROWTH = 4.0
+
+
+def stability_limit(kernel_name: str, dim: int, h_over_dx: float) -> float:
+    """The largest D / h^2 for which dx = -D grad C (thesis eq. 6.13) does not amplify a perturbation of the
+    Cartesian lattice of spacing dx.
+
+    Linearised about the lattice, grad C_i changes by sum_j V HessW(x_ij) (d_i - d_j); for a wave d_j = d
+    exp(i k.x_j) that is K(k) d with the symbol K(k) = sum_j V HessW(x_j) (1 - cos k.x_j), so an iteration
+    multiplies the wave by I - D K(k): stable while D <= 2 / max_k lambda_max(K(k)). The symbol is even in
+    each component of k, so k ranges over [0, pi / dx]^d."""
+    from psph.compute.smoothing import make_kernel
+    from psph.schemes.viscous_limit import lattice_offsets
+
+    kernel = make_kernel(kernel_name, dim, h_over_dx)  # dx = 1
+    offsets, _, _ = lattice_offsets(kernel, dim, 1.0)
+    hess = kernel.hessian(offsets)
+    waves = np.linspace(0.0, np.pi, 33 if dim < 3 else 17)
+    k = np.stack(np.meshgrid(*[waves] * dim, indexing="ij"), axis=-1).reshape(-1, dim)
+    symbol = np.einsum("kj,jab->kab", 1.0 - np.cos(k @ offsets.T), hess)
+    return 2.0 / float(np.linalg.eigvalsh(symbol)[:, -1].max()) / h_over_dx ** 2
 
 
 class ExplicitIterativeShifting(Shifting):

@@ -6,9 +6,16 @@ du = dx / dt.
     none        du = 0 (a Lagrangian scheme; the du-terms are skipped)
     delta_plus  seed 001 eq. 16-17 (Sun et al.):  du* = -Ma (2h) c0 grad C^, R = 0.2, n = 4;
                 |du| <= U_max / 2
-    lind        thesis eq. 6.15-6.16 (Lind et al. 2012): dx = -0.5 h^2 grad C^, |dx| <= 0.2 h; the correction's
-                b = 0.2, n = 4 are not in eq. 6.15-6.16 (the thesis: "suggested in Monaghan 2000"), as in
-                delta_plus
+    lind        thesis eq. 6.15-6.16 (Lind et al. 2012): dx = -D grad C^, D = `shifting.diffusion` h^2 (eq. 6.16
+                prints 0.5 h^2), |du| <= U_max / 2; the correction's b = 0.2, n = 4 are not in eq. 6.15-6.16
+                (the thesis: "suggested in Monaghan 2000"), as in delta_plus. Two departures from eq. 6.16,
+                which is written for ISPH, whose time step follows the flow (dt ~ 0.1 h / U): (1) applied
+                once per step, the law is the explicit iteration of eq. 6.13, which 0.5 h^2 makes diverge with
+                Wendland C6 at h/dx = 2 (stable to 0.47 h^2; psph.shifting.explicit.stability_limit); (2) its
+                cap |dx| <= 0.2 h, |du| <= 0.2 h / dt, is ~c0 at a weakly compressible step (dt = 0.2 h / c0),
+                and the time step, which reads |u + du|, then shrank at every step that a particle was capped
+                until the run stopped (an audit: Taylor-Green 16 x 16 from the lattice, |du| = 6.8 c0 and dt
+                6 times shorter at step 46, the density out of range at step 49). The cap is delta_plus's.
     skillen     thesis eq. 6.18 (Skillen et al. 2013): dx = -A h |u_i| dt grad C, A = `shifting.skillen_a`
                 (the thesis gives no value for A; psph's default is 2)
     oger        thesis eq. 6.32 (Oger et al. 2016): du = -U_char 2 dx grad C, U_char = Ma c0 = U_max,
@@ -107,16 +114,22 @@ class Lind(VelocityShift):
     active = True
     grad_c_weights = (0.2, 4.0)
 
+    def __init__(self, scene):
+        super().__init__(scene)
+        self.d = scene.shifting.diffusion
+        self.u_max = scene.physics.reference_velocity
+
     def velocity(self, system, scheme, dt, grad=None):
         h = system.kernel.h
         grad = _grad_c_hat(self, system, scheme, grad)
-        raw = -0.5 * h * h * grad / dt
+        raw = -self.d * h * h * grad / dt
         out = system.particles.owned("shift_velocity")
-        limit_magnitude(raw, np.full(len(raw), 0.2 * h / dt), out)
+        limit_magnitude(raw, np.full(len(raw), 0.5 * self.u_max), out)
         out *= _free(system)
 
     def describe(self):
-        return "shifting: Lind (Fickian) dx = -0.5 h^2 grad C^, |dx| <= 0.2 h per step (thesis eq. 6.16)"
+        return (f"shifting: Lind (Fickian) dx = -{self.d:g} h^2 grad C^ per step, |du| <= U_max/2 (thesis eq. "
+                "6.15-6.16; cap as delta_plus')")
 
 
 class Skillen(VelocityShift):

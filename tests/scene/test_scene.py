@@ -492,3 +492,13 @@ def test_static_shifting_at_a_bare_bounded_face_is_refused_by_face(sets, bare):
     walled = ["domain.periodic=[false, false]",
               'bodies=[{name="box", shape="box", center=[0.5, 0.5], size=[1.0, 1.0]}]']
     assert load_scene(CASES / "static_perturbed.toml", ["shifting.method=iips", *walled]).bodies
+
+
+def test_the_fictitious_pressure_is_refused_where_the_volumes_stay_constant():
+    """P^F = p_ref V0 / V (thesis eq. 7.3) is p_ref throughout when V stays V0: the run was Neuhauser with
+    P_S = 1 under another name (an audit: the shift velocities of both were equal to 0.0)."""
+    sets = ["shifting.method=neuhauser", "iips.update=none", "shifting.fictitious_pressure=true"]
+    with pytest.raises(SceneError) as info:
+        load_scene(CASES / "taylor_green.toml", [*sets, "physics.scheme=delta_ale_const_volume"])
+    assert info.value.key == "shifting.fictitious_pressure" and "neuhauser_ps = 1" in str(info.value)
+    assert load_scene(CASES / "taylor_green.toml", [*sets, "physics.scheme=delta_ale_const_mass"])
