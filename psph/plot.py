@@ -191,6 +191,24 @@ def _grad_c_magnitude(run_dir: Path, data: dict):
     return out
 
 
+def shown_fields(run_dir: Path, data: dict) -> dict:
+    """The fields fields.png shows of a snapshot's particles, by their titles."""
+    fields = {}
+    if "velocity" in data:
+        fields["|velocity|"] = np.linalg.norm(data["velocity"], axis=1)
+    if "pressure" in data:
+        fields["pressure"] = data["pressure"]
+    if "grad_c" in data:  # (stored unscaled: a diagnostics audit found it shown as |grad C| h, 1/h times too high)
+        table = _run_scene_table(run_dir)
+        h = table["domain"]["dx"] * table["domain"]["h_over_dx"] if table is not None else None
+        fields["|grad C| h" if h else "|grad C|"] = np.linalg.norm(data["grad_c"], axis=1) * (h or 1.0)
+    else:
+        fields["|grad C| h"] = _grad_c_magnitude(run_dir, data)
+    if "volume0" in data:
+        fields["V / V0 - 1"] = data["volume"] / data["volume0"] - 1.0
+    return {k: v for k, v in fields.items() if v is not None}
+
+
 def plot_fields(run_dir: Path, fig_dir: Path):
     from psph.io.snapshots import snapshot_files
     from psph.studies import last_snapshot
@@ -205,16 +223,7 @@ def plot_fields(run_dir: Path, fig_dir: Path):
     pos = data["position"]
     if pos.shape[1] == 3:
         return None  # 3-D: ParaView (OUT/psph.xdmf)
-    fields = {}
-    if "velocity" in data:
-        fields["|velocity|"] = np.linalg.norm(data["velocity"], axis=1)
-    if "pressure" in data:
-        fields["pressure"] = data["pressure"]
-    gc = data["grad_c"] if "grad_c" in data else None
-    fields["|grad C| h"] = np.linalg.norm(gc, axis=1) if gc is not None else _grad_c_magnitude(run_dir, data)
-    if "volume0" in data:
-        fields["V / V0 - 1"] = data["volume"] / data["volume0"] - 1.0
-    fields = {k: v for k, v in fields.items() if v is not None}
+    fields = shown_fields(run_dir, data)
     plt = _pyplot()
     n = len(fields)
     fig, axes = plt.subplots(1, n, figsize=(4.6 * n, 4.2), squeeze=False)

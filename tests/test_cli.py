@@ -211,6 +211,26 @@ def test_quiet_run_logs_to_file_and_plots(tmp_path):
     assert res.returncode == 2 and "holds neither a run" in res.stderr
 
 
+def test_the_fields_figure_shows_grad_c_times_h_as_its_title_says(tmp_path):
+    """A static run's snapshots hold grad C itself; fields.png titled it |grad C| h and showed |grad C|, 1/h
+    times too high (a diagnostics audit: 2.0e-3 against the history's Linf 2.0e-4 at dx = 0.05). Its largest
+    value is the history's Linf(grad C) = h max|grad C|."""
+    import json
+
+    from psph.io.history import read_history
+    from psph.plot import shown_fields
+    from psph.studies import last_snapshot
+
+    out = tmp_path / "static"
+    res = run_psph("run", SCENE, "--out", out, "--quiet", "--set", "domain.dx=0.05", "--set", "iips.max_newton=2")
+    assert res.returncode == 0, res.stderr
+    data, _ = last_snapshot(out)
+    shown = shown_fields(out, data)["|grad C| h"]
+    free = data["kind"] == 0
+    assert shown[free].max() == pytest.approx(read_history(out / "history.csv")[-1]["Linf_grad_c"], rel=1e-9)
+    assert json.loads((out / "summary.json").read_text())["scene"]["domain"]["dx"] == 0.05
+
+
 def test_a_study_of_drops_is_plotted_by_their_semi_axis_error():
     from psph.plot import study_error
 

@@ -30,8 +30,11 @@ class WallTerms:
         self.shift_reach = scene.domain.dx / 2.0  # keep_shift_off
         self.no_slip = np.array([b.no_slip for b in self.bodies], dtype=np.bool_)
         self.centers = np.zeros((len(self.bodies), 2))
-        self.force = np.zeros((len(self.bodies), 2, 2))
-        self.torque = np.zeros((len(self.bodies), 2))
+        # NaN until the first right-hand side measures them: the history's row at t = 0, written before it,
+        # gave a tank's load as 0.0 against the water's weight (a diagnostics audit)
+        self.force = np.full((len(self.bodies), 2, 2), np.nan)
+        self.torque = np.full((len(self.bodies), 2), np.nan)
+        self.measured = False
         # the owned fluid rows' pressure forces on the solids at the last right-hand side, and where the rows
         # were then (the particle order may change before they are read): the load along a wall
         self.particle_force = np.zeros((0, 2))
@@ -198,6 +201,7 @@ class WallTerms:
         p = system.particles
         eos_b = getattr(scheme.eos, "b", 0.0)
         self.force[:] = 0.0
+        self.measured = True
         self.particle_force = np.zeros((system.particles.n_owned, 2))
         self.particle_force_at = system.particles.owned("position").copy()
         self.torque[:] = 0.0
@@ -252,7 +256,7 @@ class WallTerms:
         positive (each pair's force applied at the solid particle's node on the profile); and of every
         clone-wall container (box, polygon), the force the fluid exerts on it, force_x_NAME and force_y_NAME,
         pressure and viscous parts together, in the scene's units (per unit depth in 2-D): for water at
-        rest, its weight. Collective."""
+        rest, its weight. NaN before the first right-hand side (the history's row at t = 0). Collective."""
         force = allreduce_sum(comm, self.force.copy())
         torque = allreduce_sum(comm, self.torque.copy())
         immersed = [b for b in self.bodies if b.kind == Kind.BODY]

@@ -110,20 +110,26 @@ class StaticDriver(Driver):
         finally:
             system.where = {}
         iterations = len(sim.history.rows) - 1  # an iteration iips.backtrack undid has no row, nor a state
+        kept = iterations  # the iteration whose state the run ends with
         if result.message:
             sim.log(result.message)
         if result.failed:  # kept: the best iterate, the start (reject) or a diverged step (warn)
+            kept = iterations if result.kept_iteration is None else min(result.kept_iteration, iterations)
             report = distribution_report(system, wavelength)
-            sim.log(f"the state kept: L2(grad C) = {report['L2_grad_c']:.4e}, Linf(grad C) = "
+            sim.log(f"the state kept, iteration {kept}'s: L2(grad C) = {report['L2_grad_c']:.4e}, Linf(grad C) = "
                     f"{report['Linf_grad_c']:.4e}, L2(df/dx) = {report['L2_dfdx']:.4e} (the last snapshot's and "
                     f"summary.json's final values)")
+        if kept:
+            # labelled with the kept state's iteration (a diagnostics audit: a stalled run's best iterate, 7,
+            # was written as iteration 12's); a run that kept its start has it in the first snapshot
+            path = sim.snapshots.write(system.particles, step=kept, time=float(kept), extra={"grad_c": grad_c(system)})
+        elif iterations:
+            path = sim.out_dir / sim.snapshots.entries[0][0]
         if iterations:
-            path = sim.snapshots.write(system.particles, step=iterations, time=float(iterations),
-                                       extra={"grad_c": grad_c(system)})
             if stopped and stopped[-1]:  # (a failed first iteration reports none)
                 sim.stop(f"the state after iteration {iterations} is in {path} (static runs write no checkpoint)")
             if not result.failed:  # (a failed call kept the state its on_stall / on_failure chose, and said so)
                 self._check_improved(sim, report, iterations, path)
-        return sim.summary(steps=iterations, final={**report, "L2_dfdx_cartesian": reference},
+        return sim.summary(steps=iterations, final={**report, "L2_dfdx_cartesian": reference, "iteration": kept},
                            shifting_time_s=elapsed["shifting_time_s"],
                            linear_iterations=elapsed["linear_iterations"])

@@ -1,6 +1,7 @@
 """Atomic file writes (temporary file, fsync, rename) and output-directory housekeeping."""
 
 import json
+import math
 import os
 import re
 from pathlib import Path
@@ -34,7 +35,24 @@ def write_text_atomic(path, text: str) -> None:
 
 
 def write_json_atomic(path, data) -> None:
-    write_text_atomic(path, json.dumps(data, indent=2, sort_keys=True, default=jsonable) + "\n")
+    """Write `data` as JSON, whole or not at all; a non-finite number (the smallest spacing of a domain the
+    fluid has left, an error against a zero reference) is written as null: JSON has no NaN or Infinity, and
+    strict readers (JavaScript's JSON.parse) refuse the file (a diagnostics audit)."""
+    text = json.dumps(_finite_or_null(data), indent=2, sort_keys=True, default=jsonable, allow_nan=False)
+    write_text_atomic(path, text + "\n")
+
+
+def _finite_or_null(value):
+    """`value` with every non-finite float, at any depth (numpy's included), replaced by None."""
+    if isinstance(value, dict):
+        return {k: _finite_or_null(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_or_null(v) for v in value]
+    if type(value).__module__ == "numpy":
+        return _finite_or_null(jsonable(value))
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 def jsonable(value):

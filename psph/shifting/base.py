@@ -20,6 +20,9 @@ class ShiftReport:
     failed: bool = False
     message: str = ""
     history: list = field(default_factory=list)
+    # the iteration whose state a failed call kept (on_stall "best": its lowest Linf(grad C); "reject": 0, the
+    # start); None: the last
+    kept_iteration: int | None = None
 
 
 def measure(system, volume="volume", mask=None):

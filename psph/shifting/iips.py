@@ -291,7 +291,7 @@ class ImplicitShifting(Shifting):
         p.owned(BEST_FIELD.name)[:] = 0.0
         if self.spec.backtrack:
             p.add_field(STEP_FIELD)
-        best_linf = linf
+        best_linf, best_iteration = linf, 0
         stuck = False
         while report.iterations < max_newton and not linf <= ROUNDOFF_LINF:  # (NaN iterates, and fails)
             above = threshold is None or linf > threshold
@@ -316,7 +316,7 @@ class ImplicitShifting(Shifting):
                 break
             if linf < best_linf and (not self.spec.stall_max_shift
                                      or largest_shift(system) <= self.spec.stall_max_shift * h):
-                best_linf = linf
+                best_linf, best_iteration = linf, report.iterations
                 p.owned(BEST_FIELD.name)[:] = p.owned(SHIFT_FIELD.name)
             if not np.isfinite(linf) or linf > self.spec.divergence_factor * max(start_linf, DIVERGENCE_FLOOR):
                 where = self._place(system, grad, where)
@@ -337,6 +337,7 @@ class ImplicitShifting(Shifting):
                        + (f" (no descent in {self.spec.backtrack} halvings)" if stuck else ""))
             if mode == "best":
                 self._restore(system, p.owned(BEST_FIELD.name), report)
+                report.kept_iteration = best_iteration
                 stalled += f"; kept the iterate of Linf(grad C) = {report.Linf_grad_c:.3e}"
             failure = NumericalError(stalled, **where)
         if failure is not None:
@@ -411,6 +412,7 @@ class ImplicitShifting(Shifting):
             raise failure
         if mode == "reject":
             self._restore(system, None, report)
+            report.kept_iteration = 0
             report.rejected = True
             self.rejections += 1
         report.failed = True

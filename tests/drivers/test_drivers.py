@@ -142,6 +142,25 @@ def test_a_static_runs_summary_describes_the_state_it_kept(tmp_path):
     with h5py.File(sorted(tmp_path.glob("snapshot_*.h5"))[-1]) as f:
         grad = f["particles/grad_c"][()]
     assert np.isclose(np.linalg.norm(grad, axis=1).max() * 0.05 * 2.0, start["Linf_grad_c"], rtol=1e-9)
+    # the start is the first snapshot's state: no second snapshot of it (two at time 0 ParaView cannot show)
+    assert final["iteration"] == 0 and len(list(tmp_path.glob("snapshot_*.h5"))) == 1
+
+
+def test_a_stalled_static_runs_kept_iterate_is_labelled_with_its_iteration(tmp_path):
+    """iips.on_stall = "best" keeps the iterate of lowest Linf(grad C): its snapshot was labelled with the last
+    iteration, 12, and summary.json's final values named none (a diagnostics audit: iteration 7's state)."""
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path, "--quiet", "--set", "domain.dx=0.05",
+                   "--set", "shifting.method=iips", "--set", "iips.threshold=1e-9", "--set", "iips.max_newton=12")
+    assert res.returncode == 0 and "stalled" in (tmp_path / "psph.log").read_text(), res.stderr
+    rows = read_history(tmp_path / "history.csv")
+    best = min(range(len(rows)), key=lambda k: rows[k]["Linf_grad_c"])
+    assert 0 < best < len(rows) - 1 == 12
+    final = json.loads((tmp_path / "summary.json").read_text())["final"]
+    assert final["iteration"] == best and final["L2_grad_c"] == pytest.approx(rows[best]["L2_grad_c"], rel=1e-9)
+    with h5py.File(sorted(tmp_path.glob("snapshot_*.h5"))[-1]) as f:
+        assert f.attrs["step"] == best and f.attrs["time"] == best
+        grad = f["particles/grad_c"][()]
+    assert np.linalg.norm(grad, axis=1).max() * 0.1 == pytest.approx(rows[best]["Linf_grad_c"], rel=1e-9)
 
 
 def test_a_static_run_level_to_round_off_takes_no_further_newton_step(tmp_path):

@@ -198,3 +198,19 @@ def test_the_latest_checkpoint_is_the_largest_step_and_only_psph_s(tmp_path):
     (tmp_path / "checkpoint_best.h5").write_bytes(b"")
     (tmp_path / "checkpoint_2000000.h5.tmp").write_bytes(b"")
     assert latest_checkpoint(tmp_path).name == "checkpoint_1000000.h5"
+
+
+def test_a_restarted_runs_summary_keeps_its_packing_report(tmp_path):
+    """summary.json's `packing` (the start's Colagrossi packing) was dropped by a restart, which packs nothing
+    (a diagnostics audit): the checkpoint carries it."""
+    import shutil
+
+    from psph.scene.load import load_scene
+
+    sc = load_scene(CASES / "hydrostatic_tank.toml", ["domain.dx=0.1", "time.t_end=0.05", "packing.iterations=10",
+                                                      "output.every=0", "output.checkpoint_every=3"])
+    _, summary = run(sc, MPI.COMM_SELF, tmp_path / "whole")
+    assert summary["packing"]["converged"] and summary["packing"]["frame_particles"] > 0
+    shutil.copytree(tmp_path / "whole", tmp_path / "again")
+    _, again = run(sc, MPI.COMM_SELF, tmp_path / "again", restart=latest_checkpoint(tmp_path / "again"))
+    assert again["packing"] == json.loads(json.dumps(summary["packing"]))

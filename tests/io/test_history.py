@@ -77,3 +77,25 @@ def test_a_particle_file_the_disk_cannot_hold_is_refused_before_it_is_written(tm
     monkeypatch.setattr(os, "statvfs", lambda path: SimpleNamespace(f_blocks=0, f_bavail=0, f_bfree=0, f_frsize=4096))
     write_particle_file(MPI.COMM_SELF, str(tmp_path / "b.h5"), 0, 1000, data, {})
     assert (tmp_path / "b.h5").stat().st_size > 16000
+
+
+def test_a_summary_with_non_finite_values_is_strict_json(tmp_path):
+    """JSON has no NaN or Infinity: summary.json's smallest spacing after the fluid left (inf) and an error
+    against a zero reference (nan) are written as null, which every JSON reader takes (a diagnostics audit:
+    JavaScript's JSON.parse refused the file)."""
+    import json
+
+    import numpy as np
+
+    from psph.io.files import write_json_atomic
+
+    write_json_atomic(tmp_path / "s.json", {"final": {"min_spacing": float("inf"), "error": np.float64("nan"),
+                                                       "mass": np.float64(1.5), "steps": np.int64(3)},
+                                            "norms": [1.0, float("-inf")], "field": np.array([np.nan, 2.0])})
+
+    def refuse(constant):
+        raise ValueError(constant)
+
+    data = json.loads((tmp_path / "s.json").read_text(), parse_constant=refuse)
+    assert data == {"final": {"min_spacing": None, "error": None, "mass": 1.5, "steps": 3}, "norms": [1.0, None],
+                    "field": [None, 2.0]}
