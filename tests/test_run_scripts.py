@@ -72,11 +72,16 @@ def figures(out, *names):
 
 
 def histories(path, labels):
-    """The CSV of time histories (psph.studies.write_histories): finite numbers past its `labels` columns."""
+    """The CSV of time histories (psph.studies.write_histories): finite numbers past its `labels` columns, but
+    at t = 0 the forces on bodies, which no right-hand side has measured yet (NaN)."""
     with open(path, newline="") as f:
         header, *rows = list(csv.reader(f))
     assert rows and header[labels] == "time"
-    finite(header, rows, skip=range(labels))
+    start = [row for row in rows if float(row[labels]) == 0.0]
+    forces = [k for k, name in enumerate(header) if name.startswith(("cd_", "cl_", "cm_", "force_"))]
+    assert all(row[k] == "nan" for row in start for k in forces)
+    finite(header, [row for row in rows if row not in start], skip=range(labels))
+    finite(header, start, skip=[*range(labels), *forces])
 
 
 def printed(pattern, stdout):
