@@ -142,15 +142,20 @@ class Simulation:
         """On a NumericalError inside the block, write a diagnostic snapshot (the state at failure, with
         grad C) before letting the error end the run. It is labelled with the error's step and time (a
         failure within a step: that step and the time it started from), else with `where()`'s (step, time)
-        (the last completed step). Collective: the error is every rank's (raise_if_any), with its WHERE.
-        Any other error (a full disk, a bug, a forced stop) leaves the history's rows so far written (rank 0,
-        no collective), unless writing them fails too."""
+        (the last completed step). Collective: the error is every rank's (raise_if_any), with its WHERE; one
+        rank's NumericalError, like any other error (a full disk, a bug, a forced stop), leaves the history's
+        rows so far written (rank 0, no collective), unless writing them fails too."""
         from psph.diagnostics import grad_c
-        from psph.errors import NumericalError
+        from psph.errors import NumericalError, is_collective
 
         try:
             yield
         except NumericalError as err:
+            if self.comm.size > 1 and not is_collective(err):
+                # one rank's error: the snapshot is collective and the other ranks are elsewhere (a hang, once
+                # the snapshot's first collective matched theirs); the CLI aborts them with this error
+                self._flush_quietly()
+                raise
             step, t = where()
             step = step if getattr(err, "step", None) is None else err.step
             t = t if getattr(err, "time", None) is None else err.time
@@ -160,11 +165,16 @@ class Simulation:
             self.log(f"psph: state at the failure written to {path}")
             raise
         except BaseException:  # a bug, a full disk, a forced stop (KeyboardInterrupt): rank 0 only, no collective
-            try:
-                self.history.flush()
-            except Exception:  # the error being raised says more
-                pass
+            self._flush_quietly()
             raise
+
+    def _flush_quietly(self) -> None:
+        """Write the history's rows so far (rank 0, no collective), unless that fails too: the error being
+        raised says more."""
+        try:
+            self.history.flush()
+        except Exception:
+            pass
 
     def summary(self, steps: int, final: dict, **extra) -> dict:
         """Flush the history, write summary.json (collective call; rank 0 writes) and return it."""
