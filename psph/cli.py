@@ -176,6 +176,7 @@ def _toml_value(v):
 
 
 SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")  # a scene name that makes a default ./NAME_out
+MAX_NAME = 200  # (+ "_out": within the 255 bytes of a file name)
 RESTART_KEYS = ("time.", "output.", "neighbours.")  # skin and balance: results change as with the rank count
 
 
@@ -258,9 +259,11 @@ def cmd_run(args, petsc_options, comm) -> int:
     except SceneError as err:  # ranks waited for the refusing ones in the next collective, for ever)
         refusal = err
     raise_if_any(comm, refusal)
-    if not (restart or args.out or SAFE_NAME.fullmatch(scene.name)):  # "../x" or "a/b" would write elsewhere
-        raise SceneError("name", f"{scene.name!r} names no output directory ./NAME_out: give --out, or a name of "
-                         f"letters, digits, '.', '_' and '-' that starts with a letter or digit")
+    if not (restart or args.out or (SAFE_NAME.fullmatch(scene.name) and len(scene.name) <= MAX_NAME)):
+        # ("../x" or "a/b" would write elsewhere; a name past the system's limit failed as an I/O error)
+        raise SceneError("name", f"{scene.name[:40]!r}{'...' if len(scene.name) > 40 else ''} names no output "
+                         f"directory ./NAME_out: give --out, or a name of at most {MAX_NAME} letters, digits, '.', "
+                         "'_' and '-' that starts with a letter or digit")
     default_out = os.path.dirname(os.path.abspath(args.restart)) if restart else f"{scene.name}_out"
     out = os.path.abspath(args.out or default_out)
     continuing = restart is not None and os.path.realpath(out) == os.path.dirname(os.path.realpath(args.restart))

@@ -104,12 +104,14 @@ def test_a_scene_argument_that_is_no_scene_file_says_what_it_is(tmp_path):
 
 def test_a_scene_name_that_makes_no_directory_name_needs_out(tmp_path):
     """The default output directory ./NAME_out: name = "../x" wrote outside the working directory, "" to ./_out.
-    Such a name is refused unless --out is given (a run of an older name can still be restarted or plotted)."""
-    for name in ("../elsewhere", "a/b", ""):
+    Such a name is refused unless --out is given (a run of an older name can still be restarted or plotted), and
+    so is one past the file system's 255 bytes (a fuzzing audit: an I/O failure, exit 1)."""
+    for name, shown in (("../elsewhere", "'../elsewhere'"), ("a/b", "'a/b'"), ("", "''"),
+                        ("a" * 300, "'" + "a" * 40 + "'...")):
         res = run_psph("run", SCENE, "--set", f'name="{name}"', "--set", "domain.dx=0.1", cwd=tmp_path)
         assert res.returncode == 2 and res.stderr.strip() == (
-            f"psph: error: name: {name!r} names no output directory ./NAME_out: give --out, or a name of letters, "
-            f"digits, '.', '_' and '-' that starts with a letter or digit"), res.stderr
+            f"psph: error: name: {shown} names no output directory ./NAME_out: give --out, or a name of at most 200 "
+            f"letters, digits, '.', '_' and '-' that starts with a letter or digit"), res.stderr
     assert list(tmp_path.iterdir()) == [] and not (tmp_path.parent / "elsewhere_out").exists()
     res = run_psph("run", SCENE, "--set", 'name="a b"', "--set", "domain.dx=0.1", "--out", tmp_path / "out",
                    "--quiet")

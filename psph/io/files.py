@@ -68,7 +68,6 @@ def jsonable(value):
     raise TypeError(f"cannot write {type(value).__name__} to JSON")
 
 
-OUTPUT_MARKERS = ("summary.json", "history.csv", "psph.xdmf")
 # everything a run (and `psph plot`, in figures/) writes into its output directory, as regular expressions
 OUTPUT_FILES = re.compile(r"(summary\.json|history\.csv|psph\.xdmf|psph\.log|probes\.csv|wall_pressure\.csv"
                           r"|packing\.csv|(snapshot|checkpoint)_\d{6,}\.h5)(\.tmp)?")
@@ -77,13 +76,13 @@ CHECKPOINT_FILES = re.compile(r"checkpoint_\d{6,}\.h5")  # io.checkpoint.checkpo
 
 
 def holds_results(directory) -> bool:
-    """True if `directory` already holds psph output (which a new run must not overwrite silently): one of
-    OUTPUT_MARKERS, a snapshot or a checkpoint (a run to continue, or one copied there to continue later)."""
+    """True if `directory` already holds psph output (which a new run must not overwrite silently): any of
+    OUTPUT_FILES but the log (a snapshot, a checkpoint to continue, the probes' or the packing's series: a
+    fuzzing audit found probes.csv overwritten, the markers alone being checked)."""
     d = Path(directory)
     if not d.is_dir():
         return False
-    return (any((d / m).exists() for m in OUTPUT_MARKERS) or any(d.glob("snapshot_*.h5"))
-            or any(CHECKPOINT_FILES.fullmatch(p.name) for p in d.iterdir()))
+    return any(OUTPUT_FILES.fullmatch(p.name) and not p.name.startswith("psph.log") for p in d.iterdir())
 
 
 def clear_results(directory, keep=()) -> None:

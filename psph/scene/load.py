@@ -70,7 +70,7 @@ def read_table(path) -> dict:
     if path.stat().st_size > MAX_SCENE_BYTES:
         raise SceneError("", f"scene file {str(path)!r} is larger than {MAX_SCENE_BYTES} bytes")
     try:
-        text = path.read_bytes().decode("utf-8")
+        text = path.read_bytes().decode("utf-8-sig")  # (a byte-order mark, as some editors save)
     except UnicodeDecodeError as exc:
         hint = "; to continue a run from a checkpoint: psph run --restart FILE" if _is_hdf5(path) else ""
         raise SceneError("", f"scene file {str(path)!r} is not UTF-8 text ({exc.reason}){hint}") from None

@@ -879,8 +879,13 @@ class Scene:
         cuts the top row only in part (a tilted one). A fill given wider than a container, as the scenes
         give it, is cut by the walls by design."""
         ini, d, g = self.initial, self.domain, self.physics.gravity
-        if ini.pressure != "hydrostatic" or d.dimension < 2 or len(g) < 2 or g[1] == 0.0:
+        if ini.pressure != "hydrostatic":
             return
+        if not (d.dimension >= 2 and len(g) == d.dimension and g[1] < 0.0
+                and all(v == 0.0 for a, v in enumerate(g) if a != 1)):  # (a fuzzing audit: 0 or the wrong sign)
+            raise SceneError("initial.pressure", f"\"hydrostatic\" (p = rho0 |g| (y_s - y)) needs gravity along -y, "
+                             f"physics.gravity = [0, -g]{' or [0, -g, 0]' if d.dimension == 3 else ''} with g > 0; "
+                             f"got {list(g)} in {d.dimension}-D")
         given = ini.fill_upper[1] if ini.fill_upper else d.upper[1]
         if given > d.upper[1] + 1e-9 * d.dx:
             raise SceneError("initial.fill_upper", f"the hydrostatic pressure's free surface {given:g} is above "
@@ -920,6 +925,10 @@ class Scene:
                               max(peak["lid_velocity"], peak["motion.velocity"] + peak["motion.angular_velocity"]), c0)
 
     def check(self, path):
+        for key in ("fill_lower", "fill_upper"):  # (first: the checks below index them by axis)
+            value = getattr(self.initial, key)
+            if value and len(value) != self.domain.dimension:
+                raise SceneError(f"initial.{key}", f"expected {self.domain.dimension} entries (domain.dimension)")
         fluid = self.physics.scheme in FLUID_SCHEMES
         surface = self.describe_free_surface()
         if self.physics.scheme == "kinematic" and surface:
@@ -964,10 +973,6 @@ class Scene:
                 if b.lid_velocity and d.periodic[1] and b.center[1] + b.size[1] / 2.0 >= d.upper[1] - 1e-9 * d.dx:
                     raise SceneError(f"bodies[{k}].lid_velocity", "the box's top side is not inside the periodic "
                                      "y axis (a box spanning it keeps only its side plates): the lid would be ignored")
-        for key in ("fill_lower", "fill_upper"):
-            value = getattr(self.initial, key)
-            if value and len(value) != self.domain.dimension:
-                raise SceneError(f"initial.{key}", f"expected {self.domain.dimension} entries (domain.dimension)")
         lo = self.initial.fill_lower or self.domain.lower
         hi = self.initial.fill_upper or self.domain.upper
         for a in range(self.domain.dimension):
@@ -1068,6 +1073,9 @@ class Scene:
                 if not math.isfinite(waves) or waves > 1e12:
                     raise SceneError("diagnostics.test_wavelength", f"{wavelength:g} is too short for axis {a} "
                                      f"({waves:.3g} waves)")
+                if round(waves) < 1:
+                    raise SceneError("diagnostics.test_wavelength", f"{wavelength:g} is longer than the periodic "
+                                     f"length of axis {a}: the test function would be constant")
                 if abs(waves - round(waves)) > 1e-8 * max(1.0, waves):
                     raise SceneError("diagnostics.test_wavelength",
                                      f"must divide the periodic length of axis {a} (got {waves:.6g} waves)")

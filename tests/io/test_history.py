@@ -99,3 +99,14 @@ def test_a_summary_with_non_finite_values_is_strict_json(tmp_path):
     data = json.loads((tmp_path / "s.json").read_text(), parse_constant=refuse)
     assert data == {"final": {"min_spacing": None, "error": None, "mass": 1.5, "steps": 3}, "norms": [1.0, None],
                     "field": [None, 2.0]}
+
+
+@pytest.mark.parametrize("name,holds", [("probes.csv", True), ("packing.csv", True), ("wall_pressure.csv", True),
+                                        ("checkpoint_000012.h5", True), ("psph.log", False), ("notes.txt", False)])
+def test_any_of_psphs_outputs_but_the_log_marks_a_directory_as_holding_results(tmp_path, name, holds):
+    """A run must not overwrite results without --overwrite: probes.csv alone was overwritten (a fuzzing audit:
+    only summary.json, history.csv, psph.xdmf, snapshots and checkpoints were looked for)."""
+    from psph.io.files import holds_results
+
+    (tmp_path / name).write_text("x")
+    assert holds_results(tmp_path) is holds
