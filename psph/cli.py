@@ -243,7 +243,7 @@ def cmd_run(args, petsc_options, comm) -> int:
 
     from psph.drivers import driver_for
     from psph.io.checkpoint import results_after
-    from psph.io.files import holds_results
+    from psph.io.files import discard_results, holds_results, restore_results
     from psph.parallel.comm import raise_if_any
     from psph.simulation import check_resources, iips_runs
     from psph.solvers.petsc import initialize
@@ -292,10 +292,13 @@ def cmd_run(args, petsc_options, comm) -> int:
     log_path = os.path.abspath(args.log) if args.log else os.path.join(out, "psph.log")
     first = (f"psph: running scene {scene.name!r} on {comm.size} rank(s)"
              + (f", continuing {args.restart}" if restart else "") + f" ({' '.join(sys.argv[1:]) or 'run'})")
+    fresh = comm.bcast(not os.path.exists(out) if comm.rank == 0 else None, root=0)  # (before anything is written)
     # every rank stops with rank 0's failure, none waits for rank 0
-    failure = comm.bcast(_prepare_output(args, out, log_path, first, continuing, later) if comm.rank == 0 else None,
-                         root=0)
+    failure, aside = comm.bcast(_prepare_output(args, out, log_path, first, continuing, later) if comm.rank == 0
+                                else None, root=0)
     if failure:
+        if comm.rank == 0 and aside is not None:
+            restore_results(out, aside, keep=[log_path] if args.log else [])
         raise UsageError(failure)
     _LOG["path"] = log_path
     log = _say(comm, args.quiet)
@@ -352,15 +355,27 @@ def cmd_run(args, petsc_options, comm) -> int:
     kwargs = {"restart": restart} if restart else {}  # static runs write no checkpoints
     stop.install(comm, after="iteration with a snapshot" if scene.physics.scheme == "none" else
                  "step with a checkpoint")
+    settled = []  # the run has set up (Simulation.settle): the results --overwrite replaces can go
+
+    def settle():
+        settled.append(True)
+        if comm.rank == 0:
+            discard_results(aside)
+
     try:  # numpy's floating-point warnings (a blown-up speed squared) would come before psph's one-line
         # diagnosis, which the state's checks give (non-finite fields, the density's range, the time step)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"), \
                 driver_for(scene)(scene, comm, out, log=log, progress=not args.quiet, **kwargs) as driver:
+            driver.sim.on_settled = settle
             if iips_runs(scene):
                 driver.sim.summary_extra["iips_solver"] = solver
             summary = driver.run()
             rejected = sum(getattr(m, "rejections", 0) for m in driver.shifting_methods())
         late = stop.requested(comm)
+    except BaseException as err:
+        if not settled:
+            _unsettled(comm, err, out, aside, fresh, keep=[log_path] if args.log else [])
+        raise
     finally:
         stop.uninstall()
     if late:  # the signal came during the last step or the final writes: nothing was cut short
@@ -374,33 +389,56 @@ def cmd_run(args, petsc_options, comm) -> int:
     return 0
 
 
+def _unsettled(comm, err, out, aside, fresh, keep) -> None:
+    """A run that ends before it has set up: refused as bad input (found late: a fill region with no lattice
+    node, a pre-procedure that leaves nothing for iips.beta to scale), it leaves the directory as it found it,
+    the results --overwrite set aside put back (a fuzzing audit found them deleted) and a directory it made
+    removed; any other end (a diagnosed start, a bug) keeps what it wrote, and the set-aside results go.
+    Rank 0 moves the files; the log they held is no longer this run's. Collective error: every rank."""
+    from psph.io.files import discard_results, restore_results
+
+    refused = isinstance(err, PsphError) and err.exit_code == 2 and is_collective(err)
+    if refused and not keep:
+        _LOG["path"] = None
+    if comm.rank != 0:
+        return
+    if not refused:
+        discard_results(aside)
+        return
+    restore_results(out, aside, keep)
+    if fresh and os.path.isdir(out) and not os.listdir(out):
+        os.rmdir(out)
+
+
 def _prepare_output(args, out, log_path, first, continuing, later):
     """Rank 0, before a run: start the log (a log the user named first: refused, it leaves everything else
-    untouched), clear the directory (--overwrite) or remove what an in-place continuation replaces (`later`).
-    Returns what failed, in one line, or None."""
-    from psph.io.files import clear_results
+    untouched), set the directory's results aside (--overwrite: cli._unsettled puts them back if the run is
+    refused while it sets up) or remove what an in-place continuation replaces (`later`). Returns (what
+    failed, in one line, or None; the set-aside results' directory, or None)."""
+    from psph.io.files import set_aside_results
 
+    aside = None
     try:
         if args.log:
             if os.path.commonpath([os.path.abspath(out), os.path.dirname(log_path)]) == os.path.abspath(out):
                 os.makedirs(os.path.dirname(log_path), exist_ok=True)  # a log inside the new --out
             _start_log(log_path, first)
     except OSError as err:
-        return f"--log {args.log!r}: {err.strerror or err}"
+        return f"--log {args.log!r}: {err.strerror or err}", None
     try:
         if args.overwrite and not continuing:
-            clear_results(out, keep=[log_path] if args.log else [])
+            aside = set_aside_results(out, keep=[log_path] if args.log else [])
         os.makedirs(out, exist_ok=True)
     except OSError as err:
-        return f"output directory {out!r}: {err.strerror or err}"
+        return f"output directory {out!r}: {err.strerror or err}", aside
     try:
         for path in later:  # before the log line that tells of it
             os.unlink(path)
         if not args.log:
             _start_log(log_path, first)
     except OSError as err:
-        return f"{err.filename or log_path!r}: {err.strerror or err}"
-    return None
+        return f"{err.filename or log_path!r}: {err.strerror or err}", aside
+    return None, aside
 
 
 # PETSc options read only when PETSc finalises, after psph's check

@@ -57,6 +57,7 @@ class Simulation:
         self.started = time.perf_counter()
         self.scene = scene
         self.summary_extra = {}  # what the caller adds to summary.json (the command line: the IIPS solver)
+        self.on_settled = None  # what the caller does once the run has set up (settle)
         self.comm = comm.Dup()
         self.out_dir = Path(out_dir)
         if self.comm.rank == 0:
@@ -130,6 +131,13 @@ class Simulation:
         saved where). Collective."""
         self.history.flush()
         raise stop.Stopped(stop.requested(self.comm), message)
+
+    def settle(self) -> None:
+        """The run has set up (its start built and checked, its pre-procedure done) and its loop begins: call
+        on_settled, once (the command line then lets go of the results --overwrite replaces)."""
+        if self.on_settled is not None:
+            settled, self.on_settled = self.on_settled, None
+            settled()
 
     def progress(self, t_start, t_end):
         """A Progress display for a time loop (rank 0, if the run shows progress)."""

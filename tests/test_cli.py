@@ -377,6 +377,33 @@ def test_a_bad_iips_option_keeps_the_results_overwrite_would_replace(tmp_path, r
     assert sorted(p.name for p in out.iterdir()) == before and (out / "summary.json").exists()
 
 
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_bad_input_found_while_the_run_sets_up_keeps_what_overwrite_would_replace(tmp_path, ranks):
+    """Input refused only while the run sets up (a fill region holding no lattice node; the kinematic
+    pre-procedure leaving nothing for iips.beta to scale) came after --overwrite had deleted the previous
+    run, checkpoint included (a fuzzing audit). The old results are set aside and put back, byte for byte;
+    a directory the refused run made is removed; a run that sets up leaves nothing set aside."""
+    out = tmp_path / "out"
+    base = ["run", CASES / "taylor_green.toml", "--out", out, "--quiet", "--set", "domain.dx=0.1", "--set",
+            "time.t_end=0.02", "--set", "output.checkpoint_every=2"]
+    assert run_psph(*base, ranks=ranks).returncode == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert any(name.startswith("checkpoint_") for name in before)
+    res = run_psph(*base, "--overwrite", "--set", "initial.fill_lower=[5, 5]", "--set", "initial.fill_upper=[6, 6]",
+                   ranks=ranks)
+    assert res.returncode == 2 and "no lattice node" in res.stderr and "Traceback" not in res.stderr, res.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    kinematic = ["run", CASES / "kinematic_tgv.toml", "--quiet", "--set", "domain.dx=0.1", "--set",
+                 "initial.sigma_over_dx=0", "--set", "iips.pre_newton=3", "--set", "diagnostics.test_wavelength=1.0"]
+    res = run_psph(*kinematic, "--out", out, "--overwrite", ranks=ranks)
+    assert res.returncode == 2 and "iips.beta" in res.stderr, res.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    res = run_psph(*kinematic, "--out", tmp_path / "new", ranks=ranks)
+    assert res.returncode == 2 and not (tmp_path / "new").exists(), res.stderr
+    assert run_psph(*base, "--overwrite", "--set", "time.t_end=0.01", ranks=ranks).returncode == 0
+    assert not (out / ".psph_replaced").exists() and json.loads((out / "summary.json").read_text())["steps"] < 6
+
+
 ONE_D = ["--set", "domain.dimension=1", "--set", "domain.lower=[0.0]", "--set", "domain.upper=[1.0]", "--set",
          "domain.periodic=[true]"]
 

@@ -590,6 +590,7 @@ class FluidDriver(Driver):
             if not self.resumed:
                 sim.history.append({"time": 0.0, "step": 0, "dt": 0.0, **self.diagnostics(0.0), **totals})
                 sim.snapshots.write(system.particles, step=0, time=0.0)
+            sim.settle()
             progress = sim.progress(state["time"], t_end)
             while state["time"] < t_end * (1.0 - 1e-12):
                 start = time.perf_counter()

@@ -111,6 +111,7 @@ class KinematicDriver(Driver):
             else:
                 report = self.start(totals)
                 self.report_time = 0.0
+            sim.settle()
             progress = sim.progress(state["time"], scene.time.t_end)
             last_checkpoint = time.monotonic()
             for step in range(state["step"] + 1, self.n_steps + 1):

@@ -104,6 +104,7 @@ class StaticDriver(Driver):
             return stopped[-1] or (stop_ratio > 0 and report["L2_dfdx"] <= stop_ratio * reference)
 
         system.where = {"iteration": 1}
+        sim.settle()
         try:
             with sim.diagnose_failures(lambda: (len(sim.history.rows), float(len(sim.history.rows)))):
                 result = self.shifting.correct(system, on_iteration, iterations=scene.shifting.max_iterations)

@@ -4,6 +4,7 @@ import json
 import math
 import os
 import re
+import shutil
 from pathlib import Path
 
 
@@ -85,21 +86,66 @@ def holds_results(directory) -> bool:
     return any(OUTPUT_FILES.fullmatch(p.name) and not p.name.startswith("psph.log") for p in d.iterdir())
 
 
-def clear_results(directory, keep=()) -> None:
-    """Remove psph's own output from `directory` (OUTPUT_FILES, unfinished .tmp files included, and
-    OUTPUT_FIGURES in its figures/ unless that is a link elsewhere), and nothing else: `psph run
-    --overwrite` then leaves no snapshot, checkpoint or log line of the run it replaces (a shorter run would
-    otherwise sit beside the older run's later snapshots, and a restart could pick the older run's
-    checkpoint). Files in `keep` (the log the user named with --log, already started) stay."""
+def _own_outputs(directory, keep=()) -> list:
+    """psph's own output files in `directory` (OUTPUT_FILES, unfinished .tmp files included, and OUTPUT_FIGURES
+    in its figures/ unless that is a link elsewhere), but those in `keep`."""
     keep = {os.path.realpath(k) for k in keep}
     d = Path(directory)
     if not d.is_dir():
-        return
+        return []
     figures = d / "figures"
     places = [(d, OUTPUT_FILES)] + ([(figures, OUTPUT_FIGURES)] if figures.is_dir() and not figures.is_symlink()
                                     else [])
-    for folder, names in places:
-        for path in folder.iterdir():
-            if (names.fullmatch(path.name) and (path.is_file() or path.is_symlink())
-                    and os.path.realpath(path) not in keep):
-                path.unlink()
+    return [path for folder, names in places for path in folder.iterdir()
+            if names.fullmatch(path.name) and (path.is_file() or path.is_symlink())
+            and os.path.realpath(path) not in keep]
+
+
+def clear_results(directory, keep=()) -> None:
+    """Remove psph's own output from `directory` (_own_outputs), and nothing else: `psph run --overwrite`
+    then leaves no snapshot, checkpoint or log line of the run it replaces (a shorter run would otherwise sit
+    beside the older run's later snapshots, and a restart could pick the older run's checkpoint). Files in
+    `keep` (the log the user named with --log, already started) stay."""
+    for path in _own_outputs(directory, keep):
+        path.unlink()
+
+
+# where `psph run --overwrite` keeps the run it replaces until the new one has set up
+REPLACED = ".psph_replaced"
+
+
+def set_aside_results(directory, keep=()):
+    """Move psph's own output in `directory` (what clear_results would remove) into directory/REPLACED, to
+    be put back by restore_results if the new run is refused while it sets up (bad input found late: a fill
+    region holding no lattice node, a pre-procedure that leaves nothing for iips.beta to scale; a fuzzing
+    audit found the old results deleted by then), or removed by discard_results once it has set up.
+    Returns that directory, or None if nothing was there. A REPLACED left by a run killed while it set up
+    holds the run before the one it replaced, and is removed."""
+    d = Path(directory)
+    aside = d / REPLACED
+    if aside.is_dir() and not aside.is_symlink():
+        shutil.rmtree(aside)
+    outputs = _own_outputs(d, keep)
+    for path in outputs:
+        target = aside / path.relative_to(d)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(path, target)
+    return aside if outputs else None
+
+
+def restore_results(directory, aside, keep=()) -> None:
+    """Remove what the refused run wrote in `directory` and put back what set_aside_results moved."""
+    clear_results(directory, keep)
+    if aside is None:
+        return
+    for path in sorted(p for p in Path(aside).rglob("*") if not p.is_dir()):
+        target = Path(directory) / path.relative_to(aside)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(path, target)
+    shutil.rmtree(aside)
+
+
+def discard_results(aside) -> None:
+    """The new run has set up: the results it replaces go."""
+    if aside is not None:
+        shutil.rmtree(aside, ignore_errors=True)
