@@ -595,3 +595,14 @@ def test_a_fickian_coefficient_above_the_kernels_stability_limit_is_warned_about
     assert ("warning: shifting.diffusion" in res.stderr) is warned, res.stderr
     if warned:
         assert f"shifting.diffusion = {diffusion:g} exceeds {0.275 if h_over_dx == 1.3 else 0.472}" in res.stderr
+
+
+def test_petsc_options_petsc_cannot_start_with_are_one_line_of_psph(tmp_path):
+    """-options_file naming no file: PETSc reports it and petsc4py raised, which psph took for its own bug
+    (exit 1 and a traceback; a fuzzing audit). It is bad input: exit 2, one psph line, nothing written."""
+    res = run_psph("run", SCENE, "--out", tmp_path / "out", "--quiet", "--set", "domain.dx=0.1", "-options_file",
+                   str(tmp_path / "missing.txt"))
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+    assert res.stderr.strip().splitlines()[-1] == (f"psph: error: PETSc did not start with the options -options_file "
+                                                   f"{tmp_path / 'missing.txt'}: error code 83 (PETSc's report above)")
+    assert not (tmp_path / "out").exists()

@@ -47,7 +47,15 @@ def initialize(options=()) -> None:
 
     argv = [sys.argv[0] if sys.argv else "psph"] + list(options)
     if _state["argv"] is None:
-        petsc4py.init(argv)
+        try:
+            petsc4py.init(argv)
+        except Exception as err:  # petsc4py's Error, once PETSc has printed its own report (a fuzzing audit:
+            from psph.errors import UsageError  # -options_file /nonexistent gave a traceback)
+
+            code = getattr(err, "ierr", None)
+            raise UsageError(f"PETSc did not start with the options {' '.join(options) or '(none)'}"
+                             + (f": error code {code}" if code is not None else "")
+                             + " (PETSc's report above)") from None
         _state["argv"] = argv
         _ignore_sigpipe()
         release_freed_memory()
