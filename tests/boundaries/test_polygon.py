@@ -57,9 +57,9 @@ def test_a_polygon_on_a_box_corners_runs_as_the_box(tmp_path):
     assert runs["box"]["n_particles"] == runs["polygon"]["n_particles"]
     a, b = (read_history(tmp_path / name / "history.csv") for name in ("box", "polygon"))
     assert len(a) == len(b) > 3
-    for ra, rb in zip(a, b):
-        assert {k: v for k, v in ra.items() if not k.endswith("_s")} == \
-            {k: v for k, v in rb.items() if not k.endswith("_s")}
+    for ra, rb in zip(a, b):  # (NaN, the forces before any right-hand side, as NaN)
+        assert {k: str(v) for k, v in ra.items() if not k.endswith("_s")} == \
+            {k: str(v) for k, v in rb.items() if not k.endswith("_s")}
 
 
 def test_the_trapezoidal_tank_fills_the_lattice_and_holds_water_at_rest(tmp_path):

@@ -414,7 +414,9 @@ def test_drag_of_a_body_at_rest_is_along_the_free_stream(stream):
     physics.reference_velocity (which sets the Reynolds number)."""
     scene = load_scene(CASES / "inclined_ellipse.toml", [f"physics.free_stream={stream}"])
     walls = WallTerms(scene)
+    assert np.isnan(walls.body_forces(MPI.COMM_SELF)["cd_pressure"])  # before any right-hand side measured it
     force = np.array([3.0, -1.0])
+    walls.force[:] = 0.0
     walls.force[0, 0] = force
     e = np.asarray(stream) / np.linalg.norm(stream)
     scale = 2.0 / (scene.physics.density * scene.physics.reference_velocity ** 2 * 1.0)  # chord a = 1
