@@ -184,9 +184,10 @@ def pack(scene, system, rows=None) -> dict:
             rows.append((iteration, kinetic, linf))
         if done:
             break
-    _check_no_pairs(scene, system, spacing, iteration, converged=kinetic < spec.tolerance)
+    converged = kinetic < spec.tolerance
+    _check_no_pairs(scene, system, spacing, iteration, converged)
     _remove_frame(system)
-    return {"iterations": iteration, "converged": kinetic < spec.tolerance, "kinetic_energy": kinetic,
+    return {"iterations": iteration, "converged": converged, "kinetic_energy": kinetic,
             "Linf_grad_gamma_start": linf_start, "Linf_grad_gamma": linf, "volume": v0, "frame_particles": n_frame,
             "time_s": time.perf_counter() - start, "rows": rows}
 

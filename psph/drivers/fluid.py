@@ -245,7 +245,8 @@ class FluidDriver(Driver):
         self.reach = STAGE_REACH[scene.time.integrator]
         self.iips = None
         self.update = make_field_update(scene)
-        # the volumes weighting C: IIPS levels it, the history reports its L2/Linf(grad C)
+        # the volumes weighting the C that IIPS levels (with NFTS: V0, whose norms the history adds as
+        # L2/Linf_grad_c0; its L2/Linf_grad_c weigh by the particles' volumes in every run)
         self.concentration_volume = "volume"
         if scene.shifting.method == "iips":
             from psph.shifting.iips import ImplicitShifting
