@@ -606,3 +606,17 @@ def test_petsc_options_petsc_cannot_start_with_are_one_line_of_psph(tmp_path):
     assert res.stderr.strip().splitlines()[-1] == (f"psph: error: PETSc did not start with the options -options_file "
                                                    f"{tmp_path / 'missing.txt'}: error code 83 (PETSc's report above)")
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("option,value", [("-log_view", ":{bad}"), ("-iips_ksp_view", "ascii:{bad}:ascii_info")])
+def test_viewer_files_that_cannot_be_written_are_refused_before_the_run(tmp_path, option, value):
+    """PETSc opens -log_view's file in PetscFinalize, after the run: `-log_view :/no/dir/x` printed PETSc's
+    error and exited 0, the profile lost (a fuzzing audit). A viewer whose file cannot be written is bad
+    input, refused before anything is written."""
+    bad = tmp_path / "no" / "log.txt"
+    value = value.format(bad=bad)
+    res = run_psph("run", SCENE, "--out", tmp_path / "out", "--quiet", "--set", "domain.dx=0.1", option, value)
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+    assert res.stderr.strip().splitlines()[-1] == (f"psph: error: {option} {value}: cannot write '{bad}' "
+                                                   f"(no directory '{bad.parent}')")
+    assert not (tmp_path / "out").exists()

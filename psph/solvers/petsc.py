@@ -47,6 +47,7 @@ def initialize(options=()) -> None:
 
     argv = [sys.argv[0] if sys.argv else "psph"] + list(options)
     if _state["argv"] is None:
+        check_viewer_files(options)
         try:
             petsc4py.init(argv)
         except Exception as err:  # petsc4py's Error, once PETSc has printed its own report (a fuzzing audit:
@@ -62,6 +63,30 @@ def initialize(options=()) -> None:
         atexit.register(_destroy_live)
     elif _state["argv"] != argv:
         raise RuntimeError("PETSc is already initialised with other options")
+
+
+# viewer types whose second field names a file (PETSc's viewer syntax, `[type]:[file][:format][:mode]`)
+FILE_VIEWERS = ("", "ascii", "binary", "hdf5", "vtk")
+
+
+def check_viewer_files(options) -> None:
+    """Refuse a viewer option (`-log_view :path`, `-iips_ksp_view ascii:path:ascii_info`) whose file cannot be
+    written, before the run: PETSc opens `-log_view`'s file only in PetscFinalize, after the run, where its
+    error cannot change the exit status any more (a fuzzing audit: `-log_view :/bad/x` exited 0 with the
+    profile lost), and the others' mid-run, after hours of work."""
+    from psph.errors import UsageError
+
+    options = list(options)
+    for name, value in zip(options, options[1:] + [""]):
+        if not (name.startswith("-") and name.endswith("_view")) or ":" not in value:
+            continue
+        kind, path = value.split(":")[:2]
+        if kind not in FILE_VIEWERS or not path:
+            continue
+        folder = os.path.dirname(os.path.abspath(path))
+        if not os.path.isdir(folder) or not os.access(folder, os.W_OK | os.X_OK) or os.path.isdir(path):
+            raise UsageError(f"{name} {value}: cannot write {path!r}"
+                             + ("" if os.path.isdir(folder) else f" (no directory {folder!r})"))
 
 
 # glibc's mallopt parameters
