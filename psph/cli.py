@@ -244,6 +244,7 @@ def cmd_run(args, petsc_options, comm) -> int:
     from psph.drivers import driver_for
     from psph.io.checkpoint import results_after
     from psph.io.files import discard_results, holds_results, restore_results
+    from psph.io.snapshots import foreign_snapshots
     from psph.parallel.comm import raise_if_any
     from psph.simulation import check_resources, iips_runs
     from psph.solvers.petsc import initialize
@@ -273,6 +274,12 @@ def cmd_run(args, petsc_options, comm) -> int:
         raise UsageError(f"output path {out!r} exists and is not a directory")
     later = []  # an in-place continuation: what the directory holds past the checkpoint, replaced
     if continuing:
+        foreign = comm.bcast(foreign_snapshots(out, restart[0].get("run")) if comm.rank == 0 else None, root=0)
+        if foreign:  # (a checkpoint copied into another run's directory: continuing would list, replace or
+            # remove that run's snapshots as its own)
+            raise UsageError(f"output directory {out!r} holds snapshots of another run than the checkpoint's: "
+                             f"{', '.join(p.name for p in foreign[:3])}{', ...' if len(foreign) > 3 else ''}; "
+                             "continue into another --out")
         final, later = comm.bcast(results_after(out, restart[0]) if comm.rank == 0 else None, root=0)
         if final and not args.overwrite:
             state = restart[0]

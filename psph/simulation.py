@@ -1,6 +1,7 @@
 """Assembling a simulation from a scene: domain, kernel, distributed particles, output writers."""
 
 import time
+import uuid
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
@@ -69,8 +70,11 @@ class Simulation:
         state, particles, decomposition = restart or (None, None, None)
         # the wall time of the segments before this one (a checkpoint of an older psph carries none: 0)
         self.earlier_wall_time = float((state or {}).get("wall_time_s", 0.0))
+        # the run's id, on its snapshots, checkpoints and summary; a continuation keeps it (a checkpoint of an
+        # older psph carries none: the continuation's files get a new one)
+        self.run = (state or {}).get("run") or self.comm.bcast(uuid.uuid4().hex if self.comm.rank == 0 else None)
         self.system = build_system(scene, self.comm, specs, halo_fields, particles, decomposition)
-        self.snapshots = SnapshotWriter(self.comm, self.out_dir, self.system.domain)
+        self.snapshots = SnapshotWriter(self.comm, self.out_dir, self.system.domain, run=self.run)
         self.history = History(self.comm, self.out_dir)
         self.n_particles = self.system.n_global
         self.replaced_checkpoints = []  # rank 0: what the next checkpoint replaces (this run's own)
@@ -116,7 +120,7 @@ class Simulation:
         self.system.rebuild(rebalance=False)
         path = write_checkpoint(self.comm, self.out_dir, self.system, step, t, {
             "scene": to_table(self.scene), "driver": driver, "history": self.history.rows,
-            "snapshots": self.snapshots.checkpoint_state(), "wall_time_s": self.wall_time()},
+            "snapshots": self.snapshots.checkpoint_state(), "wall_time_s": self.wall_time(), "run": self.run},
             replaces=self.replaced_checkpoints)
         self.replaced_checkpoints = [path]
         self.log(f"step {step}, t = {t:.4g}: checkpoint {path.name}")
@@ -190,6 +194,7 @@ class Simulation:
         peak = memory()[1]
         data = {
             "psph_version": __version__,
+            "run": self.run,
             "scene": to_table(self.scene),
             "ranks": self.comm.size,
             "n_particles": self.n_particles,

@@ -117,6 +117,8 @@ def _check_state(state) -> None:
     retry = state["driver"].get("retry", [0, 0])  # fluid runs since time.retries' recovery (older: none)
     if not (isinstance(retry, list) and len(retry) == 2 and all(type(v) is int and v >= 0 for v in retry)):
         raise ValueError("its state's 'driver' 'retry' is not two counts")
+    if not isinstance(state.get("run", ""), str):  # (a checkpoint of an older psph has no run id)
+        raise ValueError("its state's 'run' is not a run id")
     counts = state["rank_counts"]
     if not counts or not all(isinstance(c, int) and c >= 0 for c in counts):
         raise ValueError("its state's 'rank_counts' are not counts of particles")

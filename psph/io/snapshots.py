@@ -44,6 +44,23 @@ def snapshot_files(directory) -> list:
     return [p for _, p in sorted((int(m.group(1)), p) for m, p in found if m)]
 
 
+def foreign_snapshots(directory, run) -> list:
+    """The snapshot files in `directory` stamped with another run's id than `run` (unstamped files, and
+    every file when `run` is None, are an older psph's: not counted)."""
+    if not run:
+        return []
+    foreign = []
+    for path in snapshot_files(directory):
+        try:
+            with h5py.File(path, "r") as f:
+                stamp = f.attrs.get("run")
+        except OSError:  # (a damaged file: the continuation reads none of it)
+            continue
+        if stamp is not None and (stamp.decode() if isinstance(stamp, bytes) else str(stamp)) != run:
+            foreign.append(path)
+    return foreign
+
+
 def _write_rows(ds, start, arr) -> None:
     """Write `arr` to rows [start, start + len(arr)) of `ds` in one collective MPI-IO call, which every rank
     must make: h5py's ds[a:a] = arr returns without one for an empty block (a rank holding no particle, as
@@ -155,10 +172,11 @@ def _write_particle_file(comm, path, start, total, data, attrs, extra, libver) -
 class SnapshotWriter:
     """Writes snapshots into `out_dir` and keeps the XDMF index current. Collective `write`."""
 
-    def __init__(self, comm, out_dir, domain):
+    def __init__(self, comm, out_dir, domain, run=None):
         self.comm = comm
         self.out_dir = Path(out_dir)
         self.domain = domain
+        self.run = run  # the run's id, stamped on every snapshot (a continuation in place checks it)
         self.entries = []  # (file name, time, step, {field: (shape tail, dtype)})
 
     def checkpoint_state(self) -> list:
@@ -201,7 +219,7 @@ class SnapshotWriter:
         name = snapshot_name(len(self.entries))
         path = self.out_dir / name
         tmp = path.with_name(name + ".tmp")
-        attrs = {"time": float(time), "step": int(step)}
+        attrs = {"time": float(time), "step": int(step)} | ({"run": self.run} if self.run else {})
         try:
             write_particle_file(self.comm, str(tmp), start, total, ordered, attrs)
         except BaseException:

@@ -155,6 +155,7 @@ def test_a_checkpoint_holding_an_infinite_value_in_any_field_is_refused(finished
     (edit_state(lambda s: s.pop("history")), "its state lacks 'history'"),
     (edit_state(lambda s: s["driver"].pop("totals")), "its state's 'driver' lacks 'totals'"),
     (edit_state(lambda s: s.update(time="soon")), "its state's 'time' is not a finite number"),
+    (edit_state(lambda s: s.update(run=5)), "its state's 'run' is not a run id"),
     (lambda f: set_dataset(f, "particles/position", f["particles/position"][:-3]),
      "particles/position has shape (97, 2), expected (100, 2)"),
     (lambda f: set_dataset(f, "particles/velocity", f["particles/velocity"][:, :1]),
@@ -377,6 +378,28 @@ def test_an_interrupted_run_continues_in_place_without_overwrite(finished, tmp_p
         with h5py.File(run / name) as a, h5py.File(finished / name) as b:
             assert np.array_equal(a["particles/position"][()], b["particles/position"][()])
     assert latest_checkpoint(run).name == CHECKPOINT
+
+
+def test_a_checkpoint_copied_into_another_runs_directory_does_not_continue_there(finished, scene_file, tmp_path):
+    """A fuzzing audit: continuing in place trusted whatever the directory held, so a checkpoint copied beside
+    another run's results took that run's snapshots for its own (listed in the XDMF, the later ones removed).
+    Every snapshot, checkpoint and summary carries its run's id; a continuation keeps it, and one in place
+    refuses a directory holding another run's snapshots, touching nothing."""
+    other = tmp_path / "other"
+    done = run_psph("run", scene_file, "--out", other, "--quiet", "--set", "output.checkpoint_every=0")
+    assert done.returncode == 0, done.stderr
+    (other / "summary.json").unlink()  # (an interrupted run: no summary to need --overwrite)
+    shutil.copy(finished / CHECKPOINT, other / CHECKPOINT)
+    before = contents(other)
+    line = one_line_error(run_psph("run", "--restart", other / CHECKPOINT, "--overwrite"))
+    assert line == (f"psph: error: output directory {str(other)!r} holds snapshots of another run than the "
+                    "checkpoint's: snapshot_000000.h5, snapshot_000001.h5, snapshot_000002.h5; continue into "
+                    "another --out")
+    assert contents(other) == before
+    run = read_checkpoint(MPI.COMM_SELF, finished / CHECKPOINT)[0]["run"]
+    assert len(run) == 32 and json.loads((finished / "summary.json").read_text())["run"] == run
+    with h5py.File(other / "snapshot_000000.h5") as f:
+        assert f.attrs["run"] not in ("", run)
 
 
 # ------------------------------------------------------------------ G: the log
