@@ -93,17 +93,19 @@ def _checksummed(shape, dtype) -> dict:
     return {"chunks": (-(-shape[0] // chunks),) + tuple(shape[1:]), "fletcher32": True}
 
 
-def write_particle_file(comm, path, start, total, data, attrs, extra=None, libver=None) -> None:
+def write_particle_file(comm, path, start, total, data, attrs, extra=None, libver=None, userblock=0) -> None:
     """HDF5 file with /particles/<name> datasets (this rank's rows of `data` at [start, start + len)),
     file attributes `attrs` and root datasets `extra` (rank 0's values: every rank must create the same
     datasets), each with a Fletcher32 checksum; libver = "latest" checksums HDF5's own metadata too (files
-    HDF5 1.10 and later read). Collective: parallel HDF5 (whose writes to a filtered
+    HDF5 1.10 and later read); `userblock` bytes are left free at the start (psph.io.checkpoint's seal).
+    Collective: parallel HDF5 (whose writes to a filtered
     dataset must be collective: rank 0 writes `extra`, the others an empty block), or, for an h5py without
     MPI, rank 0 gathers the blocks (in rank order) and writes."""
     extra = comm.bcast(extra or {}, root=0)
     _check_space(comm, path, data, extra)
     try:
-        _write_particle_file(comm, path, start, total, data, attrs, extra, libver)
+        _write_particle_file(comm, path, start, total, data, attrs, extra,
+                             {"libver": libver} | ({"userblock_size": userblock} if userblock else {}))
     except (ValueError, RuntimeError) as err:  # h5py's words for a write the system refused (a full disk)
         if "write failed" not in str(err) and "errno" not in str(err):
             raise
@@ -137,9 +139,9 @@ def _check_space(comm, path, data, extra) -> None:
                       f"{free / 2**20:.1f} MiB are free")
 
 
-def _write_particle_file(comm, path, start, total, data, attrs, extra, libver) -> None:
+def _write_particle_file(comm, path, start, total, data, attrs, extra, options) -> None:
     if h5py_has_mpi():
-        with h5py.File(path, "w", driver="mpio", comm=comm, libver=libver) as f:
+        with h5py.File(path, "w", driver="mpio", comm=comm, **options) as f:
             grp = f.create_group("particles")
             for name, arr in data.items():
                 shape = (total,) + arr.shape[1:]
@@ -158,7 +160,7 @@ def _write_particle_file(comm, path, start, total, data, attrs, extra, libver) -
         return
     parts = {name: comm.gather(arr, root=0) for name, arr in data.items()}
     if comm.rank == 0:
-        with h5py.File(path, "w", libver=libver) as f:
+        with h5py.File(path, "w", **options) as f:
             grp = f.create_group("particles")
             for name, blocks in parts.items():
                 arr = np.concatenate(blocks)

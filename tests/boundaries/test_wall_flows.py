@@ -14,6 +14,7 @@ from mpi4py import MPI
 from psph.analytic import couette_startup
 from psph.boundaries.clone import WallTerms
 from psph.errors import SceneError
+from psph.io.checkpoint import seal
 from psph.io.history import read_history
 from psph.particles import Kind
 from psph.scene.load import load_scene
@@ -106,6 +107,7 @@ def test_a_restart_links_the_solids_to_their_nodes_again(tmp_path):
             values = f[f"particles/{name}"][:]
             values[solid] = 0
             f[f"particles/{name}"][:] = values
+    seal(checkpoint)  # (as that version wrote it)
     done = run_psph("run", "--restart", checkpoint, "--quiet", "--overwrite")
     assert done.returncode == 0, done.stderr
     ends = [last_snapshot(out)[0] for out in (whole, tmp_path / "again")]

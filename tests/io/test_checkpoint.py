@@ -9,7 +9,7 @@ import pytest
 from mpi4py import MPI
 
 from psph.drivers.fluid import FluidDriver
-from psph.io.checkpoint import latest_checkpoint, read_checkpoint
+from psph.io.checkpoint import HDF5_SIGNATURE, SEAL, SEAL_BYTES, latest_checkpoint, read_checkpoint
 from psph.io.history import read_history
 from tests.conftest import gather_by_gid, periodic_scene
 from tests.helpers import CASES, run_psph
@@ -219,10 +219,12 @@ def test_a_restarted_runs_summary_keeps_its_packing_report(tmp_path):
 def test_one_flipped_bit_anywhere_in_a_checkpoint_is_refused_or_harmless(tmp_path):
     """Fletcher32 covers the datasets' chunks, not HDF5's own metadata: of one-bit flips of a checkpoint, 57
     changed the restart's fields unnoticed, 8 raised a traceback, some crashed HDF5 or hung (a fuzzing audit).
-    Written with libver = "latest" (superblock version 3), the metadata is checksummed too: a flip at every
-    97th byte either leaves what the restart reads as it was or is refused in one line (UsageError), with no
-    other exception and no crash (each read in a forked child; at every 37th byte, by hand: 602 refused, 152
-    harmless; without: 5 unnoticed, 1 traceback, 1 crash)."""
+    Written with libver = "latest" (superblock version 3), the metadata is checksummed too (at every 37th
+    byte, by hand: 602 refused, 152 harmless; without: 5 unnoticed, 1 traceback, 1 crash), but HDF5's reader
+    still crashed on 2 flips of about 3000 (the audit, every 5th byte). The CRC32 seal in the user block is
+    checked on the raw bytes first: a flip at every 97th byte is refused in one line (UsageError) before HDF5
+    reads the file, or, in the seal's unused padding, leaves what the restart reads as it was; no other
+    exception, no crash (each read in a forked child)."""
     import os
 
     from psph.errors import UsageError
@@ -233,7 +235,8 @@ def test_one_flipped_bit_anywhere_in_a_checkpoint_is_refused_or_harmless(tmp_pat
     run(sc, MPI.COMM_SELF, tmp_path / "run")
     path = latest_checkpoint(tmp_path / "run")
     raw = path.read_bytes()
-    assert raw[:8] == b"\x89HDF\r\n\x1a\n" and raw[8] >= 2  # the superblock's version: 0 without libver
+    # the seal, then the superblock (its version: 0 without libver)
+    assert raw.startswith(SEAL) and raw[SEAL_BYTES:SEAL_BYTES + 8] == HDF5_SIGNATURE and raw[SEAL_BYTES + 8] >= 2
     state, particles, _ = read_checkpoint(MPI.COMM_SELF, path)
     reference = {k: particles.owned(k).copy() for k in particles.names}
     outcomes = []
@@ -264,3 +267,4 @@ def test_one_flipped_bit_anywhere_in_a_checkpoint_is_refused_or_harmless(tmp_pat
                                                                           "crash")}
     assert counts["refused"] > 0 and counts["same"] + counts["refused"] == len(outcomes), \
         [o for o in outcomes if o[1] not in ("same", "refused")]
+    assert [o for o, w in outcomes if w == "same"] == [o for o in range(0, SEAL_BYTES, 97) if o > raw.index(b"\n")]

@@ -14,7 +14,7 @@ import pytest
 from mpi4py import MPI
 
 from psph.errors import UsageError
-from psph.io.checkpoint import latest_checkpoint, read_checkpoint
+from psph.io.checkpoint import latest_checkpoint, read_checkpoint, seal
 from psph.io.history import read_history
 from psph.scene.load import read_table, scene_from_table
 from psph.scene.validate import to_table
@@ -86,9 +86,12 @@ def one_line_error(done, code=2) -> str:
 
 
 def edit_checkpoint(source, target, edit):
+    """A copy of the checkpoint `source`, edited and sealed again: as if written so (the checks of its
+    contents, not the seal's)."""
     shutil.copy(source, target)
     with h5py.File(target, "r+") as f:
         edit(f)
+    seal(target)
     return target
 
 
@@ -197,27 +200,33 @@ def flip_a_bit(path, dataset, row):
     with h5py.File(path, "r") as f:
         ds = f[dataset]
         chunk = ds.id.get_chunk_info_by_coord((row - row % ds.chunks[0],) + (0,) * (ds.ndim - 1))
+        at = f.userblock_size + chunk.byte_offset + 5  # (HDF5's offsets start after the user block)
     with open(path, "r+b") as raw:
-        raw.seek(chunk.byte_offset + 5)
+        raw.seek(at)
         byte = raw.read(1)[0]
-        raw.seek(chunk.byte_offset + 5)
+        raw.seek(at)
         raw.write(bytes([byte ^ 0x04]))
 
 
 @pytest.mark.parametrize("ranks", [1, 2])
 @pytest.mark.parametrize("dataset,what", [("particles/position", "particles/position"),
                                           ("particles/gid", "particles/gid"), ("state", "its state")])
-def test_a_checkpoint_damaged_within_a_dataset_is_refused_naming_it(finished, tmp_path, ranks, dataset, what):
-    """Every dataset has a Fletcher32 checksum: one flipped bit in the stored values (which the checks of
-    structure, finiteness and range need not see) refuses the restart, naming the dataset, on every rank
-    (the position's damaged rows are rank 0's of two)."""
+@pytest.mark.parametrize("resealed", [False, True])
+def test_a_checkpoint_damaged_within_a_dataset_is_refused(finished, tmp_path, ranks, dataset, what, resealed):
+    """One flipped bit in the stored values (which the checks of structure, finiteness and range need not
+    see) fails the file's CRC32 seal, checked before HDF5 reads it; sealed again (a bit flipped before the
+    seal was computed), every dataset's Fletcher32 checksum still refuses it, naming the dataset, on every
+    rank (the position's damaged rows are rank 0's of two)."""
     bad = tmp_path / "flipped.h5"
     shutil.copy(finished / CHECKPOINT, bad)
     flip_a_bit(bad, dataset, 0)
+    if resealed:
+        seal(bad)
     done = run_psph("run", "--restart", bad, "--out", tmp_path / "out", ranks=ranks, timeout=120)
     assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
-    assert done.stderr.splitlines()[0] == (f"psph: error: cannot restart from {str(bad)!r}: {what} is damaged: "
-                                           "its Fletcher32 checksum fails")
+    assert done.stderr.splitlines()[0] == f"psph: error: cannot restart from {str(bad)!r}: " + (
+        f"{what} is damaged: its Fletcher32 checksum fails" if resealed else
+        "it is damaged: its bytes differ from those written (the CRC32 of the file fails)")
     assert not (tmp_path / "out").exists()
 
 
@@ -233,6 +242,30 @@ def test_every_dataset_of_a_snapshot_and_a_checkpoint_is_checksummed(finished):
             names += [(path.name, name, checked) for name, checked in datasets(f)]
     assert len(names) > 20 and {n[0] for n in names} == {p.name for p in finished.glob("*.h5")}
     assert [n[:2] for n in names if not n[2]] == []
+
+
+def test_a_truncated_or_unsealed_checkpoint(finished, tmp_path):
+    """A copy cut short is refused by the seal's length; a seal overwritten is refused; a checkpoint of an
+    older psph, without a seal (its HDF5 signature at byte 0), is still read."""
+    data = (finished / CHECKPOINT).read_bytes()
+    cut = tmp_path / "cut.h5"
+    cut.write_bytes(data[:-1])
+    with pytest.raises(UsageError, match="the CRC32 of the file fails"):
+        read_checkpoint(MPI.COMM_SELF, cut)
+    cut.write_bytes(b"x" * 16 + data[16:])
+    with pytest.raises(UsageError, match="its first block is damaged or it is not a psph checkpoint"):
+        read_checkpoint(MPI.COMM_SELF, cut)
+    state, particles, _ = read_checkpoint(MPI.COMM_SELF, finished / CHECKPOINT)
+    old = tmp_path / "old.h5"
+    with h5py.File(old, "w", libver="latest") as f:  # the same contents, written without a user block
+        with h5py.File(finished / CHECKPOINT, "r") as g:
+            for name in g.attrs:
+                f.attrs[name] = g.attrs[name]
+            for name in ("particles", "state"):
+                g.copy(name, f)
+    assert old.read_bytes()[:8] == b"\x89HDF\r\n\x1a\n"
+    again, read, _ = read_checkpoint(MPI.COMM_SELF, old)
+    assert again == state and np.array_equal(read.owned("position"), particles.owned("position"))
 
 
 @pytest.mark.parametrize("case,expected", [("dam_break.toml", True), ("taylor_green.toml", False)])
