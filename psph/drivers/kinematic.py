@@ -52,12 +52,18 @@ class KinematicDriver(Driver):
                 self.shifting.restore(self.resumed["shifting"])
         d, p = scene.domain, scene.physics
         self.dt = scene.time.cfl * d.dx / p.sound_speed
-        self.n_steps = step_count(scene.time.t_end, self.dt)
+        # the steps count from here: the start, or a checkpoint whose time is not its step's at this dt (a
+        # restart that changes time.cfl: counted from step 0, the run went back in time, an audit found)
+        self.origin = (0, 0.0)
+        if self.resumed and self.resumed["time"] != self.resumed["step"] * self.dt:
+            self.origin = (self.resumed["step"], self.resumed["time"])
+        self.n_steps = self.origin[0] + step_count(scene.time.t_end - self.origin[1], self.dt)
         self.length = d.upper[0] - d.lower[0]
 
     def step_time(self, step) -> float:
-        """The time at the end of step `step` (1-based): step dt, the last step's end t_end."""
-        return self.scene.time.t_end if step >= self.n_steps else step * self.dt
+        """The time at the end of step `step` (1-based): dt on from the origin, the last step's end t_end."""
+        first, t0 = self.origin
+        return self.scene.time.t_end if step >= self.n_steps else t0 + (step - first) * self.dt
 
     def advect(self, dt):
         """Move the owned particles over dt by the frozen field (thesis eq. 8.33) and refresh. Collective."""

@@ -142,6 +142,16 @@ def test_kinematic_restart_continues_bit_for_bit(tmp_path):
     with h5py.File(tmp_path / "whole" / last) as a, h5py.File(tmp_path / "again" / last) as b:
         for k in ("position", "grad_c", "gid"):
             assert np.array_equal(a["particles"][k][()], b["particles"][k][()]), k
+    # a restart that halves the step (time.cfl 0.2 -> 0.1) goes on from the checkpoint's time, 0.074, in steps
+    # of 0.0005 (counted from step 0, its step 75 ended at 0.0375: the run went back in time, an audit found)
+    done = run_psph("run", "--restart", checkpoint, "--out", tmp_path / "finer", "--set", "time.cfl=0.1")
+    assert done.returncode == 0, done.stderr
+    rows = read_history(tmp_path / "finer" / "history.csv")
+    times = [r["time"] for r in rows if r["step"] > 74]  # (a row's time is its step's start)
+    assert rows[-1]["step"] == 74 + 52 and times[0] == pytest.approx(0.074) and times[-1] < 0.1, times[:3]
+    assert np.allclose(np.diff(times), 0.0005)
+    with h5py.File(tmp_path / "finer" / "snapshot_000001.h5") as f:
+        assert f.attrs["time"] == 0.1 and f.attrs["step"] == 126
 
 
 def test_restart_errors_are_one_line(tmp_path):
