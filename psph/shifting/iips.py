@@ -447,6 +447,9 @@ def pre_procedure(spec, comm, system, iips=None, surface=None):
     label({"newton": 0})
     # a temporary pre-procedure sets no beta threshold: the run's shifting is not IIPS, and reads no iips.beta
     temporary = None if iips is not None else ImplicitShifting(replace(spec, beta=0.0), comm, surface=surface)
+    # the fields a temporary one adds, which the run's method never updates: left, every snapshot showed
+    # the pre-procedure's last shift as the run's (Procedure C, an audit)
+    added = [f.name for f in (SHIFT_FIELD, GUESS_FIELD) if f.name not in system.particles] if temporary else []
     try:
         shifting = iips or temporary
         return shifting.prepare(system, on_iteration=label), shifting.pre_iterations
@@ -454,3 +457,5 @@ def pre_procedure(spec, comm, system, iips=None, surface=None):
         system.where = {}
         if temporary is not None:
             temporary.destroy()
+            for name in added:
+                system.particles.remove_field(name)

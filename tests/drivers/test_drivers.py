@@ -98,6 +98,13 @@ def test_kinematic_explicit_procedure_c_lets_the_distribution_degrade(tmp_path):
     linf_iips = read_history(iips / "history.csv")[-1]["Linf_grad_c"]
     linf_expl = read_history(explicit / "history.csv")[-1]["Linf_grad_c"]
     assert linf_expl > 10 * linf_iips
+    # Procedure C's snapshots hold no IIPS shift: the temporary pre-procedure's field is not left behind
+    # (every snapshot showed its last shift, 0.8 dx, as the run's; an audit)
+    for snapshot in sorted(explicit.glob("snapshot_*.h5")):
+        with h5py.File(snapshot) as f:
+            assert "iips_shift" not in f["particles"] and "grad_c" in f["particles"], snapshot.name
+    with h5py.File(sorted(iips.glob("snapshot_*.h5"))[-1]) as f:  # (IIPS's own: its last call's shift)
+        assert "iips_shift" in f["particles"]
 
 
 def test_failure_stops_with_step_and_saves_state(tmp_path):
