@@ -51,6 +51,7 @@ from psph.solvers.linear import LinearSolver, petsc_errors
 from psph.solvers.petsc import destroy_at_exit, petsc
 
 SHIFT_FIELD = FieldSpec("iips_shift", ("d",))
+LEVEL_LINF = 1e-9  # Linf(grad C) of a distribution level to round-off (a lattice: 4e-15; relaxed: about 1e-5)
 # the call's displacement at its iterate of lowest Linf(grad C) (a field: it migrates with the particles)
 BEST_FIELD = FieldSpec(SCRATCH_FIELDS[0], ("d",), scratch=True)
 # each particle's first Newton step of the last call: the next call's initial guess
@@ -205,10 +206,14 @@ class ImplicitShifting(Shifting):
         if self.spec.beta > 0:
             self.threshold = self.spec.beta * linf
             if self.threshold < ROUNDOFF_LINF:  # an audit: 9 calls of 10 stalled at 20 iterations, exit 0
-                raise SceneError("iips.beta", f"the pre-procedure left Linf(grad C) = {linf:.3g} (level already: "
-                                 f"a lattice?), and beta x it = {self.threshold:.3g} is below round-off "
-                                 f"({ROUNDOFF_LINF:g}), which no call reaches: give iips.threshold, or start "
-                                 "from a perturbed distribution (initial.sigma_over_dx > 0)")
+                # (the hint told of a lattice for a tiny beta too, an audit: a relaxed start leaves about 1e-5)
+                level = linf < LEVEL_LINF
+                raise SceneError("iips.beta", f"{self.spec.beta:g} x Linf(grad C) after the pre-procedure "
+                                 f"({linf:.3g}) = {self.threshold:.3g} is below round-off ({ROUNDOFF_LINF:g}), "
+                                 "which no call reaches: " + (
+                                     "the pre-procedure left a level distribution (a lattice?): give "
+                                     "iips.threshold, or start from a perturbed one (initial.sigma_over_dx > 0)"
+                                     if level else "give a larger iips.beta, or iips.threshold"))
 
     def _free_structure(self) -> None:
         """Free the vectors of the last structure, if any (petsc4py keeps them alive), and make the solver let
