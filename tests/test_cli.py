@@ -561,6 +561,12 @@ def test_a_set_key_the_run_does_not_read_is_warned_about(tmp_path):
            "'kinematic', shifting.method = 'explicit_iterative')" in res.stderr
     quiet = run_psph(*kinematic, "--out", tmp_path / "b")
     assert quiet.returncode == 0 and "does not read" not in quiet.stderr, quiet.stderr
+    # (a kinematic audit: its field's L is the domain's, and physics.reference_length went unmentioned)
+    length = run_psph("info", kinematic[1], "--set", "physics.reference_length=2", "--set", "physics.eos=tait")
+    assert "does not read (another method's?): physics.reference_length, physics.eos (" in length.stdout, length.stdout
+    fluid = run_psph("info", CASES / "taylor_green.toml", "--set", "physics.velocity_field=taylor_green",
+                     "--set", "physics.reference_length=2")
+    assert "does not read" not in fluid.stdout, fluid.stdout
     info = run_psph("info", CASES / "dam_break.toml")
     assert "# keys set that this run does not read (another method's?): iips.procedure, iips.threshold" in info.stdout
 

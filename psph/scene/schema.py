@@ -348,6 +348,13 @@ class FreeSurfaceSpec:
 FLUID_SCHEMES = ("delta_ale", "delta_ale_const_mass", "delta_ale_const_volume", "riemann_ale")
 
 
+# the physics keys only the fluid schemes read (static and kinematic runs take rho0, gravity and U for their
+# initial fields, and kinematic runs U, c0 and the frozen field)
+FLUID_PHYSICS = ("reference_length", "reynolds", "artificial_viscosity", "eos", "viscosity", "delta", "delta_m",
+                 "free_stream", "free_stream_ramp", "muscl_limiter", "riemann_dissipation", "tensile_switch",
+                 "wall_adhesion", "max_density_variation", "max_volume_variation")
+
+
 @dataclass(frozen=True)
 class PhysicsSpec:
     scheme: str = option("none", doc="what moves the particles: none (a static distribution), kinematic "
@@ -820,8 +827,10 @@ class Scene:
             pre = self.iips.pre_newton > 0 and scheme != "none"
             keys += [f"iips.{name}" for name in IIPSSpec.__dataclass_fields__
                      if not pre or name in ("procedure", "threshold", "beta", "max_newton")]
-        if not fluid:
-            keys += ["time.retries", "time.integrator"]
+        if not fluid:  # (an audit: a kinematic run's physics.reference_length, not its L, went unmentioned)
+            keys += ["time.retries", "time.integrator"] + [f"physics.{name}" for name in FLUID_PHYSICS]
+        if scheme != "kinematic":
+            keys.append("physics.velocity_field")
         if scheme == "none":
             keys += ["time.t_end", "time.cfl", "output.every", "output.history_every"]
         return [key for key in keys if self._set(key)]
