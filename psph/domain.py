@@ -55,6 +55,24 @@ class Domain:
             mask |= pos[:, a] < self.lower[a] - tie if side < 0 else pos[:, a] > self.upper[a] + tie
         return mask
 
+    def with_images(self, pos: np.ndarray, reach: float) -> tuple:
+        """(positions, rows): `pos` (wrapped along the periodic axes) followed by the periodic images of those
+        within `reach` of a periodic face (corners' and edges' too), and, for every one, the row of `pos` it
+        is of: a sum over the particles within `reach` of a point of the box, images included, is then one
+        over these positions."""
+        out = np.array(pos, dtype=np.float64)
+        self.wrap(out)
+        rows = np.arange(len(out))
+        length = self.length
+        for a in range(self.dim):
+            if self.periodic[a]:
+                low = out[:, a] < self.lower[a] + reach
+                high = out[:, a] >= self.upper[a] - reach
+                shifted = [out[low] + length[a] * np.eye(self.dim)[a], out[high] - length[a] * np.eye(self.dim)[a]]
+                out = np.concatenate([out, *shifted])
+                rows = np.concatenate([rows, rows[low], rows[high]])
+        return out, rows
+
     def minimum_image(self, dx: np.ndarray) -> np.ndarray:
         """Displacement vectors reduced to the nearest periodic image (a copy)."""
         out = np.array(dx, dtype=np.float64)
