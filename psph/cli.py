@@ -338,14 +338,17 @@ def cmd_run(args, petsc_options, comm) -> int:
                     "iips.pre_newton")
     if scene.shifting.method in ("explicit_iterative", "lind"):
         from psph.shifting.explicit import stability_limit
+        from psph.shifting.velocity import Lind
 
-        dom = scene.domain
-        limit = stability_limit(dom.kernel, dom.dimension, dom.h_over_dx)
-        if scene.shifting.diffusion > limit:
-            _warn(comm, f"psph: warning: shifting.diffusion = {scene.shifting.diffusion:g} exceeds {limit:.3g}, the "
-                        f"limit above which dx = -D grad C (thesis eq. 6.13) amplifies the shortest waves on the "
-                        f"lattice ({dom.kernel}, h/dx = {dom.h_over_dx:g}, {dom.dimension}-D): the distribution "
-                        "degrades instead of relaxing")
+        dom, lind = scene.domain, scene.shifting.method == "lind"
+        limit = stability_limit(dom.kernel, dom.dimension, dom.h_over_dx, Lind.grad_c_weights if lind else (0, 4))
+        key, value = ("lind_diffusion", scene.shifting.lind_diffusion) if lind else ("diffusion",
+                                                                                      scene.shifting.diffusion)
+        if value > limit:
+            _warn(comm, f"psph: warning: shifting.{key} = {value:g} exceeds {limit:.3g}, the limit above which "
+                        f"dx = -D grad C{'^' if lind else ''} (thesis eq. {'6.16' if lind else '6.13'}) amplifies "
+                        f"the shortest waves on the lattice ({dom.kernel}, h/dx = {dom.h_over_dx:g}, "
+                        f"{dom.dimension}-D): the distribution degrades instead of relaxing")
     phys = scene.physics
     mach = phys.reference_velocity / phys.sound_speed if phys.sound_speed > 0 else 1.0
     if phys.scheme == "riemann_ale" and phys.riemann_dissipation == "full" and mach < 0.05:

@@ -603,6 +603,22 @@ def test_a_fickian_coefficient_above_the_kernels_stability_limit_is_warned_about
         assert f"shifting.diffusion = {diffusion:g} exceeds {0.275 if h_over_dx == 1.3 else 0.472}" in res.stderr
 
 
+@pytest.mark.parametrize("diffusion,warned", [(None, False), (0.4, True)])
+def test_linds_coefficient_is_checked_against_its_corrected_gradients_limit(tmp_path, diffusion, warned):
+    """Lind's law steps on grad C^, whose lattice limit (0.329 h^2 in 2-D with C6 at h/dx = 2) is below the
+    plain gradient's 0.472: 0.4 h^2, which it took from the explicit iteration, was not warned about (a
+    dimensions audit: a 1-D stream sped up to 1.12 U). Its own default, 0.2 h^2, is within the limit."""
+    sets = ["--set", "shifting.method=lind", "--set", "iips.update=none", "--set", "time.t_end=0.002"]
+    if diffusion is not None:
+        sets += ["--set", f"shifting.lind_diffusion={diffusion}"]
+    res = run_psph("run", CASES / "taylor_green.toml", "--out", tmp_path / "out", "--quiet", "--set",
+                   "domain.dx=0.1", *sets)
+    assert res.returncode == 0, res.stderr
+    assert ("psph: warning: shifting.lind_diffusion = 0.4 exceeds 0.329, the limit above which dx = -D grad C^ "
+            "(thesis eq. 6.16) amplifies" in res.stderr) is warned, res.stderr
+    assert "warning" not in res.stderr or warned, res.stderr
+
+
 def test_petsc_options_petsc_cannot_start_with_are_one_line_of_psph(tmp_path):
     """-options_file naming no file: PETSc reports it and petsc4py raised, which psph took for its own bug
     (exit 1 and a traceback; a fuzzing audit). It is bad input: exit 2, one psph line, nothing written."""

@@ -442,10 +442,13 @@ class ShiftingSpec:
     method: str = option("none", doc="particle shifting: none, iips, explicit_iterative (static and kinematic "
                          "runs), or an explicit law inside a fluid scheme: lind, skillen, oger, delta_plus, "
                          "neuhauser", choices=SHIFTING_METHODS)
-    diffusion: float = option(0.4, doc="explicit_iterative and lind: D / h^2 in dx = -D grad C (thesis eq. 6.13, "
-                              "6.16). Lind et al.'s 0.5 diverges with Wendland C6 at h/dx = 2 (stable up to 0.47; "
-                              "0.40 at h/dx = 1.6, 0.27 at 1.3: a run above its kernel's limit is warned about)",
-                              gt=0.0, le=10.0)
+    diffusion: float = option(0.4, doc="explicit_iterative: D / h^2 in dx = -D grad C (thesis eq. 6.13). Lind et "
+                              "al.'s 0.5 diverges with Wendland C6 at h/dx = 2 (stable up to 0.47; 0.40 at h/dx = "
+                              "1.6, 0.27 at 1.3: a run above its kernel's limit is warned about)", gt=0.0, le=10.0)
+    lind_diffusion: float = option(0.2, doc="lind: D / h^2 in dx = -D grad C^ per step (thesis eq. 6.15-6.16, which "
+                                   "prints 0.5). The corrected gradient lowers the lattice's limit: 0.24 / 0.33 / "
+                                   "0.38 in 1-/2-/3-D with Wendland C6 at h/dx = 2, 0.12-0.15 at 1.3 (a run above "
+                                   "its kernel's limit is warned about)", gt=0.0, le=10.0)
     max_iterations: int = option(1000, doc="explicit_iterative: iterations of a static run", ge=1)
     iterations_per_step: int = option(1, doc="explicit_iterative: iterations per time step", ge=1)
     delta_plus_r: float = option(0.2, doc="delta_plus: R in [1 + R (W_ij / W(dx))^n] (seed 001 eq. 17)", ge=0.0)

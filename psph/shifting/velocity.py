@@ -6,12 +6,15 @@ du = dx / dt.
     none        du = 0 (a Lagrangian scheme; the du-terms are skipped)
     delta_plus  seed 001 eq. 16-17 (Sun et al.):  du* = -Ma (2h) c0 grad C^, R = 0.2, n = 4;
                 |du| <= U_max / 2
-    lind        thesis eq. 6.15-6.16 (Lind et al. 2012): dx = -D grad C^, D = `shifting.diffusion` h^2 (eq. 6.16
-                prints 0.5 h^2), |du| <= U_max / 2; the correction's b = 0.2, n = 4 are not in eq. 6.15-6.16
+    lind        thesis eq. 6.15-6.16 (Lind et al. 2012): dx = -D grad C^, D = `shifting.lind_diffusion` h^2 (eq.
+                6.16 prints 0.5 h^2), |du| <= U_max / 2; the correction's b = 0.2, n = 4 are not in eq. 6.15-6.16
                 (the thesis: "suggested in Monaghan 2000"), as in delta_plus. Two departures from eq. 6.16,
                 which is written for ISPH, whose time step follows the flow (dt ~ 0.1 h / U): (1) applied
-                once per step, the law is the explicit iteration of eq. 6.13, which 0.5 h^2 makes diverge with
-                Wendland C6 at h/dx = 2 (stable to 0.47 h^2; psph.shifting.explicit.stability_limit); (2) its
+                once per step, the law is the explicit iteration of eq. 6.13 on grad C^, whose short waves grow
+                above D = 0.24 / 0.33 / 0.38 h^2 in 1-/2-/3-D with Wendland C6 at h/dx = 2
+                (psph.shifting.explicit.stability_limit with the weights; a dimensions audit: at 0.4 h^2, the
+                explicit iteration's default, which this law took, a 1-D stream through an outflow sped up to
+                1.12 U), so its default is 0.2 h^2; (2) its
                 cap |dx| <= 0.2 h, |du| <= 0.2 h / dt, is ~c0 at a weakly compressible step (dt = 0.2 h / c0),
                 and the time step, which reads |u + du|, then shrank at every step that a particle was capped
                 until the run stopped (an audit: Taylor-Green 16 x 16 from the lattice, |du| = 6.8 c0 and dt
@@ -116,7 +119,7 @@ class Lind(VelocityShift):
 
     def __init__(self, scene):
         super().__init__(scene)
-        self.d = scene.shifting.diffusion
+        self.d = scene.shifting.lind_diffusion
         self.u_max = scene.physics.reference_velocity
 
     def velocity(self, system, scheme, dt, grad=None):
