@@ -15,11 +15,12 @@ so every row travels on the same lattice and the buffer lets |U| rho0 dx^(d-1) o
 and time, whatever the time step. Which rows exist depends on t only: runs on any number of ranks emit
 the same particles with the same gids. At an outflow face (domain.outflow) fluid particles that crossed it
 are removed; with `domain.outflow_buffer` they become buffer particles (Kind.OUTLET) instead, removed one
-kernel support past the face, whose density, pressure and velocity are set after every step to the Shepard
-average of their fluid neighbours (a zero-gradient extrapolation, compute.sums.shepard_from_fluid). The
-fluid beside the face then has a full support and sees there the state it would see inside: a sound wave
-passes out (2% reflected) instead of being reflected as from a free surface (65%). Each change of the
-particle set is followed by a neighbour rebuild, at most one per step (README, "Open boundaries": Cost).
+kernel support past the face (a run starts with the buffer full: fill_outflow_buffers), whose density,
+pressure and velocity are set after every step to the Shepard average of their fluid neighbours (a zero-
+gradient extrapolation, compute.sums.shepard_from_fluid). The fluid beside the face then has a full support
+and sees there the state it would see inside: a sound wave passes out (2% reflected) instead of being
+reflected as from a free surface (65%). Each change of the particle set is followed by a neighbour rebuild, at
+most one per step (README, "Open boundaries": Cost).
 """
 
 import math
@@ -188,6 +189,35 @@ class OpenBoundaries:
         from psph.schemes.eos import make_eos
 
         self.eos = make_eos(scene.physics)
+
+    def fill_outflow_buffers(self, system) -> int:
+        """At the start of a run: the outflow buffers one kernel support deep already, as the fluid's mirror
+        image across each outflow face (on a lattice, its rows continued), with the fluid's fields, which
+        `extrapolate` then sets; returns how many particles they hold. Filled only by the fluid that crossed
+        the face, a buffer cut the fluid's support there for the first support / U of the run, where the
+        detection sees no free surface: a shifting law moved that fluid, and a uniform 1-D stream left at
+        1.05 U (a dimensions audit). Gids: the mirrored particle's plus the first free one (the same on any
+        number of ranks). Collective."""
+        if not self.buffer:
+            return 0
+        p = system.particles
+        pos, kind = p.owned("position"), p.owned("kind")
+        support = self.scene.domain.support
+        added = []
+        for axis, side in system.domain.outflow:
+            face = system.domain.lower[axis] if side < 0 else system.domain.upper[axis]
+            near = (kind == Kind.FLUID) & (np.abs(pos[:, axis] - face) < support)
+            rows = {name: arr[near].copy() for name, arr in p.owned_arrays().items()}
+            rows["position"][:, axis] = 2.0 * face - rows["position"][:, axis]
+            rows["kind"][:] = Kind.OUTLET
+            rows["gid"] += self.next_gid
+            added.append(rows)
+        p.append_owned({name: np.concatenate([rows[name] for rows in added]) for name in added[0]})
+        self.next_gid *= 2
+        n = int(allreduce_sum(system.comm, sum(len(rows["gid"]) for rows in added)))
+        system.rebuild()
+        self.extrapolate(system)
+        return n
 
     def apply(self, system, t) -> dict:
         """At time t: buffer particles past their downstream face join the fluid, rows due are emitted (on
