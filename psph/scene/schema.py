@@ -362,7 +362,8 @@ class PhysicsSpec:
                          "delta_ale, delta_ale_const_mass, delta_ale_const_volume (seed 001 eq. 13, 23, 25), "
                          "riemann_ale (thesis eq. 5.48: Riemann fluxes, no diffusive terms; no bodies yet)",
                          choices=("none", "kinematic") + FLUID_SCHEMES)
-    velocity_field: str = option("taylor_green", doc="kinematic: the frozen field (thesis eq. 8.33)",
+    velocity_field: str = option("taylor_green", doc="kinematic: the frozen field (thesis eq. 8.33; 2-D, a "
+                                 "bi-periodic square)",
                                  choices=("taylor_green",))
     reference_velocity: float = option(1.0, doc="reference velocity U (the analytic fields' amplitude; U_max "
                                        "of the shifting laws)", gt=0.0)
@@ -544,10 +545,10 @@ class DiagnosticsSpec:
         "units; l/dx particles per wavelength. The thesis prints sin(pi x/lambda) + cos(pi y/lambda) (eq. 3.6), "
         "whose period is 2 lambda, but counts lambda/dx particles per wavelength (40 for lambda = L at dx/L = "
         "0.0125): psph follows the counts, l = lambda/2", gt=0.0)
-    impinging_jet: bool = option(False, doc="fluid runs: compare the wall pressure with Taylor's solution for a "
+    impinging_jet: bool = option(False, doc="fluid runs, 2-D: compare the wall pressure with Taylor's solution for a "
                                  "jet impinging normally on a plate (thesis eq. 3.3): the jet is inflow[0] (along "
                                  "-y, half-width H its half cross-section), the plate the top of bodies[0]")
-    dam_break: bool = option(False, doc="fluid runs: history columns front_x (the surge front, from the back "
+    dam_break: bool = option(False, doc="fluid runs, 2-D: history columns front_x (the surge front, from the back "
                              "wall) and column_height (the fluid's height at the back wall) of a dam break: the "
                              "fluid column initial.fill_lower .. fill_upper collapses along +x under gravity along "
                              "-y (seed 001 section 6.3)")
@@ -580,7 +581,7 @@ class Scene:
     free_surface: FreeSurfaceSpec = option(FreeSurfaceSpec(), doc="free-surface detection and the shifting "
                                            "near a free surface")
     bodies: tuple[BodySpec, ...] = option((), doc="solid walls and bodies ([[bodies]] tables; clone particles or "
-                                          "ghost walls)")
+                                          "ghost walls), 2-D only (seed 004's clone particles are 2-D)")
     inflow: tuple[InflowSpec, ...] = option((), doc="inflow buffers ([[inflow]] tables): particles move at the "
                                             "prescribed velocity and join the fluid as they leave the buffer "
                                             "(README, \"Open boundaries\")")
@@ -893,7 +894,10 @@ class Scene:
         ini, d, g = self.initial, self.domain, self.physics.gravity
         if ini.pressure != "hydrostatic":
             return
-        if not (d.dimension >= 2 and len(g) == d.dimension and g[1] < 0.0
+        if d.dimension < 2:  # (a dimensions audit: the message below offered a 2-D gravity to a 1-D scene)
+            raise SceneError("initial.pressure", "\"hydrostatic\" (p = rho0 |g| (y_s - y)) needs a y axis: a 2-D or "
+                             "3-D scene")
+        if not (len(g) == d.dimension and g[1] < 0.0
                 and all(v == 0.0 for a, v in enumerate(g) if a != 1)):  # (a fuzzing audit: 0 or the wrong sign)
             raise SceneError("initial.pressure", f"\"hydrostatic\" (p = rho0 |g| (y_s - y)) needs gravity along -y, "
                              f"physics.gravity = [0, -g]{' or [0, -g, 0]' if d.dimension == 3 else ''} with g > 0; "
