@@ -405,8 +405,9 @@ def test_packing_is_accepted_with_clone_walls_and_a_free_surface():
     # a hydrostatic start needs gravity along -y (a fuzzing audit: a zero pressure, or of the wrong sign, else)
     ("dam_break", ["physics.gravity=[0, 1]"], "initial.pressure", "needs gravity along -y"),
     ("dam_break", ["physics.gravity=[-1, 0]"], "initial.pressure", "got [-1.0, 0.0] in 2-D"),
-    ("hydrostatic_tank", ["domain.dimension=1", "domain.lower=[0.0]", "domain.upper=[1.0]", "domain.periodic=[false]",
-                          "bodies=[]", "physics.gravity=[-1.0]", "initial.fill_lower=[0.0]", "initial.fill_upper=[0.5]"],
+    ("hydrostatic_tank", ["domain.dimension=1", "domain.lower=[0.0]", "domain.upper=[1.0]",
+                          "domain.periodic=[false]", "bodies=[]", "physics.gravity=[-1.0]", "initial.fill_lower=[0.0]",
+                          "initial.fill_upper=[0.5]"],
      "initial.pressure", "needs a y axis: a 2-D or 3-D scene"),  # (a dimensions audit: it offered [0, -g])
     ("dam_break", ["initial.fill_upper=[5.367, 1.0]"], "diagnostics.dam_break", "short of the domain"),
     ("taylor_green", ["diagnostics.dam_break=true"], "diagnostics.dam_break", "gravity along -y"),
