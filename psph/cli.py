@@ -324,11 +324,6 @@ def cmd_run(args, petsc_options, comm) -> int:
                     f"until iips.max_newton = {iips.max_newton} (or a step without descent ends it), on past "
                     "convergence, where round-off grows and the results differ between rank counts (thesis: 0.02 "
                     "with a free surface, 0.08 in bounded flows, 0.001 in Taylor-Green)")
-    if scene.iips.update in ("mls1", "mls2") and scene.describe_free_surface():
-        _warn(comm, f"psph: warning: iips.update = {scene.iips.update} remaps every field at every IIPS call, which "
-                    "smooths and, at a free surface, loses mass (the dam break at H/dx = 10 to t = 3: kinetic energy "
-                    "0.08 against 0.45 with nfts or mls2_increment, mass -0.6%): nfts or "
-                    f"{scene.iips.update}_increment keep the flow")
     if (iips_runs(scene) and scene.physics.scheme != "none" and iips.update == "nfts"
             and scene.initial.sigma_over_dx > 0 and iips.pre_newton == 0 and not restart):
         _warn(comm, f"psph: warning: initial.sigma_over_dx = {scene.initial.sigma_over_dx:g} with iips.update = nfts "
