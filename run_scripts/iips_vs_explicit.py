@@ -68,7 +68,9 @@ def main():
     parser.add_argument("--out", type=Path, default=Path("results/iips_vs_explicit"))
     parser.add_argument("--ranks", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--repeats", type=int, default=5, help="IIPS runs per setting (their median time)")
-    parser.add_argument("--wavelengths", type=float, nargs="+", default=[0.125, 0.25, 0.5])
+    parser.add_argument("--wavelengths", type=float, nargs="+", default=[0.125, 0.25, 0.5],
+                        help="the test function's wavelengths l, as lengths (l / L; the table gives l / dx, the "
+                        "particles per wavelength)")
     parser.add_argument("--dx", type=float, default=0.0125, help="dx/L (default: the thesis' 0.0125)")
     parser.add_argument("--settings", nargs="+", default=[name for name, _, _ in IIPS],
                         choices=[name for name, _, _ in IIPS], help="the IIPS settings run (default: all)")
