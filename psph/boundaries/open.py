@@ -196,24 +196,34 @@ class OpenBoundaries:
         `extrapolate` then sets; returns how many particles they hold. Filled only by the fluid that crossed
         the face, a buffer cut the fluid's support there for the first support / U of the run, where the
         detection sees no free surface: a shifting law moved that fluid, and a uniform 1-D stream left at
-        1.05 U (a dimensions audit). Gids: the mirrored particle's plus the first free one (the same on any
-        number of ranks). Collective."""
+        1.05 U (a dimensions audit). Only at a face the fluid reaches (within dx): a fill stopping short of it
+        has a free surface there, which a buffer across the gap would hide. Gids: the mirrored particle's plus
+        (k + 1) the first free one at face k (the same on any number of ranks; a particle near two faces is
+        mirrored across each). Collective."""
         if not self.buffer:
             return 0
         p = system.particles
         pos, kind = p.owned("position"), p.owned("kind")
-        support = self.scene.domain.support
+        support, dx = self.scene.domain.support, self.scene.domain.dx
+        fluid = kind == Kind.FLUID
         added = []
-        for axis, side in system.domain.outflow:
+        faces = system.domain.outflow
+        for k, (axis, side) in enumerate(faces):
             face = system.domain.lower[axis] if side < 0 else system.domain.upper[axis]
-            near = (kind == Kind.FLUID) & (np.abs(pos[:, axis] - face) < support)
+            distance = np.abs(pos[:, axis] - face)
+            gap = -allreduce_max(system.comm, -float(distance[fluid].min()) if fluid.any() else -np.inf)
+            if not gap <= dx:
+                continue
+            near = fluid & (distance < support)
             rows = {name: arr[near].copy() for name, arr in p.owned_arrays().items()}
             rows["position"][:, axis] = 2.0 * face - rows["position"][:, axis]
             rows["kind"][:] = Kind.OUTLET
-            rows["gid"] += self.next_gid
+            rows["gid"] += (k + 1) * self.next_gid
             added.append(rows)
+        if not added:
+            return 0
         p.append_owned({name: np.concatenate([rows[name] for rows in added]) for name in added[0]})
-        self.next_gid *= 2
+        self.next_gid *= len(faces) + 1
         n = int(allreduce_sum(system.comm, sum(len(rows["gid"]) for rows in added)))
         system.rebuild()
         self.extrapolate(system)

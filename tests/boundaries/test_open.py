@@ -418,6 +418,27 @@ def test_uniform_jet_through_an_outflow_buffer_stays_exact(tmp_path, dim, shifti
     assert np.abs(p.owned("density") - 1.0).max() < 1e-12
 
 
+def test_the_outflow_buffers_start_only_where_the_fluid_reaches_their_face(tmp_path):
+    """A review: the start's buffers mirrored the fluid across each face with one gid offset, so a particle
+    near two faces (a corner) got the same new gid twice, which the checkpoints repeated and a restart
+    refused; and a fill stopping short of a face was mirrored across the gap, hiding its free surface (a
+    delta+ run stopped at step 7). Each face has its own gid offset, and a face the fluid does not reach
+    (within dx) gets no buffer."""
+    table = {"name": "corner",
+             "domain": {"dimension": 2, "lower": [0.0, 0.0], "upper": [1.0, 1.0], "periodic": [False, False],
+                        "dx": 0.1, "outflow": ["x+", "y-"], "outflow_buffer": True},
+             "initial": {"fill_lower": [0.0, 0.0], "fill_upper": [1.0, 1.0]},
+             "physics": {"scheme": "delta_ale", "tensile_switch": False}, "time": {"t_end": 0.05}}
+    driver = FluidDriver(scene_from_table(table), MPI.COMM_SELF, tmp_path / "corner")
+    p = driver.system.particles
+    gid, kind = p.owned("gid"), p.owned("kind")
+    assert len(np.unique(gid)) == len(gid) and np.count_nonzero(kind == Kind.OUTLET) == 2 * 10 * 4
+    table["domain"].update(periodic=[True, False], outflow=["y+"], dx=0.05)
+    table["initial"].update(fill_lower=[0.0, 0.1], fill_upper=[1.0, 0.93])
+    gap = FluidDriver(scene_from_table(table), MPI.COMM_SELF, tmp_path / "gap")
+    assert np.count_nonzero(gap.system.particles.owned("kind") == Kind.OUTLET) == 0
+
+
 def channel():
     """A channel without walls, periodic across, from a buffer at x = 0 to an outflow face at x = 2, with
     delta+, to t = 0.5 (a table)."""
