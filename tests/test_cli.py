@@ -562,8 +562,7 @@ def test_a_set_key_the_run_does_not_read_is_warned_about(tmp_path):
     # (a kinematic audit: its field's L is the domain's, and physics.reference_length went unmentioned)
     length = run_psph("info", kinematic[1], "--set", "physics.reference_length=2", "--set", "physics.eos=tait")
     assert "does not read (another method's?): physics.reference_length, physics.eos (" in length.stdout, length.stdout
-    fluid = run_psph("info", CASES / "taylor_green.toml", "--set", "physics.velocity_field=taylor_green",
-                     "--set", "physics.reference_length=2")
+    fluid = run_psph("info", CASES / "taylor_green.toml", "--set", "physics.reference_length=2")
     assert "does not read" not in fluid.stdout, fluid.stdout
     info = run_psph("info", CASES / "dam_break.toml")
     assert "# keys set that this run does not read (another method's?): iips.procedure, iips.threshold" in info.stdout
@@ -617,6 +616,15 @@ def test_linds_coefficient_is_checked_against_its_corrected_gradients_limit(tmp_
     assert "warning" not in res.stderr or warned, res.stderr
 
 
+def test_a_viewer_path_with_petscs_variables_is_left_to_petsc(tmp_path):
+    """PETSc expands ${WORKINGDIRECTORY} and the like in a viewer's file name: the check refused such a path
+    as a missing directory (a review); it is PETSc's to expand, and the profile is written."""
+    res = run_psph("run", SCENE, "--out", tmp_path / "out", "--quiet", "--set", "domain.dx=0.1", "-log_view",
+                   ":${WORKINGDIRECTORY}/profile.txt", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert "Performance Summary" in (tmp_path / "profile.txt").read_text()
+
+
 def test_petsc_options_petsc_cannot_start_with_are_one_line_of_psph(tmp_path):
     """-options_file naming no file: PETSc reports it and petsc4py raised, which psph took for its own bug
     (exit 1 and a traceback; a fuzzing audit). It is bad input: exit 2, one psph line, nothing written."""
@@ -628,7 +636,8 @@ def test_petsc_options_petsc_cannot_start_with_are_one_line_of_psph(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize("option,value", [("-log_view", ":{bad}"), ("-iips_ksp_view", "ascii:{bad}:ascii_info")])
+@pytest.mark.parametrize("option,value", [("-log_view", ":{bad}"), ("-iips_ksp_view", "ascii:{bad}:ascii_info"),
+                                          ("-iips_ksp_converged_reason", "ascii:{bad}")])
 def test_viewer_files_that_cannot_be_written_are_refused_before_the_run(tmp_path, option, value):
     """PETSc opens -log_view's file in PetscFinalize, after the run: `-log_view :/no/dir/x` printed PETSc's
     error and exited 0, the profile lost (a fuzzing audit). A viewer whose file cannot be written is bad

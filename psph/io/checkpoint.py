@@ -118,6 +118,7 @@ def write_checkpoint(comm, out_dir, system, step: int, time: float, state: dict,
         write_particle_file(comm, str(tmp), start, total, data,
                             {"format": FORMAT, "step": int(step), "time": float(time)}, extra={"state": blob},
                             libver="latest", userblock=SEAL_BYTES)
+        comm.Barrier()  # (every rank's writes closed before rank 0 reads the file back for the seal)
         if comm.rank == 0:
             seal(tmp)
     except BaseException:  # (a full disk) no partial checkpoint is left; the previous one stays
@@ -268,6 +269,7 @@ def read_checkpoint(comm, path) -> tuple:
             state = json.loads(bytes(_read(f["state"], (), "its state")).decode())
             _check_state(state)
             _keep_old_walls(state["scene"])
+            _keep_old_lind(state["scene"])
             boxes = state["decomposition"]["boxes"]
             dim = len(boxes[0][0])
             counts = state["rank_counts"]
@@ -295,6 +297,15 @@ def read_checkpoint(comm, path) -> tuple:
     if any(errors):
         raise UsageError(next(e for e in errors if e))
     return result
+
+
+def _keep_old_lind(table: dict) -> None:
+    """A checkpoint written before shifting.lind_diffusion existed ran Lind's law with shifting.diffusion
+    (0.4 h^2 by default; a review: it continued at the new key's 0.2, and a restart cannot change shifting
+    keys). read_checkpoint applies it to the state's scene."""
+    shifting = table.get("shifting")
+    if isinstance(shifting, dict) and shifting.get("method") == "lind" and "lind_diffusion" not in shifting:
+        shifting["lind_diffusion"] = shifting.get("diffusion", 0.4)
 
 
 def _keep_old_walls(table: dict) -> None:

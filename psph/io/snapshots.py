@@ -54,8 +54,8 @@ def foreign_snapshots(directory, run) -> list:
         try:
             with h5py.File(path, "r") as f:
                 stamp = f.attrs.get("run")
-        except OSError:  # (a damaged file: the continuation reads none of it)
-            continue
+        except (OSError, KeyError, RuntimeError, ValueError):  # (h5py's words for a damaged file, whose
+            continue  # metadata a flipped bit broke, a review found: the continuation reads none of it)
         if stamp is not None and (stamp.decode() if isinstance(stamp, bytes) else str(stamp)) != run:
             foreign.append(path)
     return foreign

@@ -833,8 +833,6 @@ class Scene:
                      if not pre or name in ("procedure", "threshold", "beta", "max_newton")]
         if not fluid:  # (an audit: a kinematic run's physics.reference_length, not its L, went unmentioned)
             keys += ["time.retries", "time.integrator"] + [f"physics.{name}" for name in FLUID_PHYSICS]
-        if scheme != "kinematic":
-            keys.append("physics.velocity_field")
         if scheme == "none":
             keys += ["time.t_end", "time.cfl", "output.every", "output.history_every"]
         return [key for key in keys if self._set(key)]

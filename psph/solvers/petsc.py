@@ -70,18 +70,20 @@ FILE_VIEWERS = ("", "ascii", "binary", "hdf5", "vtk")
 
 
 def check_viewer_files(options) -> None:
-    """Refuse a viewer option (`-log_view :path`, `-iips_ksp_view ascii:path:ascii_info`) whose file cannot be
+    """Refuse a viewer option (`-log_view :path`, `-iips_ksp_view ascii:path:ascii_info`,
+    `-iips_ksp_converged_reason ascii:path`: any option whose value names a file viewer) whose file cannot be
     written, before the run: PETSc opens `-log_view`'s file only in PetscFinalize, after the run, where its
     error cannot change the exit status any more (a fuzzing audit: `-log_view :/bad/x` exited 0 with the
-    profile lost), and the others' mid-run, after hours of work."""
+    profile lost), and the others' mid-run, after hours of work. A path holding PETSc's variables
+    (`${WORKINGDIRECTORY}`), which PETSc expands, is left to PETSc."""
     from psph.errors import UsageError
 
     options = list(options)
     for name, value in zip(options, options[1:] + [""]):
-        if not (name.startswith("-") and name.endswith("_view")) or ":" not in value:
+        if not name.startswith("-") or value.startswith("-") or ":" not in value:
             continue
         kind, path = value.split(":")[:2]
-        if kind not in FILE_VIEWERS or not path:
+        if kind not in FILE_VIEWERS or not path or "${" in path:
             continue
         folder = os.path.dirname(os.path.abspath(path))
         if not os.path.isdir(folder) or not os.access(folder, os.W_OK | os.X_OK) or os.path.isdir(path):

@@ -282,6 +282,24 @@ def test_a_checkpoint_older_than_wall_adhesion_keeps_the_walls_it_ran_with(finis
     assert read_checkpoint(MPI.COMM_SELF, new)[0]["scene"]["physics"]["wall_adhesion"] is False
 
 
+@pytest.mark.parametrize("diffusion,expected", [(None, 0.4), (0.3, 0.3)])
+def test_a_checkpoint_older_than_lind_diffusion_keeps_the_coefficient_it_ran_with(finished, tmp_path, diffusion,
+                                                                                 expected):
+    """Lind's law took shifting.diffusion (0.4 h^2 by default) before shifting.lind_diffusion (0.2): a
+    checkpoint of that day, whose scene lists no lind_diffusion, continues with the coefficient it ran with
+    (a review: it went on at 0.2, and a restart cannot change shifting keys)."""
+    table = to_table(scene_from_table(read_table(CASES / "taylor_green.toml")))
+    table["shifting"].update(method="lind")
+    table["iips"].update(update="none")
+    del table["shifting"]["lind_diffusion"]
+    if diffusion is None:
+        del table["shifting"]["diffusion"]
+    else:
+        table["shifting"]["diffusion"] = diffusion
+    old = edit_checkpoint(finished / CHECKPOINT, tmp_path / "old.h5", edit_state(lambda s: s.update(scene=table)))
+    assert scene_from_table(read_checkpoint(MPI.COMM_SELF, old)[0]["scene"]).shifting.lind_diffusion == expected
+
+
 def test_restart_errors_from_the_command_line_are_one_line(finished, tmp_path):
     bad = edit_checkpoint(finished / CHECKPOINT, tmp_path / "bad.h5", edit_state(lambda s: s.pop("history")))
     assert "its state lacks 'history'" in one_line_error(run_psph("run", "--restart", bad, "--out", tmp_path / "o"))
