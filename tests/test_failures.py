@@ -46,14 +46,19 @@ def test_failure_on_rank_1_of_3_ends_the_job_within_seconds(tmp_path, kind, word
 def test_a_petsc_option_file_only_rank_0_opens_ends_every_rank_with_exit_2(tmp_path):
     """-iips_ksp_monitor ascii:PATH is opened by rank 0 alone: a bad PATH fails there only. The error is bad
     input (exit 2) and the job ends at once; when it was taken for an error of every rank, rank 0 left alone
-    and rank 1 waited in a collective until killed (here: the timeout, 120 s, fails the test)."""
+    and rank 1 waited in a collective until killed (here: the timeout, 120 s, fails the test). A plain bad
+    path is now refused before the run on every rank (psph.solvers.petsc.check_viewer_files); one through
+    PETSc's ${WORKINGDIRECTORY}, which the check leaves to PETSc, still fails on rank 0 alone."""
     from tests.helpers import run_psph
 
-    proc = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "out", "--quiet",
-                    "--set", "shifting.method=iips", "--set", "domain.dx=0.1",
-                    "-iips_ksp_monitor", f"ascii:{tmp_path}/missing/monitor.txt", ranks=2, timeout=120)
-    assert proc.returncode == 2, proc.stderr
-    assert "Cannot open PetscViewer file" in proc.stderr and "rank 0" in proc.stderr, proc.stderr
+    for path, words in ((f"{tmp_path}/missing/monitor.txt", "cannot write"),
+                        ("${WORKINGDIRECTORY}/missing/monitor.txt", "Cannot open PetscViewer file")):
+        proc = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "out", "--quiet",
+                        "--set", "shifting.method=iips", "--set", "domain.dx=0.1",
+                        "-iips_ksp_monitor", f"ascii:{path}", ranks=2, timeout=120, cwd=tmp_path)
+        assert proc.returncode == 2, proc.stderr
+        assert words in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+        assert "rank 0" in proc.stderr or words == "cannot write", proc.stderr
 
 
 @pytest.mark.parametrize("ranks", [1, 2])
