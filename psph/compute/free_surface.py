@@ -51,7 +51,8 @@ def outward_normals(mat, lam, grad_c, h, tol, out):
     for i in range(n):
         g0, g1, g2 = load(grad_c, i, d)
         if lam[i] > tol:
-            g0, g1, g2 = solve_symmetric(*symmetric(mat, i, d), g0, g1, g2, d, 0.0)
+            m00, m01, m02, m11, m12, m22 = symmetric(mat, i, d)  # (no *args: solve_symmetric is inlined)
+            g0, g1, g2 = solve_symmetric(m00, m01, m02, m11, m12, m22, g0, g1, g2, d, 0.0)
         norm = np.sqrt(dot(g0, g1, g2, g0, g1, g2, d))
         if norm * h > UNDEFINED:
             store(out, i, d, -g0 / norm, -g1 / norm, -g2 / norm)

@@ -47,14 +47,19 @@ def load(arr, i, d):
     return arr[i, 0], arr[i, 1] if d > 1 else 0.0, arr[i, 2] if d > 2 else 0.0
 
 
-@njit(cache=True)
+# inline: no helper taking d is compiled on its own. A kernel of psph.compute.jit.per_dimension passes d as a
+# literal, and a helper's specialisations for d = 1, 2, 3 share one cache index, which two processes compiling
+# different dimensions at once (the test script's warm-up) could leave pointing d = 1's entry at d = 2's code:
+# a CI run failed with "Invalid use of type(CPUDispatcher(store)) with parameters (..., Literal[int](1), ...)
+# Known signatures: (..., Literal[int](2), ...)"
+@njit(cache=True, inline="always")
 def pair(pos, i, j, d):
     """(x_ij components padded to 3, r) for particles i, j."""
     r0, r1, r2, rr = pair2(pos, i, j, d)
     return r0, r1, r2, np.sqrt(rr)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def store(out, i, d, g0, g1, g2):
     out[i, 0] = g0
     if d > 1:
@@ -326,7 +331,7 @@ def smallest_eigenvalue(mat, out):
             out[i] = np.linalg.eigvalsh(np.ascontiguousarray(mat[i]))[0]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def solve_symmetric(m00, m01, m02, m11, m12, m22, g0, g1, g2, d, tol):
     """x = M^-1 g for a symmetric d x d M by cofactors (g itself where det M <= tol^d: near-singular, no
     renormalisation)."""
@@ -357,11 +362,11 @@ def invert_renormalisation(mat, lambda_min, tol, out):
     """L_i = M_i^{-1} where lambda_min(M_i) > tol, else the identity (no renormalisation)."""
     d = mat.shape[1]
     for i in range(mat.shape[0]):
-        m = symmetric(mat, i, d)
+        m00, m01, m02, m11, m12, m22 = symmetric(mat, i, d)  # (no *args: solve_symmetric is inlined)
         for b in range(d):
             e0, e1, e2 = (1.0 if b == 0 else 0.0), (1.0 if b == 1 else 0.0), (1.0 if b == 2 else 0.0)
             if lambda_min[i] > tol:  # then det M_i > tol^d > 0
-                e0, e1, e2 = solve_symmetric(*m, e0, e1, e2, d, 0.0)
+                e0, e1, e2 = solve_symmetric(m00, m01, m02, m11, m12, m22, e0, e1, e2, d, 0.0)
             out[i, 0, b] = e0
             if d > 1:
                 out[i, 1, b] = e1
