@@ -337,8 +337,8 @@ def cmd_run(args, petsc_options, comm) -> int:
 
         dom, lind = scene.domain, scene.shifting.method == "lind"
         limit = stability_limit(dom.kernel, dom.dimension, dom.h_over_dx, Lind.grad_c_weights if lind else (0, 4))
-        key, value = ("lind_diffusion", scene.shifting.lind_diffusion) if lind else ("diffusion",
-                                                                                      scene.shifting.diffusion)
+        key = "lind_diffusion" if lind else "diffusion"
+        value = getattr(scene.shifting, key)
         if value > limit:
             _warn(comm, f"psph: warning: shifting.{key} = {value:g} exceeds {limit:.3g}, the limit above which "
                         f"dx = -D grad C{'^' if lind else ''} (thesis eq. {'6.16' if lind else '6.13'}) amplifies "

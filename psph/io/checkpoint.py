@@ -78,7 +78,7 @@ def seal_damage(path):
         if _crc32(path, SEAL_BYTES) != (int(sealed.group(1), 16), int(sealed.group(2))):
             return "it is damaged: its bytes differ from those written (the CRC32 of the file fails)"
     except OSError:
-        return None
+        pass
     return None
 
 
