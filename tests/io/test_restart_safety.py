@@ -453,6 +453,31 @@ def test_a_checkpoint_copied_into_another_runs_directory_does_not_continue_there
         assert f.attrs["run"] not in ("", run)
 
 
+def test_only_readable_snapshots_stamped_by_another_run_count_as_foreign(finished, tmp_path, monkeypatch):
+    """The check of a directory before a continuation in place: a snapshot of another run counts, one of this
+    run or an unstamped (older psph's) one does not, and one whose metadata cannot be read (garbage, a
+    truncated copy, or h5py's KeyError / RuntimeError for a broken attribute) is passed over, not raised:
+    the continuation reads nothing of it."""
+    from psph.io import snapshots
+
+    run = read_checkpoint(MPI.COMM_SELF, finished / CHECKPOINT)[0]["run"]
+    directory = copy_run(finished, tmp_path / "run")
+    with h5py.File(directory / "snapshot_000001.h5", "r+") as f:
+        f.attrs["run"] = "0" * 32
+    with h5py.File(directory / "snapshot_000002.h5", "r+") as f:
+        del f.attrs["run"]
+    (directory / "snapshot_000003.h5").write_bytes(b"not a snapshot" * 10)
+    whole = (directory / "snapshot_000000.h5").read_bytes()
+    (directory / "snapshot_000004.h5").write_bytes(whole[: len(whole) // 3])
+    assert snapshots.foreign_snapshots(directory, run) == [directory / "snapshot_000001.h5"]
+    assert snapshots.foreign_snapshots(directory, None) == []
+    for error in (KeyError, RuntimeError):
+        def broken(*args, error=error, **kwargs):
+            raise error("a damaged attribute")
+        monkeypatch.setattr(snapshots.h5py, "File", broken)
+        assert snapshots.foreign_snapshots(directory, run) == []
+
+
 # ------------------------------------------------------------------ G: the log
 @pytest.mark.parametrize("log,reason", [("/dev/full", "No space left on device"),
                                         ("{tmp}/nonexistent/dir/x.log", "No such file or directory")])
