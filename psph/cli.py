@@ -351,6 +351,10 @@ def cmd_run(args, petsc_options, comm) -> int:
                     "solver's dissipation z (u_L - u_R) / 2 grows with c0 (Taylor-Green, dx = 0.05, t = 0.01: kinetic "
                     "energy -2.3% at c0/U = 10, -10% at 50, -89% at 1000); physics.riemann_dissipation = \"low\" "
                     "keeps it (-0.13%)")
+    if phys.scheme == "riemann_ale" and scene.time.cfl > STABLE_CFL["riemann_ale"]:
+        _warn(comm, f"psph: warning: time.cfl = {scene.time.cfl:g} with physics.scheme = \"riemann_ale\": the scheme "
+                    f"runs stably up to about {STABLE_CFL['riemann_ale']:g} (an acoustic wave and Taylor-Green blew "
+                    "up from 1.0 in 2-D and 1.2 in 1-D; the thesis uses 0.2, eq. 5.52)")
     if iips_runs(scene):
         log(f"psph: IIPS linear solver: {ImplicitShifting.describe_settings(solver)}")
     given = {item.split("=", 1)[0].strip() for item in args.set}  # a scene file may hold other methods' keys
@@ -447,6 +451,9 @@ def _prepare_output(args, out, log_path, first, continuing, later):
 
 
 # PETSc options read only when PETSc finalises, after psph's check
+# the largest time.cfl at which a scheme ran stably in an audit's runs (riemann_ale: 1-D acoustic wave, 2-D
+# Taylor-Green; delta_ale with delta+ ran Taylor-Green at 1.5, as far as the neighbour skin allowed)
+STABLE_CFL = {"riemann_ale": 0.8}
 AT_FINALIZE = ("-options_left", "-options_view", "-malloc_dump", "-memory_view", "-objects_dump")
 
 

@@ -494,6 +494,20 @@ def test_the_riemann_scheme_at_low_mach_is_warned_about(tmp_path, c0, dissipatio
             in res.stderr) is warned, res.stderr
 
 
+@pytest.mark.parametrize("scheme, cfl, warned", [("riemann_ale", 1.0, True), ("riemann_ale", 0.8, False),
+                                                 ("delta_ale", 1.0, False)])
+def test_a_riemann_time_step_beyond_its_stable_cfl_is_warned_about(tmp_path, scheme, cfl, warned):
+    """riemann_ale blows up from time.cfl = 1.0 (2-D) and 1.2 (1-D), and the failure then names the density or
+    the skin, not the step (a Riemann audit); delta_ale with delta+ ran Taylor-Green at 1.5."""
+    res = run_psph("run", CASES / "taylor_green.toml", "--out", tmp_path, "--quiet", "--set", "domain.dx=0.1",
+                   "--set", "time.t_end=0.02", "--set", f"physics.scheme={scheme}", "--set", f"time.cfl={cfl}",
+                   "--set", "neighbours.skin=0.5", "--set", "shifting.method=none", "--set", "iips.update=none",
+                   "--set", "output.every=0")
+    assert res.returncode == 0, res.stderr
+    assert (f'warning: time.cfl = {cfl:g} with physics.scheme = "riemann_ale": the scheme runs stably up to about '
+            "0.8" in res.stderr) is warned, res.stderr
+
+
 @pytest.mark.parametrize("update", ["mls2", "mls1", "mls2_increment", "nfts"])
 def test_no_field_update_with_a_free_surface_is_warned_about(tmp_path, update):
     """The plain remaps were warned about at a free surface (the dam break at H/dx = 10 to t = 3: kinetic

@@ -34,6 +34,7 @@ from psph.particles import Kind
 from psph.probes import NAME as PROBES_NAME
 from psph.probes import Probes
 from psph.profiling import phase
+from psph.scene.schema import SKIN_MAX
 from psph.schemes import make_scheme
 from psph.schemes.integrators import INTEGRATORS, STAGE_REACH
 from psph.schemes.viscous_limit import ViscousLimit
@@ -186,6 +187,16 @@ class DamBreakReference:
 
 
 REFERENCES = {"taylor_green": TaylorGreenReference, "elliptical_drop": EllipticalDropReference}
+
+
+def hold_step_advice(needed, skin, cfl) -> str:
+    """What holds a time step that moved a particle `needed` x the kernel support (as a skin fraction: four
+    times its displacement, which a stage half a step in caught) with the lists' skin fraction `skin`, at
+    time.cfl = `cfl`: a larger neighbours.skin while one is allowed, else a shorter step."""
+    shorter = f"a time step {skin / needed:.2g} times as long (time.cfl = {cfl:g} now)"
+    if needed <= SKIN_MAX:
+        return f"a neighbours.skin of {needed:.2g} would hold the step, as would {shorter}"
+    return f"no neighbours.skin (at most {SKIN_MAX:g}) holds it: it needs {shorter} or shorter"
 
 
 class FluidDriver(Driver):
@@ -439,10 +450,10 @@ class FluidDriver(Driver):
                 if speed > c0:  # faster than sound: no skin holds this, the flow is blowing up
                     what = (f"a particle moved {err.moved:.3g} within a time step of {dt:.3g}, at {speed:.3g} or "
                             f"more, {speed / c0:.3g} times the speed of sound c0 = {c0:g}: the flow is blowing up")
-                else:
+                else:  # (the advice named the skin alone, also beyond its largest value, an audit found)
                     what = (f"a particle moved {err.moved:.3g} within one time step, more than half the "
-                            f"neighbour-list skin ({0.5 * system.skin:.3g}); a neighbours.skin of {needed:.2g} "
-                            f"would hold the step")
+                            f"neighbour-list skin ({0.5 * system.skin:.3g}); "
+                            + hold_step_advice(needed, system.skin / system.kernel.support, self.scene.time.cfl))
                 error = NumericalError(what, step=step, time=t, gid=err.gid, position=err.position)
             raise_if_any(self.sim.comm, error)
         return 1

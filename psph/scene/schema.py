@@ -557,10 +557,13 @@ class DiagnosticsSpec:
         ge=0.0)
 
 
+SKIN_MAX = 1.0  # neighbours.skin's largest value (a failed step's advice names it)
+
+
 @dataclass(frozen=True)
 class NeighboursSpec:
     skin: float = option(0.1, doc="Verlet skin of the neighbour lists, as a fraction of the kernel support",
-                         ge=0.0, le=1.0)
+                         ge=0.0, le=SKIN_MAX)
     rebalance_threshold: float = option(
         1.1, doc="rebalance the ranks when max/mean owned particles exceeds this at a rebuild", ge=1.0)
 

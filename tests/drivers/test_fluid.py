@@ -395,7 +395,7 @@ def test_a_kept_stalled_call_logs_how_far_it_moved_a_particle(tmp_path):
     assert 0.0 < min(logged) and max(logged) < 1.0
 
 
-def _taylor_green_driver(tmp_path, name, skin, reach):
+def _taylor_green_driver(tmp_path, name, skin, reach, cfl=0.2):
     """A delta-plus Taylor-Green run to t = 0.05 whose driver expects stages to reach `reach` dt max|u|."""
     from mpi4py import MPI
 
@@ -403,7 +403,8 @@ def _taylor_green_driver(tmp_path, name, skin, reach):
     from tests.conftest import periodic_scene
 
     scene = periodic_scene(n=16, initial={"velocity": "taylor_green"}, physics={"scheme": "delta_ale"},
-                           time={"t_end": 0.05}, shifting={"method": "delta_plus"}, neighbours={"skin": skin})
+                           time={"t_end": 0.05, "cfl": cfl}, shifting={"method": "delta_plus"},
+                           neighbours={"skin": skin})
     driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path / name, log=lambda message: None)
     driver.reach = reach
     return driver
@@ -450,13 +451,32 @@ def test_a_step_longer_than_the_skin_stops_the_run_naming_the_key(tmp_path):
 
     driver = _taylor_green_driver(tmp_path, "thin", skin=1e-5, reach=STAGE_REACH["rk3"])
     with pytest.raises(NumericalError, match=r"within one time step, more than half the neighbour-list skin "
-                                             r"\(.*\); a neighbours.skin of (\S+) would hold the step \[step 1, t = 0, "
+                                             r"\(.*\); a neighbours.skin of (\S+) would hold the step, as would a "
+                                             r"time step \S+ times as long \(time.cfl = 0.2 now\) \[step 1, t = 0, "
                                              r"particle gid \d+") as err:
         driver.run()
     needed = float(re.search(r"neighbours.skin of (\S+) would", str(err.value)).group(1))
     assert 1e-5 < needed < 0.1
     driver = _taylor_green_driver(tmp_path, "enough", skin=needed, reach=STAGE_REACH["rk3"])
     assert driver.run()["final"]["time"] == pytest.approx(0.05)
+
+
+def test_a_step_too_long_for_the_skin_names_the_time_step_that_holds_it(tmp_path):
+    """time.cfl = 1.5 moves a particle past half the default skin within a step: the message names the shorter
+    step that the skin holds, which runs; beyond the largest skin it names the step alone (a Riemann audit: the
+    advice was a neighbours.skin of 1.3, which the scene refuses)."""
+    from psph.drivers.fluid import hold_step_advice
+    from psph.errors import NumericalError
+
+    driver = _taylor_green_driver(tmp_path, "long", skin=0.1, reach=STAGE_REACH["rk3"], cfl=1.5)
+    with pytest.raises(NumericalError, match=r"as would a time step (\S+) times as long \(time.cfl = 1.5 now\)") as err:
+        driver.run()
+    factor = float(re.search(r"a time step (\S+) times as long", str(err.value)).group(1))
+    assert 0.2 < factor < 1.0
+    driver = _taylor_green_driver(tmp_path, "held", skin=0.1, reach=STAGE_REACH["rk3"], cfl=0.98 * factor)
+    assert driver.run()["final"]["time"] == pytest.approx(0.05)
+    assert hold_step_advice(1.3, 0.1, 2.0) == ("no neighbours.skin (at most 1) holds it: it needs a time step "
+                                               "0.077 times as long (time.cfl = 2 now) or shorter")
 
 
 @pytest.mark.parametrize("case", ["delta_plus", "lind", "riemann_oger", "cavity_delta_plus"])
