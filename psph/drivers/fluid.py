@@ -1,10 +1,9 @@
 """physics.scheme = delta_ale (or a variant): a flow integrated in time, with explicit shifting inside the
 scheme or IIPS after each step (thesis 000 ch. 9: Procedure B, then the scene's field update).
 
-Each step: dt from the CFL condition (thesis eq. 5.52, with the reference c0 where the thesis has each
-particle's sound speed: 3% apart at 1% compression with Tait) and the viscous operator's stability limit
-(psph.schemes.viscous_limit); a neighbour rebuild if the step could outrun the skin; the integrator's
-stages; the shifting law's end-of-step update;
+Each step: dt from the CFL condition (thesis eq. 5.52, with each particle's sound speed) and the viscous
+operator's stability limit (psph.schemes.viscous_limit); a neighbour rebuild if the step could outrun the
+skin; the integrator's stages; the shifting law's end-of-step update;
 the open boundaries' rows emitted, joined and removed (psph.boundaries.open); IIPS and its field update
 when the scene asks; checks (NaN, density outside the weakly compressible range,
 escaped particles, collapsing time step) that stop the run with the step, time, particle and a diagnostic
@@ -472,9 +471,9 @@ class FluidDriver(Driver):
     def time_step(self) -> float:
         s, scheme = self.scene, self.scheme
         h = self.system.kernel.h
-        vmax = allreduce_max(self.sim.comm, scheme.max_transport_speed(self.system))
-        dt = s.time.cfl * h / (scheme.c0 + vmax)
-        return min(dt, self.viscous_limit(self.system, dt)), vmax
+        vmax, signal = allreduce_max(self.sim.comm, scheme.max_speeds(self.system))
+        dt = s.time.cfl * h / signal
+        return min(dt, self.viscous_limit(self.system, dt)), float(vmax)
 
     def _min_spacing(self, mask, row_group, col_group) -> float:
         """The smallest distance, in dx, from an owned particle in `mask` to a neighbour j with col_group[j] ==

@@ -38,6 +38,10 @@ class LinearEOS:
     def density(self, p):
         return self.rho0 + p / self.c0 ** 2
 
+    def sound_speed(self, rho):
+        """c = sqrt(dp/drho) = c0 at any density."""
+        return np.full_like(np.asarray(rho, dtype=np.float64), self.c0)
+
 
 class TaitEOS:
     name = "tait"
@@ -53,6 +57,11 @@ class TaitEOS:
     @quiet
     def density(self, p):
         return self.rho0 * (1.0 + np.asarray(p) / self.b) ** (1.0 / GAMMA)
+
+    @quiet
+    def sound_speed(self, rho):
+        """c = sqrt(dp/drho) = c0 (rho / rho0)^((gamma - 1) / 2): 1.33 c0 at 10% compression."""
+        return self.c0 * (np.asarray(rho) / self.rho0) ** (0.5 * (GAMMA - 1.0))
 
 
 def make_eos(physics):

@@ -103,6 +103,37 @@ def test_equations_of_state_invert():
     assert (tait.pressure(np.array([1.0 + 1e-7])) / 1e-7)[0] == pytest.approx(100.0, rel=1e-5)
 
 
+def test_the_sound_speed_is_the_slope_of_the_equation_of_state():
+    """c^2 = dp/drho (central differences): c0 for the linear law, c0 (rho/rho0)^3 for Tait (gamma = 7)."""
+    rho = np.array([0.9, 1.0, 1.1, 1.3])
+    for eos in (LinearEOS(10.0, 1.0), TaitEOS(10.0, 1.0)):
+        slope = (eos.pressure(rho + 1e-6) - eos.pressure(rho - 1e-6)) / 2e-6
+        assert np.allclose(eos.sound_speed(rho) ** 2, slope, rtol=1e-7)
+    assert TaitEOS(10.0, 1.0).sound_speed(np.array([1.1]))[0] == pytest.approx(13.31)
+
+
+@pytest.mark.parametrize("eos", ["linear", "tait"])
+def test_the_time_step_takes_each_particles_sound_speed(tmp_path, eos):
+    """Thesis eq. 5.52: dt = cfl min_i h / (c_i + |v0_i|), with c_i the local sound speed (a Riemann audit: the
+    reference c0 was taken, a step 33% too long at Tait's 10% compression); the linear law's c_i is c0."""
+    from psph.drivers.fluid import FluidDriver
+    from tests.conftest import periodic_scene
+
+    scene = periodic_scene(n=10, initial={"velocity": "taylor_green"}, physics={"scheme": "delta_ale", "eos": eos},
+                           time={"t_end": 0.01}, shifting={"method": "none"})
+    with FluidDriver(scene, MPI.COMM_SELF, tmp_path, log=lambda message: None) as driver:
+        p = driver.system.particles
+        rho, speed = p.owned("density"), np.sqrt((p.owned("velocity") ** 2).sum(axis=1))
+        slow = int(np.argmin(speed))
+        rho[slow] = 1.08  # compressed where the flow is slowest: its c_i + |v_i| is the largest with Tait
+        dt, vmax = driver.time_step()
+        h = driver.system.kernel.h
+        c = 10.0 * 1.08**3 if eos == "tait" else 10.0
+        assert vmax == speed.max()
+        assert dt == pytest.approx(0.2 * h / max(10.0 + speed.max(), c + speed[slow]), rel=1e-14)
+        assert (dt < 0.99 * 0.2 * h / (10.0 + speed.max())) == (eos == "tait")
+
+
 def test_tensile_switch_is_off_in_the_free_surface_region(tmp_path):
     """Seed 004 eq. 3: at a uniform negative pressure the switch (p_j - p_i) cancels the pressure force
     everywhere it acts; in the free-surface region (surface particles and their neighbours) the plus form
