@@ -116,11 +116,17 @@ def _first_column_of_inverse(a, m, g, pivot_tol):
     return True
 
 
+LEBESGUE_MAX = 5.0  # (well-posed fits: about 1-2)
+
+
 @njit(cache=True)
 def mls_interpolate(new_pos, old_pos, old_vol, old_fields, ptr, idx, kp, order, out):
     """MLS reconstruction (order 1 or 2) of the columns of old_fields at new_pos (rows of ptr/idx index
     old particles). Falls back to first order, then to the Shepard average, where the moment matrix is
-    singular (too few neighbours); NaN where no old particle is within the support. Returns the number of
+    singular (too few neighbours) or the fit's Lebesgue constant sum_j |c_j| (c_j the weight of phi_j in
+    phi_i; 1 for Shepard's) exceeds LEBESGUE_MAX: a nearly collinear support passed the pivot test and
+    extrapolated an O(1) field to errors of 1.5-154 (a field-update audit); NaN where no old particle is
+    within the support. Returns the number of
     particles fitted below `order` (the fallbacks, which the run's summary counts).
 
     With the moment matrix M = sum_j w_j P_j P_j^T (w_j = W_ij V_j) the fit is phi_i = e_0^T M^-1 sum_j w_j
@@ -136,6 +142,7 @@ def mls_interpolate(new_pos, old_pos, old_vol, old_fields, ptr, idx, kp, order, 
     weight = np.empty(most)  # w_j of the neighbours within the support, their P_j and their numbers
     mono = np.empty((most, size))
     near = np.empty(most, dtype=np.int64)
+    coef = np.empty(most)  # each neighbour's weight in the fit, c_j = w_j (g . P_j)
     a = np.empty((size, size))
     g = np.empty(size)
     xij = np.empty(d)
@@ -180,17 +187,22 @@ def mls_interpolate(new_pos, old_pos, old_vol, old_fields, ptr, idx, kp, order, 
                 break
             if not _first_column_of_inverse(a, m, g, 1e-10):
                 continue
+            lebesgue = 0.0
+            for t in range(n):
+                c = 0.0
+                for p in range(m):
+                    c += g[p] * mono[t, p]
+                coef[t] = c * weight[t]
+                lebesgue += abs(coef[t])
+            if lebesgue > LEBESGUE_MAX:  # a near-singular support: the fit amplifies the data (Shepard's is 1)
+                continue
             if ord_try < order:
                 fallbacks += 1
             for f in range(nf):
                 out[i, f] = 0.0
             for t in range(n):
-                c = 0.0
-                for p in range(m):
-                    c += g[p] * mono[t, p]
-                c *= weight[t]
                 j = near[t]
                 for f in range(nf):
-                    out[i, f] += c * old_fields[j, f]
+                    out[i, f] += coef[t] * old_fields[j, f]
             break
     return fallbacks

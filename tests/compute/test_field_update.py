@@ -123,8 +123,10 @@ def mls_by_least_squares(new, pos, vol, fields, k, order):
 @pytest.mark.parametrize("order", [1, 2])
 def test_mls_equals_the_least_squares_fit_of_every_field(order):
     """One solve per particle for all fields (the first column of the inverse moment matrix) gives the fit of
-    each field on its own."""
+    each field on its own, weighted by the old volumes (eq. 9.8: W_ij omega_j; unequal here, which a field-update
+    audit's mutant dropping them needed to be caught)."""
     pos, vol, _, _, k = cloud(jitter=0.25)
+    vol = vol * (0.6 + 0.8 * np.random.default_rng(7).random(len(vol)))
     new = pos + np.random.default_rng(5).normal(0, 0.1 / 14, pos.shape)
     fields = np.random.default_rng(6).normal(size=(len(pos), 3))
     ptr, idx = build_cross_lists(new, pos, k.support)
@@ -149,6 +151,48 @@ def test_mls_falls_back_to_the_shepard_average_and_to_nan():
         w = k.value(np.linalg.norm(new[0] - pos, axis=1)) * vol
         assert out[0, 0] == pytest.approx((w @ phi[:, 0]) / w.sum(), rel=1e-12)
         assert np.isnan(out[1, 0])
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_mls_on_a_nearly_collinear_support_falls_back_rather_than_amplify(order):
+    """Old particles on a line jittered by 1e-4 h pass the pivot test, and the fit extrapolated a field of
+    order 1 to an error of 154 half a dx off the line (a field-update audit). Its Lebesgue constant sum_j |c_j|
+    is then far above LEBESGUE_MAX: the fit falls back (to the Shepard average, whose constant is 1), and
+    counts it."""
+    from psph.compute.field_update import LEBESGUE_MAX
+
+    dx = 0.1
+    k = make_kernel("wendland_c6", 2, 2 * dx)
+    xs = np.arange(-6, 7) * dx
+    pos = np.stack([xs, 1e-4 * k.h * np.random.default_rng(0).normal(size=len(xs))], axis=1)
+    vol = np.full(len(pos), dx * dx)
+
+    def field(x):
+        return np.sin(2 * np.pi * x[:, 0]) + np.cos(2 * np.pi * x[:, 1])
+
+    new = np.array([[0.03, 0.5 * dx]])
+    ptr, idx = build_cross_lists(new, pos, k.support)
+    out = np.zeros((1, 1))
+    assert mls_interpolate(new, pos, vol, field(pos)[:, None].copy(), ptr, idx, k.params, order, out) == 1
+    assert abs(out[0, 0] - field(new)[0]) < 0.05
+    fit = mls_by_least_squares(new, pos, vol, field(pos)[:, None], k, order)  # what the fit would have given
+    assert abs(fit[0, 0] - field(new)[0]) > 1.0 and LEBESGUE_MAX < 10.0
+
+
+def test_mls_of_order_2_on_two_rows_falls_back_to_order_1():
+    """Two rows of old particles: the quadratic's moment matrix is singular across them, the linear one's is
+    not: a linear field is still reproduced exactly, and the one fallback counted."""
+    dx = 0.1
+    k = make_kernel("wendland_c6", 2, 2 * dx)
+    g = np.arange(-6, 7) * dx
+    pos = np.stack(np.meshgrid(g, [0.0, dx], indexing="ij"), -1).reshape(-1, 2)
+    vol = np.full(len(pos), dx * dx)
+    new = np.array([[0.02, 0.04]])
+    phi = (1.0 + 2.0 * pos[:, 0] - 3.0 * pos[:, 1])[:, None].copy()
+    ptr, idx = build_cross_lists(new, pos, k.support)
+    out = np.zeros((1, 1))
+    assert mls_interpolate(new, pos, vol, phi, ptr, idx, k.params, 2, out) == 1
+    assert out[0, 0] == pytest.approx(1.0 + 0.04 - 0.12, abs=1e-12)
 
 
 def test_cross_lists_match_brute_force():
