@@ -209,3 +209,37 @@ def test_a_field_update_leaves_the_halo_copies_current(tmp_path, update, scheme)
         assert p.n_halo > 0
         for name in driver.update.CHANGED:
             assert np.array_equal(p[name][p.n_owned:], p[name][rows]), name
+
+
+@pytest.mark.parametrize("update, scheme", [(u, s) for u in ("nfts", "mls1", "mls2", "mls2_increment")
+                                            for s in ("delta_ale", "delta_ale_const_mass", "delta_ale_const_volume",
+                                                      "riemann_ale")
+                                            if u != "nfts" or s in ("delta_ale", "riemann_ale")])  # (refused)
+def test_a_field_update_leaves_consistent_fields_and_nfts_conserves(tmp_path, update, scheme):
+    """After one IIPS call from a perturbed Taylor-Green start: m = rho V and p = p(rho) for every particle,
+    whichever variant evolves which (V: const_mass takes V = m / rho, const_volume m = V0 rho); NFTS keeps
+    the fluid's total mass and momentum to round-off (thesis section 9.1.1; a field-update audit's mutants
+    dividing the momentum by the old mass, or leaving MLS's mass or either's pressure, passed every test)."""
+    scene = periodic_scene(n=12, h_over_dx=2.0, physics={"scheme": scheme, "reynolds": 100.0},
+                           initial={"velocity": "taylor_green", "sigma_over_dx": 0.1},
+                           shifting={"method": "iips"}, iips={"update": update, "procedure": "A", "max_newton": 2},
+                           time={"t_end": 1.0}, output={"every": 0.0})
+    with FluidDriver(scene, MPI.COMM_SELF, tmp_path) as driver:
+        system, p = driver.system, driver.system.particles
+        p.owned("density")[:] *= 1.0 + 0.01 * np.sin(2.0 * np.pi * p.owned("position")[:, 0])  # a non-uniform rho
+        p.owned("mass")[:] = p.owned("density") * p.owned("volume")
+        system.refresh(["density", "mass"])
+        mass, momentum = p.owned("mass").sum(), (p.owned("mass")[:, None] * p.owned("velocity")).sum(axis=0)
+        before = p.owned("velocity").copy()
+        driver.update.before(system, driver.scheme)
+        assert driver.iips.correct(system).iterations
+        driver.update.after(system, driver.scheme)
+        rho, vol, m = p.owned("density"), p.owned("volume"), p.owned("mass")
+        assert np.allclose(m, rho * vol, rtol=1e-13, atol=0.0)
+        assert np.array_equal(p.owned("pressure"), driver.scheme.eos.pressure(rho))
+        assert not np.array_equal(p.owned("velocity"), before)
+        if update == "nfts":
+            assert m.sum() == pytest.approx(mass, rel=1e-13)
+            scale = (m * np.abs(p.owned("velocity")).sum(axis=1)).sum()
+            assert np.abs((m[:, None] * p.owned("velocity")).sum(axis=0) - momentum).max() < 1e-13 * scale
+
