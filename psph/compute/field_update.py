@@ -14,9 +14,17 @@ state changes a uniform density (at rest from sigma = 0.1 dx, one call moving pa
 rho in [0.944, 1.013]; a field-update audit). psph warns when a flow with NFTS starts perturbed without
 iips.pre_newton; the thesis itself calls the NFTS pressure "quite noisy" (section 10.1).
 
+NFTS's accuracy (a field-update audit, 2026-11-30): with a uniform rho the momentum line changes u_i by
+sum_j (u_j - u_i) s_j . grad_i W_ij V_j, which its neighbours' displacements drive, not its own; so NFTS is
+first order on a disordered set, and for displacements that are not smooth (IIPS's) no better than no update
+(random 0.1 dx shifts in 2-D: L2 5.25e-3 against 5.00e-3). Swapping s_i and s_j in the momentum flux would
+conserve as exactly and give s_i . grad u_i (3.1e-4), but it is not eq. 9.7, which psph keeps.
+
 MLS re-interpolation (eq. 9.8 first order, 9.9 second order): for the new position x_i of a particle and
 the old particles j around it, solve sum_j W_ij V_j P_ij P_ij^T a = sum_j phi_j W_ij V_j P_ij with
-P_ij = (1, x_ij / h, ...) (the monomials up to the order) and take phi_i = a_0.
+P_ij = (1, x_ij / h, ...) (the monomials up to the order) and take phi_i = a_0. (The thesis prints the
+unknowns as (f, df/dx, ...); with x_ij = x_i - x_j they are (f, -h df/dx, ...), and eq. 9.9 lists five
+unknowns of six, without d2f/dx2 and the 1/2 factors: only a_0 is read, which none of this changes.)
 """
 
 import numpy as np

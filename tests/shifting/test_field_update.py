@@ -243,3 +243,29 @@ def test_a_field_update_leaves_consistent_fields_and_nfts_conserves(tmp_path, up
             scale = (m * np.abs(p.owned("velocity")).sum(axis=1)).sum()
             assert np.abs((m[:, None] * p.owned("velocity")).sum(axis=0) - momentum).max() < 1e-13 * scale
 
+
+
+def test_an_nfts_sub_step_that_empties_a_volume_stops_naming_nfts(tmp_path):
+    """NFTS sweeps a call's displacements in sub-steps of up to time.cfl dx (thesis eq. 9.6; time.cfl may be 2):
+    a sub-step of 1 dx converging on a particle leaves it a negative volume (a field-update audit), which
+    the run's density check reported with no cause. The update stops naming NFTS, the particle and time.cfl."""
+    from psph.errors import NumericalError
+    from psph.shifting.iips import SHIFT_FIELD
+
+    scene = periodic_scene(n=16, physics={"scheme": "delta_ale", "reynolds": 100.0}, shifting={"method": "iips"},
+                           iips={"update": "nfts", "threshold": 0.001}, time={"t_end": 1.0, "cfl": 2.0},
+                           output={"every": 0.0})
+    with FluidDriver(scene, MPI.COMM_SELF, tmp_path) as driver:
+        system, p = driver.system, driver.system.particles
+        driver.update.before(system, driver.scheme)
+        p.add_field(SHIFT_FIELD)
+        toward = 0.5 - p.owned("position")
+        shift = toward / np.maximum(np.linalg.norm(toward, axis=1), 1e-12)[:, None] * scene.domain.dx  # 1 dx inwards
+        shift[np.linalg.norm(toward, axis=1) > 0.3] = 0.0
+        p.owned(SHIFT_FIELD.name)[:] = shift
+        p.owned("position")[:] += shift
+        system.update()
+        with pytest.raises(NumericalError, match=r"^NFTS sub-step 1 of 1 left \d+ particle\(s\) with a volume or "
+                                                 r"mass at or below zero .*time.cfl dx = 0.125 a sub-step.*lower "
+                                                 r"time.cfl \[particle gid \d+, at"):
+            driver.update.after(system, driver.scheme)
