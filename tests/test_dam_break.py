@@ -105,19 +105,54 @@ def test_dam_break_matches_serial(comm, mpi_tmp_path):
 
 def test_particles_past_a_box_side_are_mirrored_back():
     """WallTerms.reflect: a fluid particle beyond a side of a fixed box container comes back by as much,
-    its normal velocity reversed; inside, nothing changes; a side along a periodic axis is no wall."""
+    its normal velocity reversed, and how far it had gone and past which body are returned; inside, nothing
+    changes; a side along a periodic axis is no wall."""
     from psph.boundaries.clone import WallTerms
 
     walls = WallTerms(load_scene(CASES / "dam_break.toml"))
     pos = np.array([[5.377, 1.5], [-0.01, 0.3], [2.0, -0.02], [2.0, 3.005], [5.0, 0.5]])
     vel = np.array([[0.4, -1.0], [-0.2, 0.1], [0.3, -0.5], [0.0, 0.7], [1.0, 1.0]])
-    assert walls.reflect(pos, vel) == 4
+    depth, body = walls.reflect(pos, vel)
+    assert np.allclose(depth, [0.01, 0.01, 0.02, 0.005, 0.0], atol=1e-12)
+    assert list(body) == ["tank"] * 4 + [""]
     assert np.allclose(pos, [[5.357, 1.5], [0.01, 0.3], [2.0, 0.02], [2.0, 2.995], [5.0, 0.5]], atol=1e-12)
     assert np.array_equal(vel, [[-0.4, -1.0], [0.2, 0.1], [0.3, 0.5], [0.0, -0.7], [1.0, 1.0]])
     # the Couette box (10 wide about x = 0.25) spans the periodic x axis: only its plates y = 0, 1 are walls
     periodic = WallTerms(load_scene(CASES / "couette.toml"))
     pos, vel = np.array([[-5.0, 0.5], [0.2, -0.01]]), np.array([[1.0, 0.0], [0.0, -1.0]])
-    assert periodic.reflect(pos, vel) == 1 and pos[0, 0] == -5.0 and pos[1, 1] == pytest.approx(0.01)
+    depth, body = periodic.reflect(pos, vel)
+    assert np.allclose(depth, [0.0, 0.01]) and list(body) == ["", "plates"]
+    assert pos[0, 0] == -5.0 and pos[1, 1] == pytest.approx(0.01)
+
+
+def test_a_crossing_of_the_tank_is_logged_by_particle_and_a_deep_one_stops_the_run(tmp_path):
+    """A wall audit: the guard mirrored back whatever crossed a box container, however far, and the log named
+    only a run's first crossing, with no particle or place. Each step's deepest crossing is now logged with
+    its particle, place and depth, and one deeper than half a dx stops the run (NumericalError, which the run
+    reports with its state), as a crossing of any other wall does."""
+    from psph.errors import NumericalError
+    from psph.particles import Kind
+
+    logs = []
+    scene = load_scene(CASES / "dam_break.toml", ["domain.dx=0.1", "output.every=0"])
+    with FluidDriver(scene, MPI.COMM_SELF, tmp_path, log=logs.append) as driver:
+        p = driver.system.particles
+        fluid = np.flatnonzero(p.owned("kind") == Kind.FLUID)
+        a, b = fluid[:2]
+        totals = {"wall_reflections": 0}
+        p.owned("position")[a, 1] = -0.03
+        driver._reflect(step=5, t=0.1, totals=totals)
+        assert totals["wall_reflections"] == 1 and p.owned("position")[a, 1] == pytest.approx(0.03)
+        x = p.owned("position")[a, 0]
+        assert logs[-1] == (f"psph: step 5, t = 0.1: 1 fluid particle(s) crossed a wall of a box container and were "
+                            f"mirrored back, the deepest 0.3 dx past the wall of body 'tank': particle gid "
+                            f"{p.owned('gid')[a]}, at ({x:g}, -0.03) (history column wall_reflections)")
+        p.owned("position")[b, 1] = -0.07
+        with pytest.raises(NumericalError, match=rf"^a fluid particle crossed the wall of body 'tank' by 0.7 dx .* "
+                                                 rf"\[step 6, t = 0.2, particle gid {p.owned('gid')[b]}, at "
+                                                 rf"\({p.owned('position')[b, 0]:g}, -0.07\)\]"):
+            driver._reflect(step=6, t=0.2, totals=totals)
+        assert totals["wall_reflections"] == 1 and p.owned("position")[b, 1] == -0.07  # (left for the snapshot)
 
 
 def test_the_dam_break_diagnostics_name_the_missing_fluid_scheme():

@@ -81,14 +81,15 @@ class WallTerms:
                 return int(np.flatnonzero(bad)[0]), b.name
         return None
 
-    def reflect(self, pos, vel) -> int:
+    def reflect(self, pos, vel):
         """Fluid positions `pos` (owned fluid rows) that crossed a side of a fixed, unrotated box container,
-        mirrored back across it with the normal velocity reversed (in place, `vel` likewise); returns how
-        many. A guard: a particle that drifts into the solid layer is crushed there (|rho / rho0 - 1| > 0.5
-        in the dam break at H/dx = 40 while its right wall's solid rows stood 0.82 dx behind the wall, before
-        boundaries.extended_lattice aligned them); with dx/2 the dam break still has a few crossings in its
-        late splashing. Sides along a periodic axis are not walls."""
-        count = 0
+        mirrored back across it with the normal velocity reversed (in place, `vel` likewise). Returns how far
+        each row had gone past the side (0 for the others) and the name of the body it crossed. A guard: a
+        particle that drifts into the solid layer is crushed there (|rho / rho0 - 1| > 0.5 in the dam break
+        at H/dx = 40 while its right wall's solid rows stood 0.82 dx behind the wall, before
+        boundaries.extended_lattice aligned them). Sides along a periodic axis are not walls."""
+        depth = np.zeros(len(pos))
+        body = np.full(len(pos), "", dtype=object)
         for b in self.bodies:
             if b.spec.shape != "box" or b.moves or b.spec.angle != 0.0:
                 continue
@@ -96,11 +97,14 @@ class WallTerms:
             for a, (lo, hi) in enumerate(zip(np.asarray(b.spec.center) - half, np.asarray(b.spec.center) + half)):
                 if self.periodic[a]:
                     continue
-                for side, beyond in ((lo, pos[:, a] < lo), (hi, pos[:, a] > hi)):
+                for side, sign in ((lo, 1.0), (hi, -1.0)):
+                    past = sign * (side - pos[:, a])  # how far beyond this side, into the wall
+                    beyond = past > 0.0
+                    depth[beyond] = np.maximum(depth[beyond], past[beyond])
+                    body[beyond] = b.name
                     pos[beyond, a] = 2.0 * side - pos[beyond, a]
                     vel[beyond, a] *= -1.0
-                    count += int(np.count_nonzero(beyond))
-        return count
+        return depth, body
 
     def link_nodes(self, system) -> None:
         """Each owned solid particle's closest node on its body's profile (`wall_node`), that node's normal

@@ -412,18 +412,35 @@ class FluidDriver(Driver):
         self.check(step, t, dt if allowed is None else allowed)
 
     def _reflect(self, step, t, totals) -> None:
-        """Fluid particles that crossed a box container's side are put back (WallTerms.reflect); the history's
-        wall_reflections counts them and the log names the first step of each run that needed it."""
+        """Fluid particles that crossed a box container's side by up to half a dx are put back
+        (WallTerms.reflect); the history's wall_reflections counts them, and the log names each step's deepest.
+        One farther past stops the run, as a crossing of any other wall does (check, `trespassers`): a wall
+        audit fired a particle 19 sqrt(gH) at a tank's floor, and it was put back with one log line for the
+        whole run, naming neither it nor where. Collective."""
         p = self.system.particles
         fluid = np.flatnonzero(fluid_mask(self.system))
         pos, vel = p.owned("position")[fluid], p.owned("velocity")[fluid]
-        count = int(allreduce_sum(self.sim.comm, self.scheme.walls.reflect(pos, vel)))
-        if count:
-            p.owned("position")[fluid], p.owned("velocity")[fluid] = pos, vel
-            if not totals["wall_reflections"]:
-                self.sim.log(f"psph: step {step}, t = {t:.6g}: {count} fluid particle(s) crossed a wall of a box "
-                             "container and were mirrored back (history column wall_reflections)")
-            totals["wall_reflections"] += count
+        before = pos.copy()
+        depth, body = self.scheme.walls.reflect(pos, vel)
+        count = int(allreduce_sum(self.sim.comm, int(np.count_nonzero(depth))))
+        if not count:
+            return
+        k = int(np.argmax(depth))
+        deepest = max((d for d in self.sim.comm.allgather(
+            (float(depth[k]), int(p.owned("gid")[fluid[k]]), tuple(before[k]), body[k]) if depth[k] > 0.0 else None)
+            if d is not None), key=lambda d: (d[0], -d[1]))
+        dx = self.scene.domain.dx
+        where = (f"the deepest {deepest[0] / dx:.2g} dx past the wall of body {deepest[3]!r}: particle gid "
+                 f"{deepest[1]}, at ({', '.join(f'{x:g}' for x in deepest[2])})")
+        if deepest[0] > 0.5 * dx:
+            raise NumericalError(f"a fluid particle crossed the wall of body {deepest[3]!r} by {deepest[0] / dx:.2g} "
+                                 "dx (more than half a dx: a guard mirrors back only what a shift or a splash "
+                                 "carries just past a wall)", step=step, time=t, gid=deepest[1],
+                                 position=np.array(deepest[2]))
+        p.owned("position")[fluid], p.owned("velocity")[fluid] = pos, vel
+        self.sim.log(f"psph: step {step}, t = {t:.6g}: {count} fluid particle(s) crossed a wall of a box container "
+                     f"and were mirrored back, {where} (history column wall_reflections)")
+        totals["wall_reflections"] += count
 
     def _integrate(self, t, dt, step) -> int:
         """Integrate one step from t; if a stage went further than the neighbour lists hold, rebuild them at
