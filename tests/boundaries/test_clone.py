@@ -61,6 +61,19 @@ def test_approach_to_a_wall_compresses_and_pressure_repels(tmp_path):
     assert push[1] > 0 and abs(push[0]) < 1e-10 * push[1]
 
 
+def test_sliding_along_a_wall_off_the_lattice_neither_compresses_nor_expands(tmp_path):
+    """Eq. 6 keeps the tangential velocity, u_j . t = u_i . t: a particle sliding along the bottom wall has
+    u_j = u_i at every clone, whatever the clones' arrangement around it. Off the lattice's symmetry (moved
+    0.15 dx along the wall) a reversed tangential part would compress it; on the lattice the sums cancel
+    by symmetry, which let a wall audit's sign mutant pass this file."""
+    driver, system, p = cavity(tmp_path, **{"physics.reynolds": 1e12})
+    i = particle_at(p, 0.5 + DX / 2, DX / 2)
+    towards, _ = wall_rates(driver, system, i, velocity=(0.0, -1.0))
+    p["position"][i, 0] += 0.15 * DX
+    along, _ = wall_rates(driver, system, i, velocity=(1.0, 0.0))
+    assert abs(along) < 1e-12 * towards
+
+
 def test_corner_second_wall_still_mirrors_the_approach(tmp_path):
     """Eq. 5 as printed (n_j . (r_j - r_i) > 0) holds for every ordinary wall particle, so every clone
     would take the closest node's normal: near a corner, approaching the other wall would not compress.
