@@ -129,7 +129,8 @@ class FictitiousTimeStep(NoFieldUpdate):
         converges on a particle takes its volume to -0.4 V (a field-update audit; the run's density check
         then named no cause). Collective."""
         p = system.particles
-        bad = np.flatnonzero((p.owned("kind") == Kind.FLUID) & ~((vol > 0.0) & (mass > 0.0)))
+        # (a NaN is not this: the run's check names it as a non-finite field, a review)
+        bad = np.flatnonzero((p.owned("kind") == Kind.FLUID) & ((vol <= 0.0) | (mass <= 0.0)))
         error = None
         if len(bad):
             k = bad[0]
