@@ -188,6 +188,14 @@ def test_an_mls_update_with_nothing_to_interpolate_from_names_the_step_and_parti
             driver.update.after(system, driver.scheme)
 
 
+def perturbed_taylor_green(scheme, update, h_over_dx):
+    """12 x 12 Taylor-Green from a lattice perturbed by 0.1 dx, IIPS Procedure A (2 iterations) + `update`."""
+    return periodic_scene(n=12, h_over_dx=h_over_dx, physics={"scheme": scheme, "reynolds": 100.0},
+                          initial={"velocity": "taylor_green", "sigma_over_dx": 0.1},
+                          shifting={"method": "iips"}, iips={"update": update, "procedure": "A", "max_newton": 2},
+                          time={"t_end": 1.0}, output={"every": 0.0})
+
+
 @pytest.mark.parametrize("update", ["mls2", "nfts"])
 @pytest.mark.parametrize("scheme", ["delta_ale", "riemann_ale"])
 def test_a_field_update_leaves_the_halo_copies_current(tmp_path, update, scheme):
@@ -195,10 +203,7 @@ def test_a_field_update_leaves_the_halo_copies_current(tmp_path, update, scheme)
     fields, so what reads them before the next step refreshes them, the history's grad C among them, does
     not depend on the rank count (a review found MLS's stale volumes changing L2(grad C) in history.csv by
     3.6e-3 between 1 and 2 ranks while the particles agreed to 5e-7 dx)."""
-    scene = periodic_scene(n=12, h_over_dx=1.5, physics={"scheme": scheme, "reynolds": 100.0},
-                           initial={"velocity": "taylor_green", "sigma_over_dx": 0.1},
-                           shifting={"method": "iips"}, iips={"update": update, "procedure": "A", "max_newton": 2},
-                           time={"t_end": 1.0}, output={"every": 0.0})
+    scene = perturbed_taylor_green(scheme, update, h_over_dx=1.5)
     with FluidDriver(scene, MPI.COMM_SELF, tmp_path) as driver:
         system, p = driver.system, driver.system.particles
         driver.update.before(system, driver.scheme)
@@ -220,10 +225,7 @@ def test_a_field_update_leaves_consistent_fields_and_nfts_conserves(tmp_path, up
     whichever variant evolves which (V: const_mass takes V = m / rho, const_volume m = V0 rho); NFTS keeps
     the fluid's total mass and momentum to round-off (thesis section 9.1.1; a field-update audit's mutants
     dividing the momentum by the old mass, or leaving MLS's mass or either's pressure, passed every test)."""
-    scene = periodic_scene(n=12, h_over_dx=2.0, physics={"scheme": scheme, "reynolds": 100.0},
-                           initial={"velocity": "taylor_green", "sigma_over_dx": 0.1},
-                           shifting={"method": "iips"}, iips={"update": update, "procedure": "A", "max_newton": 2},
-                           time={"t_end": 1.0}, output={"every": 0.0})
+    scene = perturbed_taylor_green(scheme, update, h_over_dx=2.0)
     with FluidDriver(scene, MPI.COMM_SELF, tmp_path) as driver:
         system, p = driver.system, driver.system.particles
         p.owned("density")[:] *= 1.0 + 0.01 * np.sin(2.0 * np.pi * p.owned("position")[:, 0])  # a non-uniform rho
