@@ -246,7 +246,6 @@ def test_a_field_update_leaves_consistent_fields_and_nfts_conserves(tmp_path, up
             assert np.abs((m[:, None] * p.owned("velocity")).sum(axis=0) - momentum).max() < 1e-13 * scale
 
 
-
 def test_an_nfts_sub_step_that_empties_a_volume_stops_naming_nfts(tmp_path):
     """NFTS sweeps a call's displacements in sub-steps of up to time.cfl dx (thesis eq. 9.6; time.cfl may be 2):
     a sub-step of 1 dx converging on a particle leaves it a negative volume (a field-update audit), which
