@@ -136,8 +136,8 @@ def mls_interpolate(new_pos, old_pos, old_vol, old_fields, ptr, idx, kp, order, 
     singular (too few neighbours) or the fit's Lebesgue constant sum_j |c_j| (c_j the weight of phi_j in
     phi_i; 1 for Shepard's) exceeds LEBESGUE_MAX: a nearly collinear support passed the pivot test and
     extrapolated an O(1) field to errors of 1.5-154 (a field-update audit); NaN where no old particle is
-    within the support. Returns the number of
-    particles fitted below `order` (the fallbacks, which the run's summary counts).
+    within the support. Returns the number of particles fitted below `order` (the fallbacks, which the
+    run's summary counts).
 
     With the moment matrix M = sum_j w_j P_j P_j^T (w_j = W_ij V_j) the fit is phi_i = e_0^T M^-1 sum_j w_j
     P_j phi_j = sum_j w_j (g . P_j) phi_j, g = M^-1 e_0 (M is symmetric): one solve per particle, whatever the

@@ -336,7 +336,8 @@ class DeltaALE:
         """[largest |u + du|, largest signal speed c_i + |u_i + du_i|] of the owned particles (local): the
         transport speed the neighbour lists must hold, and the CFL condition's (thesis eq. 5.52, with each
         particle's sound speed: c0 with the linear equation of state, c0 (rho / rho0)^3 in the fluid with
-        Tait; a Riemann audit found c0 taken there, a time step up to 33% longer than eq. 5.52's)."""
+        Tait; a Riemann audit found c0 taken there: a time step 33% longer than eq. 5.52's at the default 10%
+        density limit)."""
         p = system.particles
         v = p.owned("velocity")
         if self.shift.active:

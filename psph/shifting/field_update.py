@@ -123,7 +123,6 @@ class FictitiousTimeStep(NoFieldUpdate):
         self.refresh(system)
         return {"nfts_substeps": n}
 
-
     def _check_positive(self, system, vol, mass, sub, n) -> None:
         """Stop, naming NFTS, where a sub-step left a volume or mass at or below zero: a sub-step of 1 dx that
         converges on a particle takes its volume to -0.4 V (a field-update audit; the run's density check
