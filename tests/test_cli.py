@@ -597,6 +597,11 @@ def test_a_set_key_the_run_does_not_read_is_warned_about(tmp_path):
     assert "does not read" not in fluid.stdout, fluid.stdout
     info = run_psph("info", CASES / "dam_break.toml")
     assert "# keys set that this run does not read (another method's?): iips.procedure, iips.threshold" in info.stdout
+    unscaled = run_psph("info", kinematic[1], "--set", "iips.beta=0", "--set", "iips.threshold=0.001", "--set",
+                        "iips.beta_from=lowest")  # (no beta to scale)
+    assert "does not read (another method's?): iips.beta_from (" in unscaled.stdout, unscaled.stdout
+    scaled = run_psph("info", kinematic[1], "--set", "iips.beta_from=lowest")
+    assert "does not read" not in scaled.stdout, scaled.stdout
 
 
 def test_a_stopped_runs_fields_have_grad_c_from_its_checkpoints_scene(tmp_path):

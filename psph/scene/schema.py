@@ -468,6 +468,9 @@ class IIPSSpec:
     threshold: float = option(0.0, doc="absolute threshold on Linf(grad C) = h max|grad C| (0: none)", ge=0.0)
     beta: float = option(0.0, doc="threshold = beta x Linf(grad C) after the pre-procedure (thesis eq. 8.34; "
                          "0: unused)", ge=0.0)
+    beta_from: str = option("last", doc="the Linf(grad C)_Init that iips.beta scales: the pre-procedure's last "
+                            "iterate (the distribution the run starts from), or the lowest it passed through "
+                            "(the thesis' 'initial minimal value')", choices=("last", "lowest"))
     max_newton: int = option(20, doc="Newton iterations per call at most (a static run: exactly, without "
                              "threshold, unless Linf(grad C) reaches round-off, 1e-12)", ge=1, le=100000)
     pre_newton: int = option(0, doc="Newton iterations of the static pre-procedure before a time-dependent "
@@ -833,7 +836,9 @@ class Scene:
         if method != "iips":
             pre = self.iips.pre_newton > 0 and scheme != "none"
             keys += [f"iips.{name}" for name in IIPSSpec.__dataclass_fields__
-                     if not pre or name in ("procedure", "threshold", "beta", "max_newton")]
+                     if not pre or name in ("procedure", "threshold", "beta", "beta_from", "max_newton")]
+        if self.iips.beta == 0.0 and "iips.beta_from" not in keys:
+            keys.append("iips.beta_from")
         if not fluid:  # (an audit: a kinematic run's physics.reference_length, not its L, went unmentioned)
             keys += ["time.retries", "time.integrator"] + [f"physics.{name}" for name in FLUID_PHYSICS]
         if scheme == "none":

@@ -193,8 +193,15 @@ class ImplicitShifting(Shifting):
         system.particles.add_field(SHIFT_FIELD)
         system.particles.add_field(GUESS_FIELD)
         if self.spec.pre_newton > 0:
-            report = self._iterate(system, self.spec.pre_newton, None, False, on_iteration, {})
-            self.set_initial_linf(report.Linf_grad_c)
+            lowest = [np.inf]
+
+            def track(info):  # the lowest iterate (iips.beta_from = "lowest")
+                lowest[0] = min(lowest[0], info["Linf_grad_c"])
+                return on_iteration(info) if on_iteration is not None else None
+
+            report = self._iterate(system, self.spec.pre_newton, None, False, track, {})
+            last = report.Linf_grad_c
+            self.set_initial_linf(min(lowest[0], last) if self.spec.beta_from == "lowest" else last)
             # fewer where iips.backtrack found no descent (counting the undone iteration)
             self.pre_iterations = report.iterations
         return self.initial_linf
