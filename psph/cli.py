@@ -456,10 +456,10 @@ def _prepare_output(args, out, log_path, first, continuing, later):
     return None, aside
 
 
-# PETSc options read only when PETSc finalises, after psph's check
 # the largest time.cfl at which a scheme ran stably in an audit's runs (riemann_ale: 1-D acoustic wave, 2-D
 # Taylor-Green; delta_ale with delta+ ran Taylor-Green at 1.5, as far as the neighbour skin allowed)
 STABLE_CFL = {"riemann_ale": 0.8}
+# PETSc options read only when PETSc finalises, after psph's check
 AT_FINALIZE = ("-options_left", "-options_view", "-malloc_dump", "-memory_view", "-objects_dump")
 
 
