@@ -126,6 +126,14 @@ class Simulation:
         self.log(f"step {step}, t = {t:.4g}: checkpoint {path.name}")
         return path
 
+    def snapshot_once(self, step: int, t: float, extra=None):
+        """Write a snapshot of the state at `step` unless the last one written is of it; its path either way.
+        `extra`: a callable returning the extra owned arrays (called only to write). Collective."""
+        entries = self.snapshots.entries
+        if entries and entries[-1][2] == step:
+            return self.out_dir / entries[-1][0]
+        return self.snapshots.write(self.system.particles, step=step, time=t, extra=extra() if extra else None)
+
     def stop_requested(self) -> bool:
         """Whether a signal asked the run to stop (psph.stop). Collective."""
         return bool(stop.requested(self.comm))

@@ -2,7 +2,8 @@
 
 `psph run` catches SIGTERM (`kill`, a batch system's time limit), SIGINT (Ctrl-C) and SIGUSR1 (what
 OpenMPI's mpiexec passes on to every rank; with Slurm, `#SBATCH --signal=B:USR1@120`). The first one
-only raises a flag: the run ends the step in progress, writes a checkpoint and the history, and exits
+only raises a flag: the run ends the step in progress, writes a checkpoint, the history and a snapshot
+of that state (Simulation.snapshot_once; a continuation writes its next snapshot over it), and exits
 with 128 + the signal's number and one line saying how to continue. A second signal stops at once, with
 nothing saved past the last checkpoint.
 
@@ -75,10 +76,13 @@ def requested(comm) -> int:
     return int(comm.allreduce(_state["signum"], op=_max()))
 
 
-def checkpoint_message(step: int, t: float, path, ranks: int = 1) -> str:
-    """What a time-dependent run says when it stops: where, and how to continue (on as many ranks)."""
+def checkpoint_message(step: int, t: float, path, ranks: int = 1, snapshot=None) -> str:
+    """What a time-dependent run says when it stops: where its state is (the checkpoint `path` and the
+    `snapshot` to look at) and how to continue (on as many ranks)."""
     launch = f"mpiexec -n {ranks} " if ranks > 1 else ""
-    return f"state at step {step}, t = {t:.6g} saved in {path}; continue with: {launch}psph run --restart {path}"
+    shown = f" and {snapshot}" if snapshot is not None else ""
+    return (f"state at step {step}, t = {t:.6g} saved in {path}{shown}; continue with: {launch}psph run "
+            f"--restart {path}")
 
 
 def _max():

@@ -6,10 +6,12 @@ import subprocess
 import sys
 import textwrap
 
+import h5py
 import pytest
 
 from psph.io.checkpoint import latest_checkpoint
 from psph.io.history import read_history
+from psph.io.snapshots import snapshot_files
 from tests.helpers import CASES, ROOT, mpi_environment, run_psph
 from tests.io.test_checkpoint import TIMING
 
@@ -75,6 +77,14 @@ def same_history(a, b):
             assert ra[key] == pytest.approx(rb[key], rel=1e-9, abs=1e-12), key
 
 
+def snapshot_steps(out):
+    steps = []
+    for path in snapshot_files(out):
+        with h5py.File(path, "r") as f:
+            steps.append(int(f.attrs["step"]))
+    return steps
+
+
 def last_line(stderr):
     return [line for line in stderr.splitlines() if line.strip()][-1]
 
@@ -90,13 +100,20 @@ def test_sigterm_stops_after_the_step_with_a_checkpoint_the_restart_equals_the_w
     checkpoint = out / "checkpoint_000006.h5"
     assert "psph: SIGTERM received: stopping after this step with a checkpoint (send it again" in done.stderr
     assert last_line(done.stderr).startswith("psph: stopped by SIGTERM: state at step 6, t = ")
-    assert last_line(done.stderr).endswith(f"saved in {checkpoint}; continue with: psph run --restart {checkpoint}")
+    shown = snapshot_files(out)[-1]  # the stopped state, to look at (output.every has not come round)
+    assert last_line(done.stderr).endswith(f"saved in {checkpoint} and {shown}; continue with: psph run "
+                                           f"--restart {checkpoint}")
+    assert snapshot_steps(out)[-1] == 6 and 6 not in snapshot_steps(out)[:-1]
+    assert 'Name="step_6"' in (out / "psph.xdmf").read_text()
     assert [p.name for p in out.glob("checkpoint_*")] == [checkpoint.name]
     assert (out / "psph.log").read_text().splitlines()[-1] == last_line(done.stderr)
     assert run_psph("run", "--restart", checkpoint, *tight).returncode == 0
     whole = run_psph("run", *args, "--out", tmp_path / "whole", *tight)
     assert whole.returncode == 0, whole.stderr
     same_history(out, tmp_path / "whole")
+    # the continuation wrote its snapshots over the stopped state's, as the run never stopped did
+    assert snapshot_steps(out) == snapshot_steps(tmp_path / "whole")
+    assert 6 not in snapshot_steps(out)
 
 
 def test_a_stop_on_a_checkpoint_step_writes_it_once(tmp_path):

@@ -658,14 +658,15 @@ class FluidDriver(Driver):
                     last_checkpoint = time.monotonic()
                 if t < t_end * (1.0 - 1e-12) and sim.stop_requested():
                     progress.close()
-                    sim.stop(checkpoint_message(step, t, written or self.checkpoint(step, t, totals, next_output),
-                                                sim.comm.size))
+                    written = written or self.checkpoint(step, t, totals, next_output)
+                    # after the checkpoint: a continuation writes its next snapshot over this one, as the run
+                    # that was never stopped would
+                    sim.stop(checkpoint_message(step, t, written, sim.comm.size, sim.snapshot_once(step, t)))
                 progress.update(step, t, dt, **({"newton": totals["iips_newton"], "ksp": totals["iips_linear"]}
                                                 if self.iips is not None else {}))
             progress.close()
         step, t = state["step"], state["time"]
-        if not sim.snapshots.entries or sim.snapshots.entries[-1][2] != step:
-            sim.snapshots.write(system.particles, step=step, time=t)
+        sim.snapshot_once(step, t)
         final = sim.history.rows[-1]
         sim.log(f"t = {t:.4g} after {step} steps" + (f": L2|v_x - v_xA| = {final['L2_vx_error']:.4e}"
                                                        if "L2_vx_error" in final else ""))

@@ -157,13 +157,14 @@ class KinematicDriver(Driver):
                     last_checkpoint = time.monotonic()
                 if step < self.n_steps and sim.stop_requested():
                     progress.close()
-                    sim.stop(checkpoint_message(step, t, written or self.checkpoint(step, t, totals, next_output,
-                                                                                   report), sim.comm.size))
+                    written = written or self.checkpoint(step, t, totals, next_output, report)
+                    # after the checkpoint: a continuation writes its next snapshot over this one
+                    sim.stop(checkpoint_message(step, t, written, sim.comm.size,
+                                                sim.snapshot_once(step, t, lambda: {"grad_c": grad_c(system)})))
             progress.close()
         step, t = state["step"], state["time"]
         sim.history.flush()
-        if not sim.snapshots.entries or sim.snapshots.entries[-1][2] != step:
-            sim.snapshots.write(system.particles, step=step, time=t, extra={"grad_c": grad_c(system)})
+        sim.snapshot_once(step, t, lambda: {"grad_c": grad_c(system)})
         sim.log(f"t = {t:.4g} after {step} steps; after the last shifting (t = {self.report_time:.4g}): Linf(grad C) "
                 f"= {report['Linf_grad_c']:.4e}, L2(df/dx) = {report['L2_dfdx']:.4e}")
         return sim.summary(steps=step, final={**report, "time": self.report_time}, end_time=t,
