@@ -192,14 +192,17 @@ def _periodic_plates(profile, domain, ds) -> Profile:
     count = max(int(round(period / ds)), 1)
     along = domain.lower[a] + period * np.arange(-count, 2 * count) / count
     plate = np.abs(profile.normals[:, a]) < 1e-9
-    nodes, normals = [], []
+    nodes, normals, ends = [], [], []
+    k = np.arange(len(along))
     for normal in (-1.0, 1.0):  # the plate whose normal (out of the fluid) points this way across the axis
         at = profile.nodes[plate & (profile.normals[:, 1 - a] == normal), 1 - a]
         points = np.empty((len(along), 2))
         points[:, a], points[:, 1 - a] = along, at[0]
+        # each plate is an open line: its end nodes, a period beyond the domain, are their own neighbours
+        ends.append(len(along) * len(nodes) + np.stack([np.maximum(k - 1, 0), np.minimum(k + 1, k[-1])], axis=1))
         nodes.append(points)
         normals.append(np.tile(np.eye(2)[1 - a] * normal, (len(along), 1)))
-    return Profile(np.concatenate(nodes), np.concatenate(normals), profile.fluid_inside)
+    return Profile(np.concatenate(nodes), np.concatenate(normals), profile.fluid_inside, np.concatenate(ends))
 
 
 def check_placement(scene) -> None:

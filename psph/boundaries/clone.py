@@ -12,7 +12,7 @@ The body forces of the last right-hand side evaluation are kept for the history.
 import numpy as np
 
 from psph.boundaries.bodies import make_bodies
-from psph.boundaries.geometry import nearest_nodes
+from psph.boundaries.geometry import contour_distance, nearest_nodes
 from psph.compute.walls import NO_MATRIX, clone_rhs, ghost_grad_c, ghost_images, ghost_rhs, near_wall_rows, off_walls
 from psph.parallel.comm import allreduce_sum
 from psph.particles import Kind
@@ -116,7 +116,7 @@ class WallTerms:
         body = p.owned("body")
         for b in self.clones:
             rows = np.flatnonzero(body == b.index)
-            node, dist = nearest_nodes(b.profile.nodes, p.owned("ref_position")[rows])
+            node, dist = nearest_nodes(b.profile, p.owned("ref_position")[rows])
             p.owned("wall_node")[rows] = node
             p.owned("wall_distance")[rows] = dist
             p.owned("ref_normal")[rows] = b.profile.normals[node]
@@ -144,7 +144,8 @@ class WallTerms:
 
     def nearest_node_data(self, system, rows, t):
         """For each fluid row near a wall and each body (axis 1, the scene's body index; a ghost wall's
-        entries unused, inf), the normal of its closest node on that body and the distance to it. The kernel
+        entries unused, inf), the normal of its closest node on that body and its distance to that body's
+        contour (geometry.contour_distance). The kernel
         mirrors each solid neighbour by the row's distance to the neighbour's own body: a row between two
         bodies (an immersed body a few dx from a wall) took the nearer one's for both, which scaled the other's
         mirrored velocities by the ratio of the two distances."""
@@ -153,7 +154,8 @@ class WallTerms:
         dist = np.full((len(points), len(self.bodies)), np.inf)
         if len(points):
             for b, (tree, nrm) in self._node_trees(t).items():
-                dist[:, b], k = tree.query(points)
+                k = tree.query(points)[1]
+                dist[:, b] = contour_distance(tree.data, self.bodies[b].profile.ends, k, points)
                 normals[:, b] = nrm[k]
         return normals, dist
 

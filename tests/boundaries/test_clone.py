@@ -88,13 +88,18 @@ def test_corner_second_wall_still_mirrors_the_approach(tmp_path):
 
 
 @pytest.mark.parametrize("side,velocity", [("bottom", 0.0), ("lid", 1.0)])
-def test_laplacian_mirror_is_the_linear_extension_of_a_shear(tmp_path, side, velocity):
+@pytest.mark.parametrize("along", [0.0, 0.125])
+def test_laplacian_mirror_is_the_linear_extension_of_a_shear(tmp_path, side, velocity, along):
     """Eq. 7: for u = u_b + gamma s (s: distance from the wall), the clones carry u_b - gamma s_j, the
     linear continuation, so the wall's viscous force equals the one of a fluid continued beyond the wall
     with that profile: for each fluid particle near the wall, fluid + clone viscous sums equal the sum over
-    the full lattice of the continued profile."""
+    the full lattice of the continued profile. `along`: the particle moved that many dx along the wall,
+    0.125 dx putting it halfway between two body nodes (ds = dx/4 apart), where its distance to the closest
+    node exceeds its distance to the wall by 3.1% and the clones' velocities fell short of the line by as
+    much (a walls audit: seed 004's s_i is the distance to the contour)."""
     driver, system, p = cavity(tmp_path, **{"physics.reynolds": 1.0})
     pos = p["position"]
+    pos[particle_at(p, 0.5 + DX / 2, DX / 2 if side == "bottom" else 1.0 - DX / 2), 0] += along * DX
     gamma = 0.7
     dist = pos[:, 1] if side == "bottom" else 1.0 - pos[:, 1]
     profile = velocity - gamma * dist if side == "lid" else gamma * dist

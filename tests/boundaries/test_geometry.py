@@ -4,7 +4,14 @@ normals pointing out of the fluid, and solid particles filling one kernel suppor
 import numpy as np
 import pytest
 
-from psph.boundaries.geometry import ellipse_profile, inside, rectangle_profile, solid_particles
+from psph.boundaries.geometry import (
+    distance_to_polygon,
+    ellipse_profile,
+    inside,
+    nearest_nodes,
+    rectangle_profile,
+    solid_particles,
+)
 
 DX = 0.05
 
@@ -57,11 +64,60 @@ def test_solid_particles_fill_one_support_behind_the_profile(shape):
     lattice = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
     pos, node, dist = solid_particles(prof, spec, lattice, thickness)
     assert np.all(inside(spec, pos)) and len(pos) > 0
-    assert np.allclose(dist, np.linalg.norm(pos - prof.nodes[node], axis=1))
-    brute = np.linalg.norm(lattice[:, None, :] - prof.nodes[None, :, :], axis=2).min(axis=1)
-    expected = inside(spec, lattice) & (brute <= thickness)
+    assert np.array_equal(node, np.linalg.norm(pos[:, None] - prof.nodes[None], axis=2).argmin(axis=1))
+    polyline = distance_to_polygon(prof.nodes, lattice)  # the contour through all the nodes, by brute force
+    assert np.allclose(dist, distance_to_polygon(prof.nodes, pos), rtol=0.0, atol=1e-12)
+    expected = inside(spec, lattice) & (polyline <= thickness)
     assert len(pos) == expected.sum()
     assert dist.max() <= thickness
+
+
+@pytest.mark.parametrize("shape", ["ellipse", "rectangle"])
+def test_distances_are_to_the_contour_not_to_the_closest_node(shape):
+    """Seed 004's s_i and s_j are distances to the body contour (after eq. 6). Points s = dx/4 and dx/2 off
+    a side, halfway between two nodes, were given the distance to the closest node, sqrt(s^2 + ds^2/4):
+    11.8% and 3.1% too far (a walls audit). On a rectangle the contour is its sides, exactly; along an
+    ellipse the nodes' polyline lies within ds^2 / (8 R) of it."""
+    center, size, angle, ds = np.array([1.0, 1.0]), (0.5, 0.3), 10.0, DX / 4
+    prof = (ellipse_profile(center, size, angle, ds) if shape == "ellipse"
+            else rectangle_profile(center, size, angle, ds, fluid_inside=False))
+    mid = 0.5 * (prof.nodes + np.roll(prof.nodes, -1, axis=0))  # halfway between neighbouring nodes
+    away = -0.5 * (prof.normals + np.roll(prof.normals, -1, axis=0))  # out of the body (the fluid's side)
+    away /= np.linalg.norm(away, axis=1)[:, None]
+    plain = np.ones(len(mid), dtype=bool)  # a rectangle: no corner between the two nodes
+    if shape == "rectangle":
+        plain = np.abs(prof.normals - np.roll(prof.normals, -1, axis=0)).sum(axis=1) < 1e-12
+    for s in (DX / 4, DX / 2):
+        points = (mid + s * away)[plain]
+        node, dist = nearest_nodes(prof, points)
+        if shape == "rectangle":
+            c, r = np.cos(np.deg2rad(angle)), np.sin(np.deg2rad(angle))
+            unit = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]])
+            corners = center + (unit * np.asarray(size) / 2) @ [[c, r], [-r, c]]
+            assert np.allclose(dist, distance_to_polygon(corners, points), rtol=0.0, atol=1e-12)
+        assert np.allclose(dist, s, rtol=0.0, atol=ds**2 / (8 * min(size) ** 2 / max(size)) + 1e-12)
+        assert np.linalg.norm(points - prof.nodes[node], axis=1).min() > s * (1 + 0.02)  # the old distance
+
+
+def test_periodic_plates_are_open_lines_whose_distance_holds_across_the_domain_s_edges():
+    """A container spanning a periodic axis is two plates continued a period to either side
+    (bodies._periodic_plates): each an open line, its end nodes their own neighbours; a point off a plate,
+    anywhere along the period and between nodes, is at its height above it."""
+    from psph.boundaries.bodies import make_bodies
+    from psph.scene.load import load_scene
+    from tests.helpers import CASES
+
+    scene = load_scene(CASES / "couette.toml")
+    prof = make_bodies(scene)[0].profile
+    lines = len(prof.nodes) // 2
+    assert prof.ends[0, 0] == 0 and prof.ends[lines - 1, 1] == lines - 1
+    assert prof.ends[lines, 0] == lines and prof.ends[-1, 1] == len(prof.nodes) - 1
+    lower, upper = np.asarray(scene.domain.lower), np.asarray(scene.domain.upper)
+    floor = prof.nodes[prof.normals[:, 1] < 0, 1][0]
+    x = np.linspace(lower[0], upper[0], 97)
+    for s in (scene.domain.dx / 4, scene.domain.dx / 2, 0.3):
+        points = np.stack([x, np.full_like(x, floor + s)], axis=1)
+        assert np.allclose(nearest_nodes(prof, points)[1], s, rtol=0.0, atol=1e-12)
 
 
 def test_solid_layer_has_the_area_of_one_support():

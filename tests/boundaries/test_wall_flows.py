@@ -61,7 +61,7 @@ def test_couette_startup_follows_the_analytic_transient(tmp_path):
         errors[ratio], v_max = couette_error(out)
         assert v_max < 5e-3  # a plane shear flow stays plane
     assert errors[2.0] < 0.025 and errors[3.0] < 0.5 * errors[2.0]
-    # Morris' operator has no lattice anisotropy (tests/compute/test_fluid.py): 0.0019 against 0.018 here,
+    # Morris' operator has no lattice anisotropy (tests/compute/test_fluid.py): 0.0018 against 0.018 here,
     # through the clone walls' mirrored Laplacian velocity as well
     out = run(tmp_path, "couette.toml", "morris", "physics.viscosity=morris")
     morris, v_max = couette_error(out)
