@@ -10,6 +10,7 @@
            matrix is singular the fit falls back to a lower order (Shepard last); the run's count of such
            fits is summary.json's mls_fallbacks
     mls2   second-order MLS re-interpolation (eq. 9.9), same fields
+           (mls1, mls2: of the particles IIPS moved; the ones it held, in a free-surface region, keep theirs)
     mls1_increment, mls2_increment
            the MLS fit's increment only: f_i += MLS[f](x_i') - MLS[f](x_i), the Taylor-series correction of
            eq. 6.10 (Xu et al. 2009) with the MLS polynomial as the expansion. A particle that did not move
@@ -192,32 +193,35 @@ class MovingLeastSquares(NoFieldUpdate):
                           shifted=("old_position",))
         old_pos = np.concatenate([owned_old, got["old_position"]])
         old = np.concatenate([p.owned("old_fields"), got["old_fields"]])
-        # the fluid's rows only: solids and inflow particles keep their own fields (IIPS moved neither)
-        fluid = p.owned("kind") == Kind.FLUID
-        new, fallbacks = self._fit(system, p.owned("position")[fluid], old_pos, old)
+        # the rows IIPS moved only: solids and inflow particles keep their own fields, and so do the fluid
+        # particles it held (a free-surface region), whose values are the flow's own where they are; a fit
+        # there is a smoothing, one-sided at the surface (a free-surface audit: the elliptical drop's semi-axis
+        # error at t = 0.5, dx = 0.05, fell from 0.0044 to 0.00086 with mls2)
+        moved = (p.owned("kind") == Kind.FLUID) & np.any(p.owned("position") != owned_old, axis=1)
+        new, fallbacks = self._fit(system, p.owned("position")[moved], old_pos, old)
         if self.increment:
-            at_old, more = self._fit(system, owned_old[fluid], old_pos, old)
-            new += p.owned("old_fields")[fluid, 1:] - at_old
+            at_old, more = self._fit(system, owned_old[moved], old_pos, old)
+            new += p.owned("old_fields")[moved, 1:] - at_old
             fallbacks += more
         error = None
         bad = np.flatnonzero(~np.all(np.isfinite(new), axis=1))
         if len(bad):  # (a field-update audit: the error named no step, time or particle)
-            k = np.flatnonzero(fluid)[bad[0]]
+            k = np.flatnonzero(moved)[bad[0]]
             error = NumericalError(f"MLS update: {len(bad)} particle(s) with no old neighbour to interpolate from "
                                    "(moved farther than a kernel support from every old position)", **system.where,
                                    gid=int(p.owned("gid")[k]), position=p.owned("position")[k])
         raise_if_any(system.comm, error)
         vol, rho, mass = p.owned("volume"), p.owned("density"), p.owned("mass")
-        rho[fluid] = new[:, 1]
-        p.owned("velocity")[fluid] = new[:, 2:]
+        rho[moved] = new[:, 1]
+        p.owned("velocity")[moved] = new[:, 2:]
         if scheme.variant == 0:
-            vol[fluid] = new[:, 0]
-            mass[fluid] = rho[fluid] * vol[fluid]
+            vol[moved] = new[:, 0]
+            mass[moved] = rho[moved] * vol[moved]
         elif scheme.variant == 1:
-            vol[fluid] = mass[fluid] / rho[fluid]
+            vol[moved] = mass[moved] / rho[moved]
         else:
-            mass[fluid] = p.owned("volume0")[fluid] * rho[fluid]
-        p.owned("pressure")[fluid] = scheme.eos.pressure(rho[fluid])
+            mass[moved] = p.owned("volume0")[moved] * rho[moved]
+        p.owned("pressure")[moved] = scheme.eos.pressure(rho[moved])
         self.refresh(system)
         return {"mls_fallbacks": int(allreduce_sum(system.comm, fallbacks))}
 
