@@ -1,8 +1,10 @@
 """Open boundaries: inflow buffers and outflow faces (README, "Open boundaries").
 
 An inflow buffer is a box of particles (Kind.INLET) on a lattice of spacing dx that move at the prescribed
-velocity U along one axis, with rho = rho0 and the pressure of the equation of state there; they take part
-in their fluid neighbours' sums as fluid particles do, but their own fields stay prescribed and no shifting
+velocity U along one axis, their density (with its pressure and mass) the Shepard average of the fluid's
+beside them, set after every step (inflow.density = "extrapolated", the default) or rho0 and its pressure
+("prescribed"); they take part in their fluid neighbours' sums as fluid particles do, but the scheme gives
+them no rates and no shifting
 moves them (they are not IIPS unknowns: thesis 000 section 10.2.1). A buffer at least one kernel support
 deep gives the fluid beside it a full support. With xi the distance downstream of the buffer's
 upstream face and D its depth:

@@ -107,10 +107,11 @@ class InflowSpec:
     upper: tuple[float, ...] = option(doc="upper corner of the inflow buffer")
     velocity: tuple[float, ...] = option(doc="velocity of the fluid entering: along one axis, pointing from the "
                                          "buffer into the domain through the buffer's face on that side")
-    density: str = option("prescribed", doc="the buffer particles' density: prescribed (rho0, the pressure of "
-                          "rho0) or extrapolated (the Shepard average of the fluid's within a kernel support, the "
-                          "velocity staying prescribed: a velocity inlet whose pressure follows the fluid; README, "
-                          "\"Open boundaries\")", choices=("prescribed", "extrapolated"))
+    density: str = option("extrapolated", doc="the buffer particles' density: extrapolated (the Shepard average "
+                          "of the fluid's within a kernel support, the velocity staying prescribed: a velocity inlet "
+                          "whose pressure follows the fluid) or prescribed (rho0, the pressure of rho0, which a flow "
+                          "that needs a pressure at the inlet overfills; README, \"Open boundaries\")",
+                          choices=("extrapolated", "prescribed"))
 
     def check(self, path):
         lengths = {"lower": len(self.lower), "upper": len(self.upper), "velocity": len(self.velocity)}
