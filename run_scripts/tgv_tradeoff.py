@@ -35,7 +35,10 @@ from psph.studies import (  # noqa: E402
 METHODS = {  # label: scene overrides
     "no shifting": ["shifting.method=none", "iips.update=none"],
     "delta+": ["shifting.method=delta_plus", "iips.update=none"],
-    "Neuhauser P_S=10": ["shifting.method=neuhauser", "shifting.neuhauser_ps=10", "iips.update=none"],
+    # eq. 6.33 as Neuhauser (2014) wrote it: the first column of Tables 7.1 and 9.1
+    "Neuhauser P_S=1": ["shifting.method=neuhauser", "shifting.neuhauser_ps=1", "iips.update=none"],
+    "Neuhauser P_S=10": ["shifting.method=neuhauser", "shifting.neuhauser_ps=10", "iips.update=none"],  # eq. 7.1
+    "Neuhauser P^F": ["shifting.method=neuhauser", "shifting.fictitious_pressure=true", "iips.update=none"],  # 7.4
     "IIPS": ["shifting.method=iips", "iips.update=none"],
     "IIPS + NFTS": ["shifting.method=iips", "iips.update=nfts"],
     "IIPS + MLS-II": ["shifting.method=iips", "iips.update=mls2"],
