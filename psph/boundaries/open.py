@@ -237,6 +237,7 @@ class OpenBoundaries:
         changed. Returns the global counts of this call. Collective."""
         p = system.particles
         pos, kind = p.owned("position"), p.owned("kind")
+        self._check_backflow(system, pos, kind, t)
         # a buffer particle that no buffer holds has passed its downstream face, however far: one moving more
         # than 2 dx a step once skipped the window (2 dx past the face) it had to be in to join, crossed the
         # domain as a buffer particle and left it unremoved (an audit: U dt = 3.2 dx, 64% of the mass flux)
@@ -288,6 +289,30 @@ class OpenBoundaries:
         for key in self.totals:
             self.totals[key] += out[key]
         return out
+
+    def _check_backflow(self, system, pos, kind, t) -> None:
+        """Stop (NumericalError, every rank) if fluid flowed back into an inflow buffer: a fluid particle in a
+        buffer's cross-section more than dx/2 upstream of its downstream face. The buffer's rows move on at
+        U through it, the two overlap, and the run went on to fail later on a volume or density at a place
+        that named neither the inflow nor the backflow (an open-boundary audit: a channel driven against
+        gravity, g = 3, its buffer at rho0, 40 fluid particles in the buffer by t = 0.79). Collective."""
+        from psph.errors import NumericalError
+        from psph.parallel.comm import raise_if_any
+
+        error = None
+        fluid = kind == Kind.FLUID
+        for k, f in enumerate(self.inflows):
+            xi = f.sign * (pos[:, f.axis] - f.upstream)
+            back = np.flatnonzero(fluid & f.in_section(pos) & (xi >= 0.0) & (xi < f.depth - 0.5 * f.dx))
+            if len(back) and error is None:
+                advice = (f'; inflow[{k}].density = "prescribed" holds the buffer at rho0, "extrapolated" lets its '
+                          "pressure follow the fluid's" if f.spec.density == "prescribed" else "")
+                error = NumericalError(
+                    f"fluid flowed back into inflow[{k}]'s buffer ({len(back)} particle(s) on this rank more than "
+                    "dx/2 upstream of its downstream face): the flow needs a higher pressure at the inlet than the "
+                    f"buffer gives{advice}", step=system.where.get("step"), time=t,
+                    gid=int(system.particles.owned("gid")[back[0]]), position=pos[back[0]])
+        raise_if_any(system.comm, error)
 
     def extrapolate(self, system) -> None:
         """Set the outflow buffer's density, pressure, mass and velocity from the fluid beside it (lists

@@ -543,6 +543,36 @@ def test_an_inflow_whose_density_follows_the_fluid_keeps_a_walled_channel_s_mass
     assert growth["extrapolated"] < 0.025 and growth["prescribed"] > 3.0 * growth["extrapolated"], growth
 
 
+def channel_against_gravity(density, g, t_end):
+    """A channel 4 x 1, periodic across, from a buffer 4 dx deep at U = 1 to an outflow face, dx = 0.1, no
+    shifting, driven against gravity g along it: a uniform flow needs rho0 g L at the inlet (an
+    open-boundary audit's scene)."""
+    return {"name": "uphill", "domain": {"dimension": 2, "lower": [0.0, 0.0], "upper": [4.0, 1.0],
+                                         "periodic": [False, True], "dx": 0.1, "outflow": ["x+"]},
+            "initial": {"fill_lower": [0.4, 0.0], "fill_upper": [4.0, 1.0], "velocity": "inflow"},
+            "inflow": [{"lower": [0.0, 0.0], "upper": [0.4, 1.0], "velocity": [1.0, 0.0], "density": density}],
+            "physics": {"scheme": "delta_ale", "reynolds": 100.0, "gravity": [-g, 0.0],
+                        "max_density_variation": 0.5},
+            "shifting": {"method": "none"}, "time": {"t_end": t_end, "cfl": 0.2},
+            "output": {"every": 0.0, "history_every": 1000}}
+
+
+def test_fluid_flowing_back_into_an_inflow_buffer_stops_the_run_naming_it(tmp_path):
+    """Against g = 3 a buffer at rho0 cannot hold the flow: the fluid flows back into it and overlapped its
+    rows, and the run went on to stop later on a volume drift at a place inside the buffer, naming neither
+    (an open-boundary audit). It stops at the backflow, naming the inflow and what to change; with the
+    buffer's density extrapolated (the default) the same channel runs on."""
+    with FluidDriver(scene_from_table(channel_against_gravity("prescribed", 3.0, 0.6)), MPI.COMM_SELF,
+                     tmp_path / "prescribed", log=lambda message: None) as driver:
+        with pytest.raises(NumericalError, match=r"fluid flowed back into inflow\[0\]'s buffer .*"
+                                                 r"inflow\[0\]\.density = \"prescribed\" holds the buffer at rho0.*"
+                                                 r"\[step \d+, t = 0\.\d+, particle gid \d+, at \(0\.[0-3]"):
+            driver.run()
+    with FluidDriver(scene_from_table(channel_against_gravity("extrapolated", 3.0, 0.6)), MPI.COMM_SELF,
+                     tmp_path / "extrapolated", log=lambda message: None) as driver:
+        driver.run()
+
+
 def test_an_inflow_into_a_closed_full_domain_is_refused():
     """Without the outflow face the channel's fluid fills the domain and has no free surface: what the buffer
     brings in would only compress it."""
