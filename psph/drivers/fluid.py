@@ -198,6 +198,11 @@ def hold_step_advice(needed, skin, cfl) -> str:
     return f"no neighbours.skin (at most {SKIN_MAX:g}) holds it: it needs {shorter} or shorter"
 
 
+# the key that scales each explicit shifting law's velocity (psph.shifting.velocity)
+STRENGTH_KEYS = {"lind": "lind_diffusion", "skillen": "skillen_a", "neuhauser": "neuhauser_ps",
+                 "delta_plus": "delta_plus_r"}
+
+
 class FluidDriver(Driver):
     @staticmethod
     def describe(scene) -> list:
@@ -467,9 +472,21 @@ class FluidDriver(Driver):
                     what = (f"a particle moved {err.moved:.3g} within one time step, more than half the "
                             f"neighbour-list skin ({0.5 * system.skin:.3g}); "
                             + hold_step_advice(needed, system.skin / system.kernel.support, self.scene.time.cfl))
+                if speed > 3.0 * self.scene.physics.reference_velocity:
+                    what += self._shifting_strength()
                 error = NumericalError(what, step=step, time=t, gid=err.gid, position=err.position)
             raise_if_any(self.sim.comm, error)
         return 1
+
+    def _shifting_strength(self) -> str:
+        """For the message of a particle moving at several times the reference velocity: the explicit
+        shifting law's strength key and value, which can drive the particles that fast (an explicit-shifting
+        audit: skillen_a = 100 and neuhauser_ps = 1000 stopped in a few steps naming no shifting key, the
+        second advising a larger skin); "" without such a law."""
+        s = self.scene.shifting
+        key = STRENGTH_KEYS.get(s.method)
+        return (f" (shifting.method = {s.method}: a law too strong, shifting.{key} = {getattr(s, key):g}, does that "
+                "too)") if key else ""
 
     def restore(self, arrays, t) -> None:
         """Put back the owned particles saved before a failed step (time.retries); fields the step

@@ -461,6 +461,25 @@ def test_a_step_longer_than_the_skin_stops_the_run_naming_the_key(tmp_path):
     assert driver.run()["final"]["time"] == pytest.approx(0.05)
 
 
+@pytest.mark.parametrize("law, key, value, cause", [("skillen", "skillen_a", 100, "the flow is blowing up"),
+                                                     ("neuhauser", "neuhauser_ps", 1000, "would hold the step")])
+def test_a_shifting_law_too_strong_is_named_when_the_flow_blows_up(tmp_path, law, key, value, cause):
+    """An explicit-shifting audit: Skillen's A = 100 and Neuhauser's P_S = 1000 stop the Taylor-Green within
+    a few dozen steps, on a particle faster than sound or past the skin, and the message named no shifting
+    key (the second advised a larger skin). A particle faster than 3 U now names the law's strength too."""
+    res = run_psph("run", CASES / "taylor_green.toml", "--out", tmp_path / law, "--quiet", "--set", "domain.dx=0.05",
+                   "--set", f"shifting.method={law}", "--set", f"shifting.{key}={value}", "--set", "iips.update=none",
+                   "--set", "time.t_end=0.1")
+    assert res.returncode == 3, res.stderr
+    line = res.stderr.strip().splitlines()[-1]
+    assert cause in line and f"(shifting.method = {law}: a law too strong, shifting.{key} = {value}, does that " \
+        "too) [step" in line, line
+    assert "Traceback" not in res.stderr
+    calm = run_psph("run", CASES / "taylor_green.toml", "--out", tmp_path / "thin", "--quiet", "--set",
+                    "domain.dx=0.05", "--set", "neighbours.skin=0.00001", "--set", "time.t_end=0.01")
+    assert calm.returncode == 3 and "shifting.method" not in calm.stderr, calm.stderr  # U-speed: no hint
+
+
 def test_a_step_too_long_for_the_skin_names_the_time_step_that_holds_it(tmp_path):
     """time.cfl = 1.5 moves a particle past half the default skin within a step: the message names the shorter
     step that the skin holds, which runs; beyond the largest skin it names the step alone (a Riemann audit: the
