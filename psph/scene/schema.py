@@ -844,7 +844,24 @@ class Scene:
             keys += ["time.retries", "time.integrator"] + [f"physics.{name}" for name in FLUID_PHYSICS]
         if scheme == "none":
             keys += ["time.t_end", "time.cfl", "output.every", "output.history_every"]
+        if not self.detects_free_surface():  # (a free-surface audit: they went unnamed)
+            keys += [f"free_surface.{name}" for name in FreeSurfaceSpec.__dataclass_fields__]
         return [key for key in keys if self._set(key)]
+
+    def detects_free_surface(self) -> bool:
+        """Whether the run detects a free surface, which the free_surface keys tune: the scene has one, and a
+        shifting method (or the IIPS pre-procedure) moves the particles (boundaries.free_surface.
+        make_free_surface), or a delta_ale scheme reads the flags at every step for its tensile switch, its
+        diffusion switch or its clone walls that never pull (schemes.delta_ale.DeltaALE)."""
+        if not self.describe_free_surface():
+            return False
+        scheme, phys = self.physics.scheme, self.physics
+        if scheme in (*FLUID_SCHEMES, "none") and (self.shifting.method != "none" or
+                                                   (scheme != "none" and self.iips.pre_newton > 0)):
+            return True
+        return scheme in FLUID_SCHEMES and scheme != "riemann_ale" and (
+            phys.tensile_switch or self.free_surface.lambda_diffusion > 0.0
+            or (self.has_clone_walls() and not phys.wall_adhesion))
 
     def _set(self, key) -> bool:
         """Whether `key` ("section.name") differs from its default."""
