@@ -113,8 +113,8 @@ class FreeSurface(NoFreeSurface):
             # a wall's solid particles across an air gap do not close the surface (a jet's front coming down
             # on a plate): only fluid and inflow particles fill the scan region
             blocks = (p["kind"] != Kind.WALL) & (p["kind"] != Kind.BODY)
-            scan_surface(pos, fluid, blocks, lam, normal, ptr, idx, k.h, self.spec.lambda_surface,
-                         self.spec.lambda_interior, flag)
+            scan_surface(pos, fluid, blocks, lam, normal, ptr, idx, self.spec.scan_radius * k.h,
+                         self.spec.lambda_surface, self.spec.lambda_interior, flag)
             system.refresh(["free_surface", "surface_normal"])
             mark_region(pos, fluid, ptr, idx, k.support, flag)
             region_normals(pos, flag, ptr, idx, k.params, p["surface_normal"])

@@ -334,6 +334,12 @@ class FreeSurfaceSpec:
                                     "Marrone et al.'s scan region decides", gt=0.0, lt=1.0)
     lambda_normal: float = option(0.4, doc="explicit shifting near the free surface (thesis eq. 6.29): du = 0 "
                                   "below this lambda, du . n = 0 above", ge=0.0, lt=1.0)
+    scan_radius: float = option(1.0, doc="radius of Marrone et al.'s scan region, in units of h (half the kernel "
+                                "support; the region reaches 2 scan_radius h from the particle). Marrone et al. "
+                                "scale it with their own kernel's h, which other codes take as 1.33 dx: 0.67 at h/dx "
+                                "= 2. Smaller finds narrower air gaps and cavities (a 3 dx gap's faces: none at 1, "
+                                "all at 0.67) and flags more of a disordered interior (README, \"Free surfaces\")",
+                                gt=0.0, le=1.0)
     lambda_diffusion: float = option(0.0, doc="delta_ale family with a free surface: the diffusive terms D^rho "
                                      "and D^m act on a pair of fluid particles only where both have lambda above "
                                      "this (seed 001 section 6.3: 0.2, no diffusion in thin jets and drops, where "

@@ -121,6 +121,29 @@ def test_a_disordered_interior_has_no_surface(tmp_path):
     assert np.count_nonzero(owned(system, "surface_lambda") <= 0.75) > 5
 
 
+def test_a_smaller_scan_region_finds_a_narrow_air_gap(tmp_path):
+    """Two layers 3 dx apart face to face (the slab without rows 4 and 5): the faces' lambda is an interior
+    particle's about, and with the scan region of radius h = 2 dx the other layer fills it (a free-surface
+    audit: none of the faces found); at free_surface.scan_radius = 0.67 (Marrone et al.'s h = 1.33 dx) every
+    face particle is a surface, and the outer surfaces stay as they were."""
+    scene = slab(tmp_path)
+    found = {}
+    for radius in (1.0, 0.67):
+        system = build_system(scene, MPI.COMM_SELF)
+        p = system.particles
+        keep = ~np.isclose(owned(system, "position")[:, 1], 0.45) & ~np.isclose(owned(system, "position")[:, 1], 0.55)
+        p.set_owned({name: arr[keep] for name, arr in p.owned_arrays().items()})
+        system.rebuild()
+        FreeSurface(FreeSurfaceSpec(scan_radius=radius)).detect(system)
+        y, flag = owned(system, "position")[:, 1], owned(system, "free_surface")
+        faces = np.isclose(y, 0.35) | np.isclose(y, 0.65)
+        outer = np.isclose(y, 0.05) | np.isclose(y, 0.95)
+        assert faces.sum() == outer.sum() == 20 and np.all(flag[outer] == SURFACE)
+        assert not np.any(flag[~faces & ~outer] == SURFACE)
+        found[radius] = int(np.count_nonzero(flag[faces] == SURFACE))
+    assert found == {1.0: 0, 0.67: 20}
+
+
 def test_an_isolated_particle_is_a_surface(tmp_path):
     scene = slab(tmp_path)
     system = build_system(scene, MPI.COMM_SELF)
