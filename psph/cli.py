@@ -333,10 +333,10 @@ def cmd_run(args, petsc_options, comm) -> int:
                     "change a uniform density (at rest, sigma = 0.1 dx: by -5.6% / +1.3% in one call); give "
                     "iips.pre_newton")
     if scene.shifting.method == "iips" and scene.physics.scheme in FLUID_SCHEMES and iips.update == "mls1":
-        _warn(comm, "psph: warning: iips.update = mls1 replaces the fields of every particle IIPS moves by their "
-                    "first-order fit at every call, which smooths the flow (Taylor-Green at dx = 0.05 from a relaxed "
-                    "start: kinetic energy -99.8% by t = 1, against -0.07% with no update; one call took 5.2%); "
-                    "mls1_increment adds only the fit's change, and mls2 smooths less")
+        _warn(comm, "psph: warning: iips.update = mls1 replaces every field by its first-order fit at every IIPS "
+                    "call, which smooths the flow (Taylor-Green at dx = 0.05 from a relaxed start: kinetic energy "
+                    "-99.8% by t = 1, against -0.07% with no update; one call took 5.2%); mls1_increment adds only "
+                    "the fit's change, and mls2 smooths less")
     if scene.shifting.method in ("explicit_iterative", "lind"):
         from psph.shifting.explicit import stability_limit
         from psph.shifting.velocity import Lind

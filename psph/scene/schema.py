@@ -499,6 +499,10 @@ class IIPSSpec:
                          "mls1_increment, mls2_increment (only the MLS fit's change between the old and the new "
                          "position is added, the Taylor correction of eq. 6.10: no smoothing per call)",
                          choices=("none", "nfts", "mls1", "mls2", "mls1_increment", "mls2_increment"))
+    mls_fit: str = option("fluid", doc="mls1, mls2: the particles re-fitted after an IIPS call: fluid (every "
+                          "fluid particle, as thesis section 9.1.2 does, which smooths the free-surface region "
+                          "IIPS holds at every call) or moved (only the particles IIPS moved; README, \"IIPS: "
+                          "method and options\")", choices=("fluid", "moved"))
     on_failure: str = option("stop", doc="KSP divergence or Newton divergence: stop the run; reject the "
                              "call (undo its displacements, report, continue); or warn (keep them, report, "
                              "continue; a diverged KSP solve still stops the run: its step is no correction)",
@@ -850,6 +854,8 @@ class Scene:
             keys += ["time.retries", "time.integrator"] + [f"physics.{name}" for name in FLUID_PHYSICS]
         if scheme == "none":
             keys += ["time.t_end", "time.cfl", "output.every", "output.history_every"]
+        if self.iips.update not in ("mls1", "mls2"):
+            keys.append("iips.mls_fit")
         if not self.detects_free_surface():  # (a free-surface audit: they went unnamed)
             keys += [f"free_surface.{name}" for name in FreeSurfaceSpec.__dataclass_fields__]
         return [key for key in keys if self._set(key)]

@@ -10,7 +10,8 @@
            matrix is singular the fit falls back to a lower order (Shepard last); the run's count of such
            fits is summary.json's mls_fallbacks
     mls2   second-order MLS re-interpolation (eq. 9.9), same fields
-           (mls1, mls2: of the particles IIPS moved; the ones it held, in a free-surface region, keep theirs)
+           (mls1, mls2: of every fluid particle, as thesis section 9.1.2 does; with iips.mls_fit = "moved",
+           of the particles IIPS moved only, the ones it held in a free-surface region keeping theirs)
     mls1_increment, mls2_increment
            the MLS fit's increment only: f_i += MLS[f](x_i') - MLS[f](x_i), the Taylor-series correction of
            eq. 6.10 (Xu et al. 2009) with the MLS polynomial as the expansion. A particle that did not move
@@ -148,9 +149,10 @@ SOLID_KINDS = (Kind.WALL, Kind.BODY)
 class MovingLeastSquares(NoFieldUpdate):
     counters = ("mls_fallbacks",)
 
-    def __init__(self, order, increment=False):
+    def __init__(self, order, increment=False, moved_only=False):
         self.order = order
         self.increment = increment
+        self.moved_only = moved_only  # iips.mls_fit = "moved" (an increment leaves unmoved rows alone anyway)
         self.name = f"mls{order}" + ("_increment" if increment else "")
 
     def specs(self, dim):
@@ -193,11 +195,14 @@ class MovingLeastSquares(NoFieldUpdate):
                           shifted=("old_position",))
         old_pos = np.concatenate([owned_old, got["old_position"]])
         old = np.concatenate([p.owned("old_fields"), got["old_fields"]])
-        # the rows IIPS moved only: solids and inflow particles keep their own fields, and so do the fluid
-        # particles it held (a free-surface region), whose values are the flow's own where they are; a fit
-        # there is a smoothing, one-sided at the surface (a free-surface audit: the elliptical drop's semi-axis
-        # error at t = 0.5, dx = 0.05, fell from 0.0044 to 0.00086 with mls2)
-        moved = (p.owned("kind") == Kind.FLUID) & np.any(p.owned("position") != owned_old, axis=1)
+        # the fluid's rows only: solids and inflow particles keep their own fields (IIPS moved neither); with
+        # moved_only, so do the fluid particles IIPS held (a free-surface region), where a fit is a smoothing,
+        # one-sided at the surface (a free-surface audit: the elliptical drop's semi-axis error at t = 0.5, dx
+        # = 0.05, 0.0044 with every fluid particle re-fitted, 0.00086 without the held ones; but the impinging
+        # jet rings without that smoothing: README)
+        moved = p.owned("kind") == Kind.FLUID
+        if self.moved_only:
+            moved &= np.any(p.owned("position") != owned_old, axis=1)
         new, fallbacks = self._fit(system, p.owned("position")[moved], old_pos, old)
         if self.increment:
             at_old, more = self._fit(system, owned_old[moved], old_pos, old)
@@ -231,5 +236,6 @@ def make_field_update(scene):
     if mode == "nfts":
         return FictitiousTimeStep(scene.time.cfl, scene.domain.dx)  # (a field-update audit: it was 0.2 always)
     if mode.startswith("mls"):
-        return MovingLeastSquares(int(mode[3]), increment=mode.endswith("_increment"))
+        return MovingLeastSquares(int(mode[3]), increment=mode.endswith("_increment"),
+                                  moved_only=scene.iips.mls_fit == "moved")
     return NoFieldUpdate()
