@@ -107,6 +107,12 @@ class Inflow:
         return np.all((pos >= self.lower) & (pos <= self.upper), axis=1)
 
 
+# an inflow buffer particle whose fluid neighbours weigh less than this (sum_j W_ij V_j; a full support
+# weighs about 1, the buffer's face row about 1/2) takes rho0 for the rest (compute.sums.shepard_from_fluid):
+# its density is continuous as fluid enters its support
+INFLOW_WEIGHT_FLOOR = 0.1
+
+
 def make_inflows(scene) -> list:
     return [Inflow(spec, scene.domain.dx) for spec in scene.inflow]
 
@@ -295,24 +301,35 @@ class OpenBoundaries:
         buffer's cross-section more than dx/2 upstream of its downstream face. The buffer's rows move on at
         U through it, the two overlap, and the run went on to fail later on a volume or density at a place
         that named neither the inflow nor the backflow (an open-boundary audit: a channel driven against
-        gravity, g = 3, its buffer at rho0, 40 fluid particles in the buffer by t = 0.79). Collective."""
+        gravity, g = 3, its buffer at rho0, 40 fluid particles in the buffer by t = 0.79). The message counts
+        them over all ranks and names the one of smallest gid, whatever the decomposition. Collective."""
         from psph.errors import NumericalError
-        from psph.parallel.comm import raise_if_any
 
-        error = None
         fluid = kind == Kind.FLUID
-        for k, f in enumerate(self.inflows):
+        gid = system.particles.owned("gid")
+        mine = []  # per inflow: (count, smallest gid, its position) on this rank
+        for f in self.inflows:
             xi = f.sign * (pos[:, f.axis] - f.upstream)
             back = np.flatnonzero(fluid & f.in_section(pos) & (xi >= 0.0) & (xi < f.depth - 0.5 * f.dx))
-            if len(back) and error is None:
-                advice = (f'; inflow[{k}].density = "prescribed" holds the buffer at rho0, "extrapolated" lets its '
-                          "pressure follow the fluid's" if f.spec.density == "prescribed" else "")
-                error = NumericalError(
-                    f"fluid flowed back into inflow[{k}]'s buffer ({len(back)} particle(s) on this rank more than "
-                    "dx/2 upstream of its downstream face): the flow needs a higher pressure at the inlet than the "
-                    f"buffer gives{advice}", step=system.where.get("step"), time=t,
-                    gid=int(system.particles.owned("gid")[back[0]]), position=pos[back[0]])
-        raise_if_any(system.comm, error)
+            first = back[np.argmin(gid[back])] if len(back) else None
+            mine.append((len(back), int(gid[first]), tuple(pos[first])) if first is not None else (0, -1, ()))
+        if not self.inflows:
+            return
+        found = system.comm.allgather(mine)
+        for k, f in enumerate(self.inflows):
+            hits = [rank[k] for rank in found if rank[k][0]]
+            if not hits:
+                continue
+            count = sum(h[0] for h in hits)
+            _, first, place = min(hits, key=lambda h: h[1])
+            advice = (f'; inflow[{k}].density = "prescribed" holds the buffer at rho0, "extrapolated" lets its '
+                      "pressure follow the fluid's" if f.spec.density == "prescribed" else "")
+            error = NumericalError(
+                f"fluid flowed back into inflow[{k}]'s buffer ({count} particle(s) more than dx/2 upstream of its "
+                "downstream face): the flow needs a higher pressure at the inlet than the buffer gives"
+                f"{advice}", step=system.where.get("step"), time=t, gid=first, position=np.array(place))
+            error.collective = True  # every rank raises it (the same message): the run stops cleanly
+            raise error
 
     def extrapolate(self, system) -> None:
         """Set the outflow buffer's density, pressure, mass and velocity from the fluid beside it (lists
@@ -337,7 +354,8 @@ class OpenBoundaries:
                 held |= f.holds(p.owned("position"))
             inflow = np.flatnonzero(held & (p.owned("kind") == Kind.INLET))
             shepard_from_fluid(p["position"], p["volume"], p["kind"], inflow, system.nbr_ptr, system.nbr_idx,
-                               system.kernel.params, p["density"], np.zeros_like(p["velocity"]))
+                               system.kernel.params, p["density"], np.zeros_like(p["velocity"]),
+                               INFLOW_WEIGHT_FLOOR, self.scene.physics.density)
             rows = np.concatenate([rows, inflow])
         p.owned("pressure")[rows] = self.eos.pressure(p.owned("density")[rows])
         p.owned("mass")[rows] = p.owned("density")[rows] * p.owned("volume")[rows]

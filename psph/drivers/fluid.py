@@ -198,9 +198,9 @@ def hold_step_advice(needed, skin, cfl) -> str:
     return f"no neighbours.skin (at most {SKIN_MAX:g}) holds it: it needs {shorter} or shorter"
 
 
-# the key that scales each explicit shifting law's velocity (psph.shifting.velocity)
-STRENGTH_KEYS = {"lind": "lind_diffusion", "skillen": "skillen_a", "neuhauser": "neuhauser_ps",
-                 "delta_plus": "delta_plus_r"}
+# the key that scales an uncapped explicit shifting law's velocity (psph.shifting.velocity; delta+ and Lind's
+# are capped at U/2, and Neuhauser's P^F reads no P_S)
+STRENGTH_KEYS = {"skillen": "skillen_a", "neuhauser": "neuhauser_ps"}
 
 
 class FluidDriver(Driver):
@@ -484,7 +484,7 @@ class FluidDriver(Driver):
         audit: skillen_a = 100 and neuhauser_ps = 1000 stopped in a few steps naming no shifting key, the
         second advising a larger skin); "" without such a law."""
         s = self.scene.shifting
-        key = STRENGTH_KEYS.get(s.method)
+        key = None if s.method == "neuhauser" and s.fictitious_pressure else STRENGTH_KEYS.get(s.method)
         return (f" (shifting.method = {s.method}: a law too strong, shifting.{key} = {getattr(s, key):g}, does that "
                 "too)") if key else ""
 

@@ -270,6 +270,7 @@ def read_checkpoint(comm, path) -> tuple:
             _check_state(state)
             _keep_old_walls(state["scene"])
             _keep_old_lind(state["scene"])
+            _keep_old_inflow(state["scene"])
             boxes = state["decomposition"]["boxes"]
             dim = len(boxes[0][0])
             counts = state["rank_counts"]
@@ -306,6 +307,15 @@ def _keep_old_lind(table: dict) -> None:
     shifting = table.get("shifting")
     if isinstance(shifting, dict) and shifting.get("method") == "lind" and "lind_diffusion" not in shifting:
         shifting["lind_diffusion"] = shifting.get("diffusion", 0.4)
+
+
+def _keep_old_inflow(table: dict) -> None:
+    """A checkpoint written while inflow.density defaulted to "prescribed" (before 2026-11-30) and did not
+    set it continues with it (the new default would change the physics mid-run; a review). read_checkpoint
+    applies it to the state's scene."""
+    for inflow in table.get("inflow") or []:
+        if isinstance(inflow, dict) and "density" not in inflow:
+            inflow["density"] = "prescribed"
 
 
 def _keep_old_walls(table: dict) -> None:

@@ -300,6 +300,18 @@ def test_a_checkpoint_older_than_lind_diffusion_keeps_the_coefficient_it_ran_wit
     assert scene_from_table(read_checkpoint(MPI.COMM_SELF, old)[0]["scene"]).shifting.lind_diffusion == expected
 
 
+def test_a_checkpoint_older_than_the_extrapolated_inflow_default_keeps_a_prescribed_buffer(finished, tmp_path):
+    """inflow.density defaulted to "prescribed" before 2026-11-30: a checkpoint of that day whose scene does
+    not list it continues with it, not with the new default (a review); a listed value is kept."""
+    table = to_table(scene_from_table(read_table(CASES / "impinging_jet.toml")))
+    del table["inflow"][0]["density"]
+    old = edit_checkpoint(finished / CHECKPOINT, tmp_path / "old.h5", edit_state(lambda s: s.update(scene=table)))
+    assert scene_from_table(read_checkpoint(MPI.COMM_SELF, old)[0]["scene"]).inflow[0].density == "prescribed"
+    table["inflow"][0]["density"] = "extrapolated"
+    new = edit_checkpoint(finished / CHECKPOINT, tmp_path / "new.h5", edit_state(lambda s: s.update(scene=table)))
+    assert scene_from_table(read_checkpoint(MPI.COMM_SELF, new)[0]["scene"]).inflow[0].density == "extrapolated"
+
+
 def test_restart_errors_from_the_command_line_are_one_line(finished, tmp_path):
     bad = edit_checkpoint(finished / CHECKPOINT, tmp_path / "bad.h5", edit_state(lambda s: s.pop("history")))
     assert "its state lacks 'history'" in one_line_error(run_psph("run", "--restart", bad, "--out", tmp_path / "o"))
