@@ -347,7 +347,7 @@ class OpenBoundaries:
         system.refresh(["kind", "density", "velocity", "volume"])
         rows = np.flatnonzero(p.owned("kind") == Kind.OUTLET)
         shepard_from_fluid(p["position"], p["volume"], p["kind"], rows, system.nbr_ptr, system.nbr_idx,
-                           system.kernel.params, p["density"], p["velocity"])
+                           system.kernel.params, p["density"], p["velocity"], 0.0, 0.0)
         if extrapolated:  # the inflow buffers' density only: their velocity stays prescribed
             held = np.zeros(p.n_owned, dtype=bool)
             for f in extrapolated:

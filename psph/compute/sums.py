@@ -394,11 +394,11 @@ def nearest_distance(pos, ptr, idx, row_group, col_group, out):
 
 
 @njit(cache=True)
-def shepard_from_fluid(pos, vol, kind, rows, ptr, idx, kp, density, velocity, floor=0.0, rho_floor=0.0):
+def shepard_from_fluid(pos, vol, kind, rows, ptr, idx, kp, density, velocity, floor, rho_floor):
     """For every row i of `rows` (owned), the Shepard average over its fluid neighbours j (kind 0) of the
     density and the velocity, sum_j f_j W_ij V_j / sum_j W_ij V_j: the zero-gradient extrapolation an
     outflow buffer holds (psph.boundaries.open). A row with no fluid within its support keeps its values.
-    Fills density[i] and velocity[i] in place.
+    Fills density[i] and velocity[i] in place. floor = 0: the plain average.
 
     floor > 0 (an inflow buffer's density): where the fluid's weight sum_j W_ij V_j is below `floor`, the
     density is (sum_j rho_j W_ij V_j + (floor - sum_j W_ij V_j) rho_floor) / floor, continuous in the

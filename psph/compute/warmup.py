@@ -116,7 +116,7 @@ def warm_up(dim: int, kernel_name: str, parts=PARTS) -> None:
         fluid.delta_ale_rhs(pos, vol, field, field, vector, vector, field, vector, pairs, kp, 1.0, 0.1, 0.1, 0.01,
                             np.zeros(dim), 0, True, True, kind, False, scalar, scalar.copy(), vector.copy())
     if "open" in parts:  # an outflow buffer, an inflow buffer's extrapolated density (boundaries.open)
-        sums.shepard_from_fluid(pos, vol, kind, gid.copy(), ptr, idx, kp, field.copy(), vector.copy())
+        sums.shepard_from_fluid(pos, vol, kind, gid.copy(), ptr, idx, kp, field.copy(), vector.copy(), 0.1, 1.0)
     if dim == 2 and "ghost_walls" in parts:  # the fixed ghost particles' images (boundaries.clone)
         ghosts = {"axis": np.array([1]), "coord": np.array([0.0]), "sign": np.array([1.0])}
         rows = gid.copy()

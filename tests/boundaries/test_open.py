@@ -188,7 +188,7 @@ IIPS_NFTS = ["shifting.method=iips", "iips.procedure=A", "iips.threshold=0.02", 
 
 
 @pytest.mark.parametrize("sets, bound", [(["shifting.method=none", "inflow.0.density=prescribed"], 1e-13),
-                                         (["shifting.method=none"], 1e-3),
+                                         (["shifting.method=none", "inflow.0.density=extrapolated"], 1e-3),
                                          (["shifting.method=none", "domain.outflow_buffer=true"], 5e-3),
                                          (["shifting.method=delta_plus"], 2e-2),
                                          (IIPS_NFTS, 3e-3)])
@@ -197,8 +197,8 @@ def test_the_jets_mass_budget(tmp_path, sets, bound):
     buffer and left it at the outflow faces (or into the outflow buffer, less what the buffer gave back)
     balances the fluid's mass. Without shifting or buffer, and with the inflow buffer's density prescribed,
     to round-off: each particle keeps its mass (all start with rho0 dx^2, so the mass diffusion D^m moves
-    none). With it extrapolated (the default), D^m passes the fluid mass to and from the buffer, whose own
-    is held: 7.3e-4 of it by t = 1.5 (README, "Open boundaries"). The outflow buffer's particles take the
+    none; the scene's setting). With it extrapolated, D^m passes the fluid mass to and from the buffer, whose
+    own is held: 7.3e-4 of it by t = 1.5 (README, "Open boundaries"). The outflow buffer's particles take the
     extrapolated density's mass, which D^m then exchanges with the fluid beside them, and delta+'s ALE
     fluxes exchange mass with the buffers' particles (whose fields are prescribed): the budget shows both
     (README, "Open boundaries"). IIPS + NFTS: 1.3e-3 (D^m beside the buffers; the NFTS fluxes themselves
