@@ -140,16 +140,15 @@ def inside(profile_spec, pos) -> np.ndarray:
     return (np.abs(local[:, 0]) < size[0] / 2.0) & (np.abs(local[:, 1]) < size[1] / 2.0)
 
 
-def nearest_nodes(profile, points, nodes=None):
-    """(index of the closest node, distance to the contour) for every point: the closest node by a k-d tree,
-    the distance by contour_distance. `nodes`: the profile's nodes where they are now (a moving body's)."""
+def nearest_nodes(profile, points):
+    """(index of the closest node, distance to the contour) for every point, in the profile's reference
+    configuration: the closest node by a k-d tree, the distance by contour_distance."""
     from scipy.spatial import cKDTree
 
-    nodes = profile.nodes if nodes is None else nodes
     if len(points) == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0)
-    _, idx = cKDTree(nodes).query(points)
-    return idx.astype(np.int64), contour_distance(nodes, profile.ends, idx, points)
+    _, idx = cKDTree(profile.nodes).query(points)
+    return idx.astype(np.int64), contour_distance(profile.nodes, profile.ends, idx, points)
 
 
 def contour_distance(nodes, ends, closest, points) -> np.ndarray:

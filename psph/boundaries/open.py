@@ -4,10 +4,9 @@ An inflow buffer is a box of particles (Kind.INLET) on a lattice of spacing dx t
 velocity U along one axis, their density (with its pressure and mass) the Shepard average of the fluid's
 beside them, set after every step (inflow.density = "extrapolated", the default) or rho0 and its pressure
 ("prescribed"); they take part in their fluid neighbours' sums as fluid particles do, but the scheme gives
-them no rates and no shifting
-moves them (they are not IIPS unknowns: thesis 000 section 10.2.1). A buffer at least one kernel support
-deep gives the fluid beside it a full support. With xi the distance downstream of the buffer's
-upstream face and D its depth:
+them no rates and no shifting moves them (they are not IIPS unknowns: thesis 000 section 10.2.1). A buffer
+at least one kernel support deep gives the fluid beside it a full support. With xi the distance downstream
+of the buffer's upstream face and D its depth:
 
     rows at t = 0          xi_k = (k + 1/2) dx,  k = 0 .. D/dx - 1
     row m emitted          when |U| t >= m dx, at xi = (1/2 - m) dx + |U| t   (m = 1, 2, ...)
@@ -305,6 +304,8 @@ class OpenBoundaries:
         them over all ranks and names the one of smallest gid, whatever the decomposition. Collective."""
         from psph.errors import NumericalError
 
+        if not self.inflows:
+            return
         fluid = kind == Kind.FLUID
         gid = system.particles.owned("gid")
         mine = []  # per inflow: (count, smallest gid, its position) on this rank
@@ -313,8 +314,6 @@ class OpenBoundaries:
             back = np.flatnonzero(fluid & f.in_section(pos) & (xi >= 0.0) & (xi < f.depth - 0.5 * f.dx))
             first = back[np.argmin(gid[back])] if len(back) else None
             mine.append((len(back), int(gid[first]), tuple(pos[first])) if first is not None else (0, -1, ()))
-        if not self.inflows:
-            return
         found = system.comm.allgather(mine)
         for k, f in enumerate(self.inflows):
             hits = [rank[k] for rank in found if rank[k][0]]
