@@ -200,34 +200,34 @@ class MovingLeastSquares(NoFieldUpdate):
         # one-sided at the surface (a free-surface audit: the elliptical drop's semi-axis error at t = 0.5, dx
         # = 0.05, 0.0044 with every fluid particle re-fitted, 0.00086 without the held ones; but the impinging
         # jet rings without that smoothing: README)
-        moved = p.owned("kind") == Kind.FLUID
+        fitted = p.owned("kind") == Kind.FLUID
         if self.moved_only:  # by the call's displacement, not the positions: a rebuild within the call wraps
             # them across periodic edges (a review: 419 of 518 held particles re-fitted so)
-            moved &= np.any(p.owned(SHIFT_FIELD.name) != 0.0, axis=1)
-        new, fallbacks = self._fit(system, p.owned("position")[moved], old_pos, old)
+            fitted &= np.any(p.owned(SHIFT_FIELD.name) != 0.0, axis=1)
+        new, fallbacks = self._fit(system, p.owned("position")[fitted], old_pos, old)
         if self.increment:
-            at_old, more = self._fit(system, owned_old[moved], old_pos, old)
-            new += p.owned("old_fields")[moved, 1:] - at_old
+            at_old, more = self._fit(system, owned_old[fitted], old_pos, old)
+            new += p.owned("old_fields")[fitted, 1:] - at_old
             fallbacks += more
         error = None
         bad = np.flatnonzero(~np.all(np.isfinite(new), axis=1))
         if len(bad):  # (a field-update audit: the error named no step, time or particle)
-            k = np.flatnonzero(moved)[bad[0]]
+            k = np.flatnonzero(fitted)[bad[0]]
             error = NumericalError(f"MLS update: {len(bad)} particle(s) with no old neighbour to interpolate from "
                                    "(moved farther than a kernel support from every old position)", **system.where,
                                    gid=int(p.owned("gid")[k]), position=p.owned("position")[k])
         raise_if_any(system.comm, error)
         vol, rho, mass = p.owned("volume"), p.owned("density"), p.owned("mass")
-        rho[moved] = new[:, 1]
-        p.owned("velocity")[moved] = new[:, 2:]
+        rho[fitted] = new[:, 1]
+        p.owned("velocity")[fitted] = new[:, 2:]
         if scheme.variant == 0:
-            vol[moved] = new[:, 0]
-            mass[moved] = rho[moved] * vol[moved]
+            vol[fitted] = new[:, 0]
+            mass[fitted] = rho[fitted] * vol[fitted]
         elif scheme.variant == 1:
-            vol[moved] = mass[moved] / rho[moved]
+            vol[fitted] = mass[fitted] / rho[fitted]
         else:
-            mass[moved] = p.owned("volume0")[moved] * rho[moved]
-        p.owned("pressure")[moved] = scheme.eos.pressure(rho[moved])
+            mass[fitted] = p.owned("volume0")[fitted] * rho[fitted]
+        p.owned("pressure")[fitted] = scheme.eos.pressure(rho[fitted])
         self.refresh(system)
         return {"mls_fallbacks": int(allreduce_sum(system.comm, fallbacks))}
 
