@@ -175,10 +175,8 @@ class FreeSurface(NoFreeSurface):
 
 def make_free_surface(scene, pre_procedure=False):
     """FreeSurface where a fluid or static scene has a free surface and its shifting method moves the particles
-    (or, with pre_procedure, for the IIPS pre-procedure, whatever the method); NoFreeSurface elsewhere."""
-    from psph.scene.schema import FLUID_SCHEMES
-
-    shifts = pre_procedure or scene.shifting.method != "none"
-    if scene.physics.scheme in (*FLUID_SCHEMES, "none") and scene.describe_free_surface() and shifts:
+    (or, with pre_procedure, for the IIPS pre-procedure, whatever the method: Scene.shifts_free_surface);
+    NoFreeSurface elsewhere."""
+    if scene.shifts_free_surface(pre_procedure):
         return FreeSurface(scene.free_surface, inflow=bool(scene.inflow))
     return NoFreeSurface()

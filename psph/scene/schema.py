@@ -861,19 +861,32 @@ class Scene:
         return [key for key in keys if self._set(key)]
 
     def detects_free_surface(self) -> bool:
-        """Whether the run detects a free surface, which the free_surface keys tune: the scene has one, and a
-        shifting method (or the IIPS pre-procedure) moves the particles (boundaries.free_surface.
-        make_free_surface), or a delta_ale scheme reads the flags at every step for its tensile switch, its
-        diffusion switch or its clone walls that never pull (schemes.delta_ale.DeltaALE)."""
-        if not self.describe_free_surface():
-            return False
-        scheme, phys = self.physics.scheme, self.physics
-        if scheme in (*FLUID_SCHEMES, "none") and (self.shifting.method != "none" or
-                                                   (scheme != "none" and self.iips.pre_newton > 0)):
-            return True
-        return scheme in FLUID_SCHEMES and scheme != "riemann_ale" and (
-            phys.tensile_switch or self.free_surface.lambda_diffusion > 0.0
-            or (self.has_clone_walls() and not phys.wall_adhesion))
+        """Whether the run detects a free surface, which the free_surface keys tune: a shifting method or the
+        IIPS pre-procedure moves the particles of a scene with one (shifts_free_surface), or a delta_ale
+        scheme reads the flags at every step (switches_free_surface)."""
+        pre = self.physics.scheme != "none" and self.iips.pre_newton > 0
+        return self.shifts_free_surface(pre_procedure=pre) or self.switches_free_surface()
+
+    def shifts_free_surface(self, pre_procedure=False) -> bool:
+        """Whether a fluid or static scene has a free surface and its shifting method (or, with
+        pre_procedure, the IIPS pre-procedure, whatever the method) moves the particles: the shifting is
+        then restricted there (boundaries.free_surface.make_free_surface, thesis eq. 6.29)."""
+        shifts = pre_procedure or self.shifting.method != "none"
+        return shifts and self.physics.scheme in (*FLUID_SCHEMES, "none") and bool(self.describe_free_surface())
+
+    def surface_switches(self) -> bool:
+        """Whether a fluid scheme's switches know the free-surface region: a delta_ale scheme (not
+        riemann_ale) in a scene with a free surface (schemes.delta_ale.DeltaALE)."""
+        scheme = self.physics.scheme
+        return scheme in FLUID_SCHEMES and scheme != "riemann_ale" and bool(self.describe_free_surface())
+
+    def switches_free_surface(self) -> bool:
+        """Whether such a scheme detects the surface at every step: for its tensile switch (off in the
+        free-surface region, seed 004 eq. 3), its diffusion switch (free_surface.lambda_diffusion, seed 001
+        section 6.3) or its clone walls that never pull (physics.wall_adhesion = false)."""
+        phys = self.physics
+        return self.surface_switches() and (phys.tensile_switch or self.free_surface.lambda_diffusion > 0.0
+                                            or (self.has_clone_walls() and not phys.wall_adhesion))
 
     def _set(self, key) -> bool:
         """Whether `key` ("section.name") differs from its default."""

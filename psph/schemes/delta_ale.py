@@ -63,12 +63,12 @@ class DeltaALE:
         # seed 004 eq. 3: the tensile switch stays off in the free-surface region (the surface particles and
         # their neighbours); seed 001 section 6.3: the diffusive terms stay off where lambda is small. A scene
         # with a free surface detects it at every step for them, even without shifting
-        surface = self.name != "riemann_ale" and bool(scene.describe_free_surface())
+        surface = scene.surface_switches()
         self.lambda_diffusion = scene.free_surface.lambda_diffusion if surface else 0.0
         # in the free-surface region a wall pushes and never pulls (physics.wall_adhesion = false)
         self.no_pull = surface and scene.has_clone_walls() and not phys.wall_adhesion
         self.step_surface = None
-        if surface and (self.tensile or self.lambda_diffusion > 0.0 or self.no_pull):
+        if scene.switches_free_surface():
             self.step_surface = self.surface if self.surface.active else FreeSurface(scene.free_surface)
         self.pairs = PairCache()  # the support's pairs, from renormalised_gradient to delta_ale_rhs
         # rows of Kind.INLET and OUTLET keep the fields psph.boundaries.open prescribes
