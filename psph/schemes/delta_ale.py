@@ -277,6 +277,7 @@ class DeltaALE:
             kind = p.owned("kind")
             fixed = (kind == Kind.INLET) | (kind == Kind.OUTLET)
             d_rho[fixed], d_mass[fixed], d_mom[fixed] = 0.0, 0.0, 0.0
+            self._fall_with_gravity(p, kind == Kind.OUTLET, d_mom)
         transport = p.owned("velocity") + (p.owned("shift_velocity") if self.shift.active else 0.0)
         out = {"position": transport, "density": d_rho}
         if self.variant == 0:
@@ -285,6 +286,17 @@ class DeltaALE:
         else:
             out["velocity"] = d_mom
         return out
+
+    def _fall_with_gravity(self, p, outlet, d_mom) -> None:
+        """An outflow buffer's rows (`outlet`, owned) accelerate with gravity within a step: their state is the
+        fluid's extrapolated with zero gradient (psph.boundaries.open), so no pressure or viscous force acts
+        on them, and the momentum equation leaves g. At rest within the step, they lagged the fluid leaving
+        through them by g dt, and the relative velocity compressed the fluid at a face it leaves through and
+        expanded it at one it moves away from: a slab falling through two buffered faces built a pressure
+        gradient that held it at 0.95 g at the default time step (first order in dt: 0.968 g at 5/8 of it,
+        0.984 g at 5/16)."""
+        if np.any(self.gravity) and outlet.any():
+            d_mom[outlet] = self.gravity * (p.owned("mass")[outlet, None] if self.variant == 0 else 1.0)
 
     def shift_and_density_gradient(self, system, t, dt, fluid_only) -> None:
         """The shifting velocity (owned rows, then their halo copies) and the renormalised density gradient
