@@ -306,7 +306,7 @@ def cmd_run(args, petsc_options, comm) -> int:
                                 else None, root=0)
     if failure:
         if comm.rank == 0 and aside is not None:
-            restore_results(out, aside, keep=[log_path] if args.log else [])
+            restore_results(out, aside, keep=[log_path] if args.log else [], clear=not continuing)
         raise UsageError(failure)
     _LOG["path"] = log_path
     log = _say(comm, args.quiet)
@@ -389,7 +389,7 @@ def cmd_run(args, petsc_options, comm) -> int:
         late = stop.requested(comm)
     except BaseException as err:
         if not settled:
-            _unsettled(comm, err, out, aside, fresh, keep=[log_path] if args.log else [])
+            _unsettled(comm, err, out, aside, fresh, continuing, keep=[log_path] if args.log else [])
         raise
     finally:
         stop.uninstall()
@@ -404,11 +404,12 @@ def cmd_run(args, petsc_options, comm) -> int:
     return 0
 
 
-def _unsettled(comm, err, out, aside, fresh, keep) -> None:
+def _unsettled(comm, err, out, aside, fresh, continuing, keep) -> None:
     """A run that ends before it has set up: refused as bad input (found late: a fill region with no lattice
     node, a pre-procedure that leaves nothing for iips.beta to scale), it leaves the directory as it found it,
     the results --overwrite set aside put back (a fuzzing audit found them deleted) and a directory it made
-    removed; any other end (a diagnosed start, a bug) keeps what it wrote, and the set-aside results go.
+    removed (an in-place continuation: what it set aside put back, nothing else removed); any other end (a
+    diagnosed start, a bug) keeps what it wrote, and the set-aside results go.
     Rank 0 moves the files; the log they held is no longer this run's. Collective error: every rank."""
     from psph.io.files import discard_results, restore_results
 
@@ -420,7 +421,7 @@ def _unsettled(comm, err, out, aside, fresh, keep) -> None:
     if not refused:
         discard_results(aside)
         return
-    restore_results(out, aside, keep)
+    restore_results(out, aside, keep, clear=not continuing)
     if fresh and os.path.isdir(out) and not os.listdir(out):
         os.rmdir(out)
 
@@ -428,9 +429,9 @@ def _unsettled(comm, err, out, aside, fresh, keep) -> None:
 def _prepare_output(args, out, log_path, first, continuing, later):
     """Rank 0, before a run: start the log (a log the user named first: refused, it leaves everything else
     untouched), set the directory's results aside (--overwrite: cli._unsettled puts them back if the run is
-    refused while it sets up) or remove what an in-place continuation replaces (`later`). Returns (what
-    failed, in one line, or None; the set-aside results' directory, or None)."""
-    from psph.io.files import set_aside_results
+    refused while it sets up; an in-place continuation: what it replaces, `later`, and copies of what it
+    rewrites). Returns (what failed, in one line, or None; the set-aside results' directory, or None)."""
+    from psph.io.files import set_aside_for_continuation, set_aside_results
 
     aside = None
     try:
@@ -447,8 +448,8 @@ def _prepare_output(args, out, log_path, first, continuing, later):
     except OSError as err:
         return f"output directory {out!r}: {err.strerror or err}", aside
     try:
-        for path in later:  # before the log line that tells of it
-            os.unlink(path)
+        if continuing:  # before the log line that tells of `later`
+            aside = set_aside_for_continuation(out, later, keep=[log_path] if args.log else [])
         if not args.log:
             _start_log(log_path, first)
     except OSError as err:

@@ -404,6 +404,49 @@ def test_bad_input_found_while_the_run_sets_up_keeps_what_overwrite_would_replac
     assert not (out / ".psph_replaced").exists() and json.loads((out / "summary.json").read_text())["steps"] < 6
 
 
+INJECTED_REFUSAL = """
+import sys
+from psph.drivers import fluid
+from psph.errors import SceneError
+build = fluid.FluidDriver._build
+def refuse(self, scene, comm, restart):
+    build(self, scene, comm, restart)
+    raise SceneError("time.t_end", "refused late (injected)")
+fluid.FluidDriver._build = refuse
+from psph.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_a_continuation_refused_while_it_sets_up_leaves_its_directory_as_it_was(tmp_path):
+    """A restarts audit: an in-place continuation refused as bad input before it had set up removed every
+    result in its directory, the checkpoint it continued included (the refusal path cleared the directory as
+    for a fresh run's own files), and the results past the checkpoint before that. No such refusal of a
+    restart exists in psph today (a future one would take this path), so this one is injected after the
+    driver's build. The directory is then byte for byte as it was, and the same continuation without the
+    refusal runs and leaves nothing set aside."""
+    import subprocess
+    import sys
+
+    from tests.helpers import mpi_environment
+
+    out = tmp_path / "out"
+    done = run_psph("run", CASES / "taylor_green.toml", "--out", out, "--quiet", "--set", "domain.dx=0.1", "--set",
+                    "time.t_end=0.02", "--set", "output.checkpoint_every=4", "--set", "output.every=0.005")
+    assert done.returncode == 0, done.stderr
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    checkpoint = out / "checkpoint_000004.h5"  # of 6 steps: two snapshots and the summary past it
+    assert checkpoint.name in before and "snapshot_000004.h5" in before and "summary.json" in before
+    (tmp_path / "inject.py").write_text(INJECTED_REFUSAL)
+    res = subprocess.run([sys.executable, tmp_path / "inject.py", "run", "--restart", checkpoint, "--overwrite",
+                          "--quiet"], capture_output=True, text=True, timeout=300, env=mpi_environment())
+    assert res.returncode == 2 and res.stderr.strip() == "psph: error: time.t_end: refused late (injected)", res.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    res = run_psph("run", "--restart", checkpoint, "--overwrite", "--quiet")
+    assert res.returncode == 0, res.stderr
+    assert not (out / ".psph_replaced").exists() and json.loads((out / "summary.json").read_text())["steps"] > 2
+
+
 ONE_D = ["--set", "domain.dimension=1", "--set", "domain.lower=[0.0]", "--set", "domain.upper=[1.0]", "--set",
          "domain.periodic=[true]"]
 

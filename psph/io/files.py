@@ -133,9 +133,40 @@ def set_aside_results(directory, keep=()):
     return aside if outputs else None
 
 
-def restore_results(directory, aside, keep=()) -> None:
-    """Remove what the refused run wrote in `directory` and put back what set_aside_results moved."""
-    clear_results(directory, keep)
+# what a continuation leaves as it is until it has set up: the snapshots and checkpoints up to its checkpoint
+UNTOUCHED = re.compile(r"(snapshot|checkpoint)_\d{6,}\.h5")
+
+
+def set_aside_for_continuation(directory, later, keep=()):
+    """An in-place continuation: into directory/REPLACED, move what the directory holds past the checkpoint
+    (`later`, io.checkpoint.results_after's, which the continuation replaces) and copy the series it rewrites
+    while it sets up (every own output but the snapshots and checkpoints: history.csv and psph.xdmf from the
+    checkpoint's, the log it appends to), for restore_results(..., clear=False) to put back if it is refused
+    while it sets up, or discard_results to remove once it has. Refused, it had removed every result there, the
+    checkpoint it continued included (a restarts audit), and the results past the checkpoint before it.
+    Returns that directory."""
+    d = Path(directory)
+    aside = d / REPLACED
+    if aside.is_dir() and not aside.is_symlink():
+        shutil.rmtree(aside)
+    aside.mkdir()
+    later = {os.path.realpath(p) for p in later}
+    for path in _own_outputs(d, keep):
+        target = aside / path.relative_to(d)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if os.path.realpath(path) in later:
+            os.replace(path, target)
+        elif not UNTOUCHED.fullmatch(path.name):
+            shutil.copy2(path, target)
+    return aside
+
+
+def restore_results(directory, aside, keep=(), clear=True) -> None:
+    """Remove what the refused run wrote in `directory` (not with clear = False: a continuation's directory,
+    whose results it has not replaced yet) and put back what set_aside_results (or set_aside_for_continuation)
+    moved."""
+    if clear:
+        clear_results(directory, keep)
     if aside is None:
         return
     for path in sorted(p for p in Path(aside).rglob("*") if not p.is_dir()):
