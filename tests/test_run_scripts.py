@@ -133,6 +133,14 @@ def iips_kinematic(out):
     figures(out, "histories.png")
 
 
+def neuhauser_kinematic(out):
+    run_script("neuhauser_kinematic", "--dx", 0.1, "--t-end", 0.01, "--out", out)
+    header, rows = table(out / "table", rows=8)  # no shifting, P_S = 1 .. 20, c0 = 20 and 100
+    finite(header, rows, skip=["run", "thesis fig."])
+    assert [r[6] for r in rows] == ["5", "5", "5", "5", "5", "5", "10", "50"]  # steps: dt = 0.2 dx / c0
+    figures(out, "histories.png")
+
+
 def elliptical_drop(out):
     # to t A0 = 0.25 (the runs of the packing sweep too, whose packing is the same)
     run_script("elliptical_drop", "--resolutions", 10, "--alphas", 0.01, "--alpha-resolution", 10, "--set",
@@ -311,7 +319,8 @@ def bench_flow(out):
 
 SCRIPTS = [iips_vs_explicit, elliptical_drop, dam_break, iips_tradeoff, iips_kinematic, free_surface, tank, ellipse,
            moving_square, iips_static, tgv_operator_error, cavity, tgv_tradeoff, impinging_jet, iips_pair_defects,
-           stability_map, bench_memory, bench_iips, viscous_limit_check, bench_walls, bench_sums, bench_flow]
+           stability_map, bench_memory, bench_iips, viscous_limit_check, bench_walls, bench_sums, bench_flow,
+           neuhauser_kinematic]
 
 
 def test_every_script_is_run_here_or_in_test_studies():

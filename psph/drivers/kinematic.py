@@ -3,12 +3,17 @@ method keeps their distribution regular (thesis 000 section 8.3.2, Algorithms 2-
 
 Each step: one shifting call (IIPS Procedure A or B; explicit shifting = Procedure C), then the
 displacement of thesis eq. 8.33, dx_i = u(x_i) dt with the Taylor-Green field at t = 0 (explicit
-Euler), dt = cfl dx / c0, the last step shortened to end at t_end. Before the first step the shifting's
-static pre-procedure runs (`iips.pre_newton`). history.csv: one row every `output.history_every` steps with
-Linf/L2(grad C) and L2(d f/dx) after the shifting (Algorithms 2-3, line 9), at the time the shifting was
-applied (the step's start: the step's advection follows), Newton and KSP iterations, and cumulative
-shifting and step times; summary.json's final values are the last row's (with its time), while the last snapshot
-holds the state after the last advection, at t_end.
+Euler), dt = cfl dx / c0, the last step shortened to end at t_end. An explicit law of a fluid scheme
+(shifting.method = delta_plus, lind, skillen, oger, neuhauser: psph.shifting.velocity) shifts instead
+through the transport velocity, dx_i = (u(x_i) + du_i) dt, du from the law with the frozen field as the
+fluid's velocity: thesis ch. 7's runs with "the initial analytical solution imposed during the entire
+simulation" (figs. 7.1, 7.4); the volumes stay dx^d, so the fictitious pressure is refused. Before the
+first step the shifting's static pre-procedure runs (`iips.pre_newton`). history.csv: one row every
+`output.history_every` steps with Linf/L2(grad C) and L2(d f/dx) after the shifting (Algorithms 2-3, line
+9), at the time the shifting was applied (the step's start: the step's advection follows; an explicit
+law's shifting is part of the advection), Newton and KSP iterations, and cumulative shifting and step
+times; summary.json's final values are the last row's (with its time), while the last snapshot holds the
+state after the last advection, at t_end.
 """
 
 import math
@@ -17,9 +22,11 @@ import time
 from psph.analytic import taylor_green
 from psph.diagnostics import distribution_report, grad_c
 from psph.drivers.base import Driver, resumed_state
+from psph.particles import FieldSpec
 from psph.profiling import phase
 from psph.shifting import make_shifting
 from psph.shifting.iips import pre_procedure
+from psph.shifting.velocity import make_velocity_shift
 from psph.simulation import Simulation
 from psph.stop import checkpoint_message
 
@@ -30,6 +37,8 @@ def step_count(t_end, dt) -> int:
 
 
 class KinematicDriver(Driver):
+    walls = None  # what an explicit law reads of the scheme it shifts in (shift_by_law): a bi-periodic box
+
     @staticmethod
     def describe(scene) -> list:
         p, t = scene.physics, scene.time
@@ -39,12 +48,18 @@ class KinematicDriver(Driver):
         return [f"physics kinematic: frozen {p.velocity_field} field (thesis eq. 8.33), U = {p.reference_velocity:g}, "
                 f"explicit Euler, dt = {t.cfl:g} dx / c0 = {dt:.4g}, {n_steps} steps to t = {t.t_end:g}"
                 + (f" (the last of {last:.4g})" if abs(last - dt) > 1e-9 * dt else ""),
-                f"diagnostics: Linf/L2(grad C), L2(d f/dx) (wavelength {scene.diagnostics.test_wavelength:g})"]
+                f"diagnostics: Linf/L2(grad C), L2(d f/dx) (wavelength {scene.diagnostics.test_wavelength:g})"
+                ] + ([f"{law.describe()}; transport velocity u + du"] if (law := make_velocity_shift(scene)).active
+                     else [])
 
     def __init__(self, scene, comm, out_dir, log=None, progress=False, restart=None):
         """restart: io.checkpoint.read_checkpoint's (state, particles, decomposition), to continue a run."""
         self.scene = scene
-        self.sim = Simulation(scene, comm, out_dir, log=log, progress=progress, restart=restart)
+        self.law = make_velocity_shift(scene)  # an explicit law's; inactive for iips, explicit_iterative, none
+        specs = ()
+        if self.law.active:
+            specs = (FieldSpec("velocity", ("d",)), FieldSpec("shift_velocity", ("d",)), *self.law.fields)
+        self.sim = Simulation(scene, comm, out_dir, specs=specs, log=log, progress=progress, restart=restart)
         with self.closing_on_failure():
             self.shifting = make_shifting(scene, self.sim.comm)
             self.resumed = resumed_state(restart, scene)
@@ -65,14 +80,32 @@ class KinematicDriver(Driver):
         first, t0 = self.origin
         return self.scene.time.t_end if step >= self.n_steps else t0 + (step - first) * self.dt
 
+    def frozen_field(self, pos):
+        """The frozen field's velocity at `pos` (thesis eq. 8.33: Taylor-Green at t = 0)."""
+        return taylor_green(pos, 0.0, U=self.scene.physics.reference_velocity, L=self.length,
+                            lower=self.scene.domain.lower)[0]
+
     def advect(self, dt):
-        """Move the owned particles over dt by the frozen field (thesis eq. 8.33) and refresh. Collective."""
+        """Move the owned particles over dt by the frozen field (thesis eq. 8.33), plus an explicit law's
+        shifting velocity (shift_by_law), and refresh. Collective."""
         system = self.sim.system
-        pos = system.particles.owned("position")
-        vel, _ = taylor_green(pos, 0.0, U=self.scene.physics.reference_velocity, L=self.length,
-                              lower=self.scene.domain.lower)
+        p = system.particles
+        pos = p.owned("position")
+        vel = self.frozen_field(pos)
+        if self.law.active:
+            self.law.end_step(system, self, dt)  # Neuhauser's memory: this step's transport velocity
+            vel = vel + p.owned("shift_velocity")
         pos += dt * vel
         system.update()
+
+    def shift_by_law(self, dt) -> None:
+        """An explicit law's shifting velocity du for the step of dt about to be taken (owned rows of
+        shift_velocity), the frozen field's velocity at the particles standing for the fluid's. Collective."""
+        system = self.sim.system
+        p = system.particles
+        p.owned("velocity")[:] = self.frozen_field(p.owned("position"))
+        system.refresh(["velocity"])
+        self.law.velocity(system, self, dt)
 
     def start(self, totals) -> dict:
         """Pre-procedure, the history's first row and the first snapshot; returns the distribution report."""
@@ -85,6 +118,9 @@ class KinematicDriver(Driver):
             threshold = getattr(self.shifting, "threshold", None)
             sim.log(f"pre-procedure: {iterations} IIPS iterations, Linf(grad C) = {init_linf:.4e}"
                     + (f", threshold {threshold:.4e}" if threshold else ""))
+        if "transport_velocity" in system.particles:  # Neuhauser's v0 of the step before the first
+            p = system.particles
+            p.owned("transport_velocity")[:] = self.frozen_field(p.owned("position"))
         report = distribution_report(system, self.scene.diagnostics.test_wavelength)
         sim.history.append({"time": 0.0, "step": 0, **report, "newton": 0, "ksp_iterations": 0, **totals})
         sim.snapshots.write(system.particles, step=0, time=0.0, extra={"grad_c": grad_c(system)})
@@ -124,8 +160,11 @@ class KinematicDriver(Driver):
                 state["step"] = step
                 system.where = {"step": step, "time": state["time"]}
                 start = time.perf_counter()
+                t = self.step_time(step)
                 with phase("shifting"):
                     shift = self.shifting.correct(system, step=step, time=state["time"])
+                    if self.law.active:
+                        self.shift_by_law(t - state["time"])
                 shift_time = time.perf_counter() - start
                 if shift.failed:
                     totals["failed_calls"] += 1
@@ -134,7 +173,6 @@ class KinematicDriver(Driver):
                 record = step % scene.output.history_every == 0 or step == self.n_steps
                 if record:  # the shifted distribution, before this step's advection
                     report, self.report_time = distribution_report(system, wavelength), state["time"]
-                t = self.step_time(step)
                 with phase("advect"):
                     self.advect(t - state["time"])
                 state["time"] = t

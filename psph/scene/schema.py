@@ -448,8 +448,8 @@ def _methods_named(doc: str) -> set:
 @dataclass(frozen=True)
 class ShiftingSpec:
     method: str = option("none", doc="particle shifting: none, iips, explicit_iterative (static and kinematic "
-                         "runs), or an explicit law inside a fluid scheme: lind, skillen, oger, delta_plus, "
-                         "neuhauser", choices=SHIFTING_METHODS)
+                         "runs), or an explicit law inside a fluid scheme or a kinematic run: lind, skillen, oger, "
+                         "delta_plus, neuhauser", choices=SHIFTING_METHODS)
     diffusion: float = option(0.4, doc="explicit_iterative: D / h^2 in dx = -D grad C (thesis eq. 6.13). Lind et "
                               "al.'s 0.5 diverges with Wendland C6 at h/dx = 2 (stable up to 0.47; 0.40 at h/dx = "
                               "1.6, 0.27 at 1.3: a run above its kernel's limit is warned about)", gt=0.0, le=10.0)
@@ -1072,13 +1072,13 @@ class Scene:
         if fluid and method == "explicit_iterative":
             raise SceneError("shifting.method", "explicit_iterative is for static and kinematic runs; fluid "
                              "schemes take iips or an explicit law (lind, skillen, oger, delta_plus, neuhauser)")
-        if not fluid and method in EXPLICIT_LAWS:
-            raise SceneError("shifting.method", f"{method} shifts inside a fluid scheme; physics.scheme is "
-                             f"{self.physics.scheme!r}")
+        if method in EXPLICIT_LAWS and not (fluid or self.physics.scheme == "kinematic"):
+            raise SceneError("shifting.method", f"{method} shifts inside a fluid scheme or a kinematic run; "
+                             f"physics.scheme is {self.physics.scheme!r}")
         if (method == "neuhauser" and self.shifting.fictitious_pressure
-                and self.physics.scheme == "delta_ale_const_volume"):  # (an audit of the explicit laws)
+                and self.physics.scheme in ("delta_ale_const_volume", "kinematic")):  # (an audit of the laws)
             raise SceneError("shifting.fictitious_pressure", "P^F = p_ref V0 / V (thesis eq. 7.3) is p_ref "
-                             "throughout under physics.scheme = \"delta_ale_const_volume\", whose volumes stay V0: "
+                             f"throughout under physics.scheme = {self.physics.scheme!r}, whose volumes stay V0: "
                              "it would be Neuhauser with P_S = 1 (set shifting.neuhauser_ps = 1 for that)")
         if fluid and self.time.t_end <= 0.0:
             raise SceneError("time.t_end", "a fluid run needs t_end > 0")

@@ -38,6 +38,10 @@ def run(scene, comm, out):
                             "iips.threshold=1e-3"], 1e-9),
     ("kinematic_tgv.toml", ["time.t_end=0.02", "iips.pre_newton=0", "iips.beta=0", "shifting.method=explicit_iterative",
                             "shifting.iterations_per_step=1", "shifting.diffusion=0.01"], 1e-12),
+    ("kinematic_tgv.toml", ["time.t_end=0.02", "iips.pre_newton=0", "iips.beta=0", "shifting.method=neuhauser"],
+     1e-12),  # an explicit law's transport velocity (its memory read across the halo)
+    ("kinematic_tgv.toml", ["time.t_end=0.02", "iips.pre_newton=0", "iips.beta=0", "shifting.method=delta_plus"],
+     1e-12),
 ])
 def test_static_and_kinematic_runs_match_serial(comm, mpi_tmp_path, case, sets, tol):
     scene = load_scene(CASES / case, ["domain.dx=0.05", "output.every=0", *sets])

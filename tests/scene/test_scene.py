@@ -511,6 +511,12 @@ def test_the_fictitious_pressure_is_refused_where_the_volumes_stay_constant():
         load_scene(CASES / "taylor_green.toml", [*sets, "physics.scheme=delta_ale_const_volume"])
     assert info.value.key == "shifting.fictitious_pressure" and "neuhauser_ps = 1" in str(info.value)
     assert load_scene(CASES / "taylor_green.toml", [*sets, "physics.scheme=delta_ale_const_mass"])
+    with pytest.raises(SceneError) as info:  # a kinematic run's volumes stay dx^d
+        load_scene(CASES / "kinematic_tgv.toml", sets)
+    assert info.value.key == "shifting.fictitious_pressure" and "'kinematic'" in str(info.value)
+    assert load_scene(CASES / "kinematic_tgv.toml", sets[:2]).shifting.method == "neuhauser"
+    with pytest.raises(SceneError, match="inside a fluid scheme or a kinematic run; physics.scheme is 'none'"):
+        load_scene(CASES / "static_perturbed.toml", ["shifting.method=delta_plus"])
 
 
 def test_a_scene_saved_with_a_byte_order_mark_loads(tmp_path):
