@@ -101,6 +101,39 @@ def test_the_frame_meets_an_off_lattice_tanks_walls_and_the_fill_keeps_its_volum
     assert system.particles.owned("position")[fluid][:, 1].max() < 1.0
 
 
+@pytest.mark.parametrize("dx", [0.1, 0.05, 0.025])
+def test_a_column_inside_an_off_lattice_tank_keeps_its_volume_and_its_frame_stands_dx_off(dx):
+    """A second packing audit: the dam-break column (B x H = 2 x 1 in a tank 5.367 wide, off the lattice)
+    took V_tot from the walls' fitted cells whose centres it held, which are not its own: -0.61% / +0.32% /
+    -0.15% at dx = 0.1 / 0.05 / 0.025, and the flow's mass with it; the frame beside its side stood on those
+    fitted columns, 0.88-1.13 dx from its last one. V_tot is now B H, and the frame continues the column's
+    own rows (its first dx beyond the last), while above the column it still meets the walls."""
+    from psph.packing import fluid_volume
+
+    scene = load_scene(CASES / "dam_break.toml", [f"domain.dx={dx}", "output.probes=[]"])
+    assert fluid_volume(scene) == pytest.approx(2.0, rel=1e-12)
+    frame = frame_positions(scene)
+    beside = frame[frame[:, 1] < 1.0]  # right of the column
+    last = (math.floor(2.0 / dx - 0.5) + 0.5) * dx
+    assert np.allclose(np.unique(np.round(beside[:, 0], 9)), last + dx * np.arange(1, 5))
+    above = frame[frame[:, 1] > 1.0]  # on the walls' fitted columns, 5.367 / n apart: the first dx from the left
+    assert above[:, 0].min() == pytest.approx(5.367 / round(5.367 / dx) / 2.0)  # wall's first solid row, -dx/2
+
+
+def test_a_packing_is_at_rest_only_after_a_damping_time():
+    """A second packing audit: the particles start at rest, and with packing.cfl = 1e-4 the first step's T,
+    (dt |grad Gamma|)^2 / 2, was below the tolerance: "converged" after one iteration, the drop still its
+    lattice (Linf(grad Gamma) h 0.255). T now counts from one damping time on, unless the forces are too weak
+    to set anything moving (a lattice start at rest still stops at once: the trapezoidal tank)."""
+    scene = drop_scene(10, "packing.cfl=1e-4", "packing.iterations=20")
+    report = pack(scene, build_system(scene, MPI.COMM_SELF))
+    assert not report["converged"] and report["iterations"] == 20
+    assert report["Linf_grad_gamma"] == pytest.approx(report["Linf_grad_gamma_start"], rel=1e-3)
+    lattice = load_scene(CASES / "trapezoidal_tank.toml", ["domain.dx=0.1", "packing.iterations=100"])
+    report = pack(lattice, build_system(lattice, MPI.COMM_SELF))
+    assert report["converged"] and report["iterations"] == 1
+
+
 def test_a_packing_that_pairs_particles_stops(monkeypatch):
     """A packing audit: the cubic spline at h/dx = 2 (now refused by the scene) stacked particles on each
     other with grad Gamma small, and the run went on. Any kernel's pairing stops the run, naming a particle:

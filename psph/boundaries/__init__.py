@@ -54,6 +54,13 @@ def extended_lattice(scene, lower=None, upper=None):
     shifting drove the fluid particles there, through the floor (README "Dam break"). Fitted rows drift
     from the fluid's lattice, which starts at the domain's lower corner: by 0.13 dx under the dam-break
     column's right end at H/dx = 20. Each point's volume is the product of its spacings."""
+    axes, spacings = lattice_rows(scene, lower, upper)
+    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, scene.domain.dimension)
+    return points, np.prod(np.stack(np.meshgrid(*spacings, indexing="ij"), axis=-1), axis=-1).ravel()
+
+
+def lattice_rows(scene, lower=None, upper=None):
+    """extended_lattice's rows along each axis: ([coordinates per axis], [spacings per axis])."""
     d = scene.domain
     m = int(np.ceil((thickness(scene) + d.dx) / d.dx))
     fitted = lower is not None
@@ -79,8 +86,7 @@ def extended_lattice(scene, lower=None, upper=None):
             axis = np.concatenate([lower[a] - rows[::-1] * d.dx, inner, upper[a] + rows * d.dx])
         axes.append(axis)
         spacings.append(spacing)
-    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, d.dimension)
-    return points, np.prod(np.stack(np.meshgrid(*spacings, indexing="ij"), axis=-1), axis=-1).ravel()
+    return axes, spacings
 
 
 def solid_arrays(scene, rank, size, first_gid):
