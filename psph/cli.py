@@ -22,6 +22,17 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(message)
 
 
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0 (the benchmarks' timing budgets)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not 0.0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
+
+
 def positive_int(text: str) -> int:
     """argparse type: an integer >= 1 (a rank count, a size; also the benchmarks')."""
     try:

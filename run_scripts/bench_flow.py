@@ -20,9 +20,9 @@ import numpy as np
 from mpi4py import MPI
 
 from psph import profiling
-from psph.cli import positive_int
+from psph.cli import positive_float, positive_int
 from psph.scene.load import scene_from_table
-from psph.scene.schema import FLUID_SCHEMES
+from psph.scene.schema import EXPLICIT_LAWS, FLUID_SCHEMES
 from psph.schemes import make_scheme
 from psph.simulation import build_system
 
@@ -36,8 +36,10 @@ def diffusion(scheme, delta) -> dict:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=positive_int, nargs="+", default=[100, 200], help="particles per side")
-    parser.add_argument("--shifting", nargs="+", default=["none", "delta_plus"])
-    parser.add_argument("--seconds", type=float, default=4.0, help="minimum timed wall time per case")
+    parser.add_argument("--shifting", nargs="+", default=["none", "delta_plus"], choices=["none", *EXPLICIT_LAWS],
+                        help="an explicit law (IIPS shifts between steps, outside the right-hand side: "
+                             "bench_iips.py)")
+    parser.add_argument("--seconds", type=positive_float, default=4.0, help="minimum timed wall time per case")
     parser.add_argument("--scheme", default="delta_ale", choices=FLUID_SCHEMES)
     parser.add_argument("--delta", type=float, nargs="+", default=[0.1],
                         help="physics.delta (and delta_m): 0 is standard SPH, whose diffusive terms cost nothing "

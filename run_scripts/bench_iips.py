@@ -7,24 +7,33 @@ of the matrix.
     ... [PETSc options, e.g. -iips_pc_type hypre]
 
 Bandwidth: a single-core STREAM triad (a = b + s c, numba, 3 x 8 bytes per element, best of 5) measured
-in the same process. Bound of one BCGS + Jacobi iteration: two matrix-vector products at 12 bytes per
-nonzero for AIJ (8 value + 4 column index; 8 + 4 / d^2 for BAIJ, one index per d x d block) plus 16
-bytes per row (row pointer, result), and about 20 vector sweeps of 8 bytes per row (the BCGS axpys and
-dot products, the Jacobi scaling). With `--operator matrix_free` (iips.operator) the product reads
-per stored pair (a pair of the rank's own unknowns is stored once) its d (d + 1) / 2 Hessian entries and
-one 4-byte column (8 x 3 + 4 bytes in 2-D), per particle its row pointer (8 bytes), and per scalar row
-copies x into the product's input, scales it by the volumes and writes the result (52 bytes); the vector
-sweeps are the same.
+in the same process. Bound of one BCGS + Jacobi iteration: two matrix-vector products and 27 vector sweeps
+of 8 bytes per row (PETSc's event counts per iteration: 2 VecDot and 1 VecDotNorm2, 2 x 2 + 2 reads; 1
+VecNorm, 1; 2 VecAXPBYPCZ, 2 x 4; 2 VecWAXPY, 2 x 3; 2 Jacobi VecPointwiseMult, 2 x 3; a benchmark
+audit: the script counted 20). An AIJ product reads 8 bytes per nonzero and a 4-byte column index per
+nonzero of each I-node (PETSc groups the d rows of a particle, whose columns are the same: 8 + 4 / d per
+nonzero; BAIJ, one index per d x d block: 8 + 4 / d^2), and per row its row pointer (PetscInt), x and
+the result (the script counted 12 bytes per nonzero). With `--operator matrix_free` (iips.operator) the
+product reads per stored pair (a pair of the rank's own unknowns is stored once) its d (d + 1) / 2
+Hessian entries and one 4-byte column (8 x 3 + 4 bytes in 2-D), per particle its row pointer (8 bytes),
+and per scalar row copies x into the product's input, scales it by the volumes and writes the result (52
+bytes). OpenBLAS, which PETSc's dot products and norms call, runs on one thread (OPENBLAS_NUM_THREADS = 1
+unless set): its threads took 15-50% of the solve on a loaded machine, and the second core on an idle one.
 """
 
 import argparse
+import os
 import sys
 import time
 
-import numpy as np
-from numba import njit
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy and PETSc load OpenBLAS
 
-from psph.cli import positive_int, split_petsc_options
+import numpy as np  # noqa: E402
+from numba import njit  # noqa: E402
+
+from psph.cli import positive_int, split_petsc_options  # noqa: E402
+
+SWEEPS = 27  # vectors of 8 bytes per row read or written per BCGS + Jacobi iteration (docstring)
 
 
 @njit(cache=True)
@@ -48,7 +57,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=positive_int, nargs="+", default=[200, 400], help="particles per side")
     parser.add_argument("--iterations", type=positive_int, default=3,
-                        help="timed Newton iterations (after one warm-up)")
+                        help="timed Newton iterations (after two warm-up calls)")
     parser.add_argument("--operator", choices=["assembled", "matrix_free"], default="assembled",
                         help="iips.operator (default: the assembled AIJ matrix, whose bandwidth bound is printed; "
                              "a scene's default is matrix-free)")
@@ -84,7 +93,10 @@ def main():
             "iips": {"max_newton": 1, "operator": args.operator}})
         system = build_system(scene, comm)
         shifting = ImplicitShifting(scene.iips, comm)
-        shifting.correct(system)  # warm-up: compiles, builds the matrix structure
+        # warm-up: compiles and builds the matrix structure; the first call's step rebuilds the neighbour lists
+        # at its end, whose structure the second builds (timed, it stood beside the rebuild's untimed search)
+        shifting.correct(system)
+        shifting.correct(system)
         profiling.reset()
         its = 0
         comm.Barrier()
@@ -106,8 +118,9 @@ def main():
         else:
             nnz = shifting.mat.getInfo(petsc().Mat.InfoType.LOCAL)["nz_used"]  # this rank's (the default sums)
             stored = "nonzeros"
-            product = (8 + 4 / (d ** 2 if "baij" in kind else 1)) * nnz + 16 * rows
-        bound = (2 * product + 20 * 8 * rows) / bandwidth
+            index = np.dtype(petsc().IntType).itemsize
+            product = (8 + 4 / (d ** 2 if "baij" in kind else d)) * nnz + (index + 16) * rows
+        bound = (2 * product + SWEEPS * 8 * rows) / bandwidth
         worst = {k: allreduce_max(comm, v) for k, v in split.items()}
         per_its_max = allreduce_max(comm, per_its)
         bound_max = allreduce_max(comm, bound)

@@ -20,6 +20,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from psph.cli import positive_int  # (psph.cli loads neither MPI nor numpy)
+
 ROOT = Path(__file__).resolve().parent.parent
 D3 = ["domain.dimension=3", "domain.lower=[0,0,0]", "domain.upper=[1,1,1]", "domain.periodic=[true,true,true]"]
 STATIC = ["shifting.method=iips", "iips.max_newton=2"]
@@ -70,11 +72,13 @@ def estimate(scene, sets, ranks):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--ranks", type=int, nargs="+", default=[1])
+    parser.add_argument("--ranks", type=positive_int, nargs="+", default=[1])
     parser.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
     parser.add_argument("--dx", type=float, nargs=2, metavar=("DX0", "DX1"),
                         help="the two grid spacings of every case (default: each case's own)")
     args = parser.parse_args()
+    if args.dx and args.dx[0] == args.dx[1]:  # (the growth per particle divides by their counts' difference)
+        parser.error(f"--dx: two different grid spacings, got {args.dx[0]:g} twice")
     mib = 2**20
     print(f"{'case':>14} {'ranks':>5} {'particles':>9} {'peak/rank MiB':>13} {'estimate MiB':>12} {'ratio':>6}   "
           f"growth per particle: measured / estimate [bytes]")

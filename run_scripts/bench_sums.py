@@ -20,7 +20,7 @@ import numpy as np
 from mpi4py import MPI
 from numba import njit
 
-from psph.cli import positive_int
+from psph.cli import positive_float, positive_int
 from psph.compute import sums
 from psph.compute.field_update import mls_interpolate
 from psph.compute.neighbours import build_cross_lists, build_neighbour_lists
@@ -88,7 +88,7 @@ def lattice_scene(n):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=positive_int, nargs="+", default=[100, 200, 400], help="particles per side")
-    parser.add_argument("--min-time", type=float, default=0.3,
+    parser.add_argument("--min-time", type=positive_float, default=0.3,
                         help="minimum wall time of each timed repetition, in seconds (default 0.3)")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
