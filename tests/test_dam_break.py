@@ -61,6 +61,23 @@ def test_the_surge_runs_behind_ritter_and_keeps_its_mass(tmp_path):
     assert rows[0]["potential_energy"] == pytest.approx(expected, rel=1e-12)
 
 
+def test_a_flow_faster_than_the_shifting_laws_reference_velocity_is_warned_about(tmp_path):
+    """A delta-ALE audit: the dam break reaches 3.2 sqrt(g H) against physics.reference_velocity = 1, the
+    U_max of delta+'s strength and cap (seed 001 eq. 16-17), and nothing said so. Here U = 0.5: by t = 1 the
+    front runs at over 2 U, and the log says so once, naming the key; at U = 1 it stays under 2 U, silent."""
+    said = {}
+    for u, t_end in ((0.5, 1.0), (1.0, 1.0)):
+        scene = load_scene(CASES / "dam_break.toml", ["domain.dx=0.1", f"time.t_end={t_end}", "output.every=0",
+                                                       "output.probes=[]", f"physics.reference_velocity={u}"])
+        lines = said[u] = []
+        with FluidDriver(scene, MPI.COMM_SELF, tmp_path / str(u), log=lines.append) as driver:
+            driver.run()
+    warnings = [line for line in said[0.5] if line.startswith("psph: warning: step ")]
+    assert len(warnings) == 1 and ", 2 times physics.reference_velocity = 0.5, which shifting.method = " \
+        "'delta_plus' takes for the flow's largest speed" in warnings[0], said[0.5]
+    assert not [line for line in said[1.0] if "warning" in line]
+
+
 @pytest.mark.long
 def test_the_film_on_the_right_wall_is_not_shifted_through_it(tmp_path):
     """H/dx = 10 to t sqrt(g/H) = 5.5: the run-up's film on the right wall stays in the tank, no particle

@@ -45,6 +45,7 @@ from psph.system import ListsExpired
 
 DT_COLLAPSE = 1e-6  # a time step below this fraction of the first one is a breakdown
 RECOVERY_STEPS = 10  # time.retries: steps without a failure before a halved time step doubles again
+FAST_FLOW = 2.0  # FluidDriver.check_reference_velocity: transport speeds (u + du, du <= U / 2) above this x U
 
 
 class TaylorGreenReference:
@@ -296,6 +297,7 @@ class FluidDriver(Driver):
         self.initial_volume = allreduce_sum(self.sim.comm, float(
             self.system.particles.owned("volume")[fluid_mask(self.system)].sum()))
         self.first_dt = None
+        self.fast_flow_told = False  # (check_reference_velocity, once per run segment)
         # time.retries: the halvings of the time step in effect, and the steps since the last change (a
         # checkpoint carries both, so a restart continues bit for bit; older ones were written at 0, 0)
         self.halvings, self.calm = 0, 0
@@ -500,6 +502,23 @@ class FluidDriver(Driver):
         self.scheme.initialize(self.system, t=t, fresh=False)
 
     # ---------------------------------------------------------------- pieces
+    def check_reference_velocity(self, vmax, state) -> None:
+        """Warn (the log, once) when the particles move faster than FAST_FLOW x physics.reference_velocity U
+        and the shifting law takes U for the flow's largest speed: delta_plus's du = -Ma 2h c0 grad C^ with
+        Ma = U / c0 and its cap U / 2 (seed 001 eq. 16-17), Lind's cap U / 2, Oger's U_char. The dam break
+        (U = 1 by default) reaches 3.2 sqrt(g H): its shifting was 2-3 times weaker than seed 001's law
+        and its cap as much tighter, without a word (a delta-ALE audit)."""
+        phys = self.scene.physics
+        if (self.fast_flow_told or self.scene.shifting.method not in ("delta_plus", "lind", "oger")
+                or vmax <= FAST_FLOW * phys.reference_velocity):
+            return
+        self.fast_flow_told = True
+        self.sim.log(f"psph: warning: step {state['step'] + 1}, t = {state['time']:.6g}: the particles move at "
+                     f"{vmax:.4g}, {vmax / phys.reference_velocity:.2g} times physics.reference_velocity = "
+                     f"{phys.reference_velocity:g}, which shifting.method = {self.scene.shifting.method!r} takes "
+                     "for the flow's largest speed (its strength and cap scale with it): set it to about the "
+                     "largest speed the flow reaches")
+
     def time_step(self) -> float:
         s, scheme = self.scene, self.scheme
         h = self.system.kernel.h
@@ -641,6 +660,7 @@ class FluidDriver(Driver):
                 start = time.perf_counter()
                 dt, vmax = self.time_step()
                 self.first_dt = self.first_dt or dt
+                self.check_reference_velocity(vmax, state)
                 allowed = dt * 0.5 ** self.halvings
                 dt = min(allowed, t_end - state["time"])
                 saved = ((dict(state), system.particles.owned_arrays(), self.open.checkpoint_state())
