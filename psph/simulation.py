@@ -76,7 +76,10 @@ class Simulation:
         self.system = build_system(scene, self.comm, specs, halo_fields, particles, decomposition)
         self.snapshots = SnapshotWriter(self.comm, self.out_dir, self.system.domain, run=self.run)
         self.history = History(self.comm, self.out_dir)
-        self.n_particles = self.system.n_global
+        # the run's particle count at its start: a continuation's is the checkpoint's record, not the count it
+        # holds (open boundaries emit and remove particles: a continued jet's summary said 2016 against 1936,
+        # a restarts audit; a checkpoint of an older psph carries none)
+        self.n_particles = int((state or {}).get("n_particles", self.system.n_global))
         self.replaced_checkpoints = []  # rank 0: what the next checkpoint replaces (this run's own)
         if state is not None:
             from psph.io.checkpoint import checkpoints_up_to
@@ -120,7 +123,8 @@ class Simulation:
         self.system.rebuild(rebalance=False)
         path = write_checkpoint(self.comm, self.out_dir, self.system, step, t, {
             "scene": to_table(self.scene), "driver": driver, "history": self.history.rows,
-            "snapshots": self.snapshots.checkpoint_state(), "wall_time_s": self.wall_time(), "run": self.run},
+            "snapshots": self.snapshots.checkpoint_state(), "wall_time_s": self.wall_time(), "run": self.run,
+            "n_particles": self.n_particles},
             replaces=self.replaced_checkpoints)
         self.replaced_checkpoints = [path]
         self.log(f"step {step}, t = {t:.4g}: checkpoint {path.name}")
