@@ -222,7 +222,15 @@ def _scene_and_restart(args, comm):
         if driver_for(saved) is StaticDriver:
             raise UsageError(f"cannot restart from {args.restart!r}: its scene is a static run (physics.scheme = "
                              "'none'), which writes no checkpoints")
-        scene = scene_from_table(apply_overrides(restart[0]["scene"], sets))
+        try:
+            scene = scene_from_table(apply_overrides(restart[0]["scene"], sets))
+        except SceneError as err:  # the checkpoint's scene passed: an override made it fail, and a key that
+            # only the checkpoint sets cannot be changed back (a restarts audit: a t_end that took a moving
+            # body into a wall was refused as 'bodies[1].motion')
+            given = list(dict.fromkeys(item.split("=", 1)[0].strip() for item in sets))
+            if err.key in given or not given:
+                raise
+            raise SceneError(" / ".join(given), str(err)) from None
     elif args.scene:
         scene = load_scene(args.scene, sets)
     else:

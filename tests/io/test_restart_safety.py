@@ -554,3 +554,18 @@ def test_a_checkpoint_with_a_fluid_particle_inside_a_wall_stops_at_its_step(tmp_
     assert done.returncode == 3 and len(lines) == 1, done.stderr
     assert lines[0].startswith(f"psph: error: a fluid particle crossed the wall of body 'tank' [step {step}, t = ")
     assert f"particle gid {gid}, at (-0.3, 0.5)]" in lines[0]
+
+
+def test_a_restart_whose_override_a_moving_body_cannot_take_names_that_override(tmp_path):
+    """A restarts audit: a t_end that takes the moving square into its tank's wall was refused as
+    'bodies[1].motion', a key a restart cannot change; the key to change back is the override's."""
+    out = tmp_path / "out"
+    done = run_psph("run", CASES / "moving_square.toml", "--out", out, "--quiet", "--set", "domain.dx=0.2", "--set",
+                    "time.t_end=0.05", "--set", "output.checkpoint_every=10", "--set", "shifting.method=none",
+                    "--set", "iips.update=none")
+    assert done.returncode == 0, done.stderr
+    res = run_psph("run", "--restart", out / "checkpoint_000010.h5", "--set", "time.t_end=10", "--out",
+                   tmp_path / "longer", "--quiet")
+    assert res.returncode == 2 and res.stderr.startswith("psph: error: time.t_end: bodies[1].motion: 'square' "
+                                                         "comes within dx of the walls of bodies[0]"), res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1 and not (tmp_path / "longer").exists()
