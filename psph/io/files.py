@@ -119,18 +119,14 @@ def set_aside_results(directory, keep=()):
     be put back by restore_results if the new run is refused while it sets up (bad input found late: a fill
     region holding no lattice node, a pre-procedure that leaves nothing for iips.beta to scale; a fuzzing
     audit found the old results deleted by then), or removed by discard_results once it has set up.
-    Returns that directory, or None if nothing was there. A REPLACED left by a run killed while it set up
-    holds the run before the one it replaced, and is removed."""
+    Returns that directory, or None if nothing was there (a REPLACED left over is removed all the same)."""
     d = Path(directory)
-    aside = d / REPLACED
-    if aside.is_dir() and not aside.is_symlink():
-        shutil.rmtree(aside)
     outputs = _own_outputs(d, keep)
-    for path in outputs:
-        target = aside / path.relative_to(d)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(path, target)
-    return aside if outputs else None
+    if outputs:
+        return _set_aside(d, move=outputs)
+    if (d / REPLACED).is_dir() and not (d / REPLACED).is_symlink():
+        shutil.rmtree(d / REPLACED)
+    return None
 
 
 # what a continuation leaves as it is until it has set up: the snapshots and checkpoints up to its checkpoint
@@ -146,18 +142,37 @@ def set_aside_for_continuation(directory, later, keep=()):
     checkpoint it continued included (a restarts audit), and the results past the checkpoint before it.
     Returns that directory."""
     d = Path(directory)
+    later = {os.path.realpath(p) for p in later}
+    outputs = _own_outputs(d, keep)
+    return _set_aside(d, move=[p for p in outputs if os.path.realpath(p) in later],
+                      copy=[p for p in outputs if os.path.realpath(p) not in later and not UNTOUCHED.fullmatch(p.name)])
+
+
+def _set_aside(d, move=(), copy=()):
+    """Move `move` and copy `copy` (paths in directory d or its figures/) into d/REPLACED, all or nothing: a
+    failure part way (a full disk, a dangling link) moves back what it moved and removes REPLACED, then
+    raises (it had left an in-place continuation's later results in REPLACED, which the next run removed: a
+    review). A REPLACED left by a run killed while it set up holds the run before the one it replaced, and
+    is removed first. Returns REPLACED."""
     aside = d / REPLACED
     if aside.is_dir() and not aside.is_symlink():
         shutil.rmtree(aside)
-    aside.mkdir()
-    later = {os.path.realpath(p) for p in later}
-    for path in _own_outputs(d, keep):
-        target = aside / path.relative_to(d)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        if os.path.realpath(path) in later:
-            os.replace(path, target)
-        elif not UNTOUCHED.fullmatch(path.name):
-            shutil.copy2(path, target)
+    moved = []
+    try:
+        aside.mkdir()
+        for path in [*move, *copy]:
+            target = aside / path.relative_to(d)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            if path in move:
+                os.replace(path, target)
+                moved.append((target, path))
+            else:
+                shutil.copy2(path, target, follow_symlinks=False)
+    except BaseException:
+        for target, path in reversed(moved):
+            os.replace(target, path)
+        shutil.rmtree(aside, ignore_errors=True)
+        raise
     return aside
 
 

@@ -569,3 +569,31 @@ def test_a_restart_whose_override_a_moving_body_cannot_take_names_that_override(
     assert res.returncode == 2 and res.stderr.startswith("psph: error: time.t_end: bodies[1].motion: 'square' "
                                                          "comes within dx of the walls of bodies[0]"), res.stderr
     assert len(res.stderr.strip().splitlines()) == 1 and not (tmp_path / "longer").exists()
+
+
+def test_a_set_aside_that_fails_part_way_puts_back_what_it_moved(tmp_path, monkeypatch):
+    """A review: a continuation's set-aside that failed part way (a full disk while copying history.csv) left
+    the results past the checkpoint it had moved in .psph_replaced, where the next run removed them. It is
+    now all or nothing; and a dangling link among the outputs is copied as the link."""
+    from psph.io import files
+
+    for name, data in (("summary.json", b"{}"), ("snapshot_000005.h5", b"later"), ("history.csv", b"t\n"),
+                       ("snapshot_000001.h5", b"kept")):
+        (tmp_path / name).write_bytes(data)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    later = [tmp_path / "summary.json", tmp_path / "snapshot_000005.h5"]
+
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(files.shutil, "copy2", full)
+    with pytest.raises(OSError, match="No space left"):
+        files.set_aside_for_continuation(tmp_path, later)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    monkeypatch.undo()
+    (tmp_path / "probes.csv").symlink_to(tmp_path / "missing")
+    aside = files.set_aside_for_continuation(tmp_path, later)
+    assert sorted(p.name for p in aside.iterdir()) == ["history.csv", "probes.csv", "snapshot_000005.h5",
+                                                       "summary.json"]
+    files.restore_results(tmp_path, aside, clear=False)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.name != "probes.csv"} == before
