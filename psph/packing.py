@@ -212,7 +212,7 @@ def pack(scene, system, rows=None) -> dict:
         # at rest, and its first T, (dt |grad Gamma|)^2 / 2, fell below the tolerance with a small packing.cfl
         # (1e-4: "converged" after one iteration, the drop still its raw lattice; a second packing audit)
         settled = iteration * (damping - 1.0) >= 1.0 or terminal / (damping - 1.0) ** 2 * dt * dt < spec.tolerance
-        done = kinetic < spec.tolerance and settled
+        done = bool(kinetic < spec.tolerance and settled)
         if iteration % RECORD_EVERY == 0 or done or iteration == spec.iterations:
             _, linf = norms(comm, grad, fluid, h)
             rows.append((iteration, kinetic, linf))
