@@ -621,3 +621,31 @@ def test_grad_c_norms_weigh_by_the_particles_volumes_and_nfts_adds_the_reference
         assert row[f"L2_grad_c{suffix}"] == pytest.approx(np.sqrt(np.mean(size ** 2)), rel=1e-9)
         assert row[f"Linf_grad_c{suffix}"] == pytest.approx(size.max(), rel=1e-9)
     assert row["L2_grad_c"] > 3.0 * row["L2_grad_c0"]  # (measured: 4.9 times)
+
+
+def test_a_stop_after_a_failed_iips_call_that_kept_its_iterate_says_so(tmp_path):
+    """An audit of IIPS in free-surface flows: the dam break at h/dx = 1.4 with NFTS stopped on a volume drift
+    of 0.58 at the first impact, after a stalled call had kept an iterate moving a particle 1.1 dx, which NFTS
+    took in; the stop named physics.max_volume_variation only (the stall was in the log line before). The stop
+    now names the call, how far its iterate moved, the update and the key that undoes such calls; a step whose
+    call moved nothing adds nothing."""
+    from mpi4py import MPI
+
+    from psph.drivers.fluid import FluidDriver
+    from psph.errors import NumericalError
+    from psph.scene.load import load_scene
+
+    scene = load_scene(CASES / "taylor_green.toml", ["domain.dx=0.1", "shifting.method=iips", "iips.update=nfts",
+                                                     "output.every=0"])
+    with FluidDriver(scene, MPI.COMM_SELF, tmp_path) as driver:
+        driver.system.particles.owned("volume")[3] *= 1.6
+        with pytest.raises(NumericalError) as plain:
+            driver.check(5, 0.05, 1e-3)
+        assert str(plain.value).startswith("particle volume drifted by 0.6 (> 0.5, physics.max_volume_variation) [")
+        driver.kept_stall = 1.1
+        with pytest.raises(NumericalError, match=r"drifted by 0.6 \(> 0.5, physics.max_volume_variation\) \(this "
+                                                 r"step's IIPS call had failed and kept an iterate that moved a "
+                                                 r"particle 1.1 dx, which iips.update = 'nfts' took in: "
+                                                 r"iips.on_stall / iips.on_failure = \"reject\" undo such calls\) "
+                                                 r"\[step 5"):
+            driver.check(5, 0.05, 1e-3)
