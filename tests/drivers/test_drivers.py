@@ -123,9 +123,9 @@ def test_explicit_laws_shift_a_kinematic_run(tmp_path):
                        "--set", f"shifting.method={law}")
         assert res.returncode == 0, res.stderr
         final[law] = read_history(tmp_path / law / "history.csv")[-1]
-    for law in final:
+    for law in final:  # (Oger's 0.78 of none's: no tighter bound, a test audit)
         if law != "none":
-            assert final[law]["L2_dfdx"] < 0.8 * final["none"]["L2_dfdx"], law
+            assert final[law]["L2_dfdx"] < 0.9 * final["none"]["L2_dfdx"], law
     for law in ("delta_plus", "lind"):
         assert final[law]["Linf_grad_c"] < 0.3 * final["none"]["Linf_grad_c"], law
     info = run_psph("info", CASES / "kinematic_tgv.toml", *LAW_RUN, "--set", "shifting.method=neuhauser")

@@ -327,3 +327,43 @@ def test_an_nfts_sub_step_that_empties_a_volume_stops_naming_nfts(tmp_path):
                                                  r"mass at or below zero .*time.cfl dx = 0.125 a sub-step.*lower "
                                                  r"time.cfl \[particle gid \d+, at"):
             driver.update.after(system, driver.scheme)
+
+
+def test_nfts_sweeps_a_long_displacement_in_sub_steps_that_converge(tmp_path):
+    """Thesis eq. 9.6: NFTS sweeps a call's displacements in N = ceil(max|dx| / (time.cfl dx)) sub-steps. No
+    test needed more than one (a test audit: N forced to 1 passed them all). A shear displacement of 1.5 dx
+    over a sheared velocity and a density wave takes 1, 3 and 12 sub-steps at time.cfl = 2, 0.5 and 0.125;
+    each sweep keeps mass and momentum to round-off, and the swept fields converge as N grows (3 sub-steps
+    land nearer 12's than one does)."""
+    results = {}
+    for cfl in (2.0, 0.5, 0.125):
+        scene = periodic_scene(n=16, physics={"scheme": "delta_ale", "reynolds": 100.0}, shifting={"method": "iips"},
+                               iips={"update": "nfts", "threshold": 0.001}, time={"t_end": 1.0, "cfl": cfl},
+                               output={"every": 0.0})
+        with FluidDriver(scene, MPI.COMM_SELF, tmp_path / str(cfl)) as driver:
+            system, p = driver.system, driver.system.particles
+            y = p.owned("position")[:, 1]
+            p.owned("velocity")[:, 0] = np.sin(2.0 * np.pi * y)
+            p.owned("density")[:] = 1.0 + 0.01 * np.cos(2.0 * np.pi * y)
+            p.owned("mass")[:] = p.owned("density") * p.owned("volume")
+            p.owned("pressure")[:] = driver.scheme.eos.pressure(p.owned("density"))
+            system.refresh(["velocity", "density", "mass", "pressure"])
+            before = (p.owned("mass").sum(), (p.owned("mass")[:, None] * p.owned("velocity")).sum(axis=0))
+            driver.update.before(system, driver.scheme)
+            p.add_field(SHIFT_FIELD)
+            shift = np.zeros_like(p.owned("position"))
+            shift[:, 0] = 1.5 * scene.domain.dx * np.sin(2.0 * np.pi * y + 0.3)
+            p.owned(SHIFT_FIELD.name)[:] = shift
+            p.owned("position")[:] += shift
+            system.update()
+            counts = driver.update.after(system, driver.scheme)
+            mass, vel, gid = p.owned("mass"), p.owned("velocity"), p.owned("gid")
+            assert mass.sum() == pytest.approx(before[0], rel=1e-13)
+            assert np.allclose((mass[:, None] * vel).sum(axis=0), before[1], rtol=0.0, atol=1e-13)
+            order = np.argsort(gid)
+            results[cfl] = (counts["nfts_substeps"], p.owned("density")[order].copy(), vel[order].copy())
+    assert [results[cfl][0] for cfl in (2.0, 0.5, 0.125)] == [1, 3, 12]
+    for k in (1, 2):  # density, velocity
+        one = np.abs(results[2.0][k] - results[0.125][k]).max()
+        three = np.abs(results[0.5][k] - results[0.125][k]).max()
+        assert three < 0.5 * one and one > 1e-6, (k, one, three)
