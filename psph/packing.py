@@ -112,10 +112,11 @@ def _lattice_within(scene, lower, upper) -> np.ndarray:
     between its sides where they are off the domain's lattice (psph.boundaries.extended_lattice), so that
     the frame meets the walls' first solid rows without a gap (from the domain's lattice, a tank 1.95 wide
     at dx = 0.05 left one of 1.5 dx beside each wall, and the packing drove fluid particles up it, above
-    the free surface: a packing audit); beyond a side of the fill region inside the box, the fluid's own
+    the free surface: a packing audit); across a side of the fill region inside the box, the fluid's own
     rows continued dx apart (the fitted ones stood 0.88-1.13 dx from the dam-break column's side, the whole
-    of its start's largest grad Gamma: a second packing audit); else the domain's cell-centred lattice
-    (psph.initial.lattice_block)."""
+    of its start's largest grad Gamma: a second packing audit), while along it the frame keeps the fitted
+    rows, which drift from the fluid's where the box is off the lattice (README, "Particle packing"); else
+    the domain's cell-centred lattice (psph.initial.lattice_block)."""
     from psph.boundaries import lattice_rows
 
     d = scene.domain
