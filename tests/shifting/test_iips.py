@@ -863,3 +863,42 @@ def test_a_non_finite_concentration_gradient_fails_and_is_not_taken_for_round_of
     system.particles.owned("volume")[5] = np.nan
     with pytest.raises(NumericalError, match=r"DIVERGED_NANORINF.*\[particle gid \d+, at \("):
         ImplicitShifting(scene.iips, MPI.COMM_SELF).correct(system)
+
+
+def lind_wave(cell):
+    """The wave of largest eigenvalue of Lind's lattice symbol (C6, h = 2 dx, 2-D) at lattice cell `cell`."""
+    return np.cos(2.0 * np.pi * 5.0 / 16.0 * (cell - 0.5))
+
+
+def test_lind_laws_2d_limit_is_where_its_fastest_wave_turns():
+    """An independent check of the 2-D figure (0.329 h^2) that test_lind_laws_stability_limit_is_where_it_turns
+    took from the function itself (a test audit): the lattice symbol's largest eigenvalue lies at the
+    longitudinal wave k = 5/8 pi / dx along x (16 particles a row hold 5 of its periods). A lattice displaced
+    by 1e-6 dx in that wave alone, iterated with Lind's law (dx = -D h^2 grad C^), loses it at 0.95 of the
+    limit (by |1 - 1.9|^100) and gains it at 1.05 (by 1.1^100); the rows' sliding, which grows at any D,
+    starts from round-off and stays below both."""
+    from types import SimpleNamespace
+
+    from psph.shifting.explicit import stability_limit
+    from psph.shifting.velocity import Lind, _grad_c_hat
+
+    limit = stability_limit("wendland_c6", 2, 2.0, Lind.grad_c_weights)
+    amplitudes = []
+    for factor in (0.95, 1.05):
+        scene = periodic_scene(dim=2, n=16, shifting={"method": "lind"}, physics={"scheme": "delta_ale"},
+                               time={"t_end": 0.1})
+        system = build_system(scene, MPI.COMM_SELF)
+        p, dx = system.particles, scene.domain.dx
+        start = np.empty((p.n_owned, 2))  # by gid: a rebuild reorders the rows
+        start[p.owned("gid")] = p.owned("position")
+
+        p.owned("position")[:, 0] += 1e-6 * dx * lind_wave(start[p.owned("gid"), 0] / dx)
+        system.update()
+        law = Lind(scene)
+        for _ in range(100):
+            p.owned("position")[:] -= factor * limit * system.kernel.h ** 2 * _grad_c_hat(
+                law, system, SimpleNamespace(walls=None), None)
+            system.update()
+        moved = system.domain.minimum_image(p.owned("position") - start[p.owned("gid")])
+        amplitudes.append(2.0 * float((moved[:, 0] * lind_wave(start[p.owned("gid"), 0] / dx)).mean()) / dx)
+    assert abs(amplitudes[0]) < 1e-9 and abs(amplitudes[1]) > 1e-3, amplitudes
