@@ -124,8 +124,7 @@ def set_aside_results(directory, keep=()):
     outputs = _own_outputs(d, keep)
     if outputs:
         return _set_aside(d, move=outputs)
-    if (d / REPLACED).is_dir() and not (d / REPLACED).is_symlink():
-        shutil.rmtree(d / REPLACED)
+    _remove_stale_aside(d)
     return None
 
 
@@ -154,25 +153,36 @@ def _set_aside(d, move=(), copy=()):
     raises (it had left an in-place continuation's later results in REPLACED, which the next run removed: a
     review). A REPLACED left by a run killed while it set up holds the run before the one it replaced, and
     is removed first. Returns REPLACED."""
+    aside = _remove_stale_aside(d)
+    moved = []
+
+    def target(path):
+        out = aside / path.relative_to(d)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        return out
+
+    try:
+        aside.mkdir()
+        for path in move:
+            kept = target(path)
+            os.replace(path, kept)
+            moved.append((kept, path))
+        for path in copy:
+            shutil.copy2(path, target(path), follow_symlinks=False)
+    except BaseException:
+        for kept, path in reversed(moved):
+            os.replace(kept, path)
+        shutil.rmtree(aside, ignore_errors=True)
+        raise
+    return aside
+
+
+def _remove_stale_aside(d):
+    """Remove d/REPLACED if a run killed while it set up left it (it holds the run before the one that run
+    replaced); returns its path."""
     aside = d / REPLACED
     if aside.is_dir() and not aside.is_symlink():
         shutil.rmtree(aside)
-    moved = []
-    try:
-        aside.mkdir()
-        for path in [*move, *copy]:
-            target = aside / path.relative_to(d)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            if path in move:
-                os.replace(path, target)
-                moved.append((target, path))
-            else:
-                shutil.copy2(path, target, follow_symlinks=False)
-    except BaseException:
-        for target, path in reversed(moved):
-            os.replace(target, path)
-        shutil.rmtree(aside, ignore_errors=True)
-        raise
     return aside
 
 
