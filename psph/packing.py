@@ -32,6 +32,7 @@ T at the terminal speeds |grad Gamma| / zeta, a lattice start at rest).
 import math
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -165,6 +166,80 @@ def _remove_frame(system) -> None:
     system.rebuild(rebalance=True)
 
 
+def set_packed_volume(scene, system) -> float:
+    """Give the owned fluid particles seed 002's V0 = V_tot / N (fluid_volume; N dx^d where it is None) and
+    return it. Collective."""
+    d = scene.domain
+    n_fluid = int(allreduce_sum(system.comm, int(np.count_nonzero(fluid_mask(system)))))
+    total = fluid_volume(scene)
+    v0 = d.dx ** d.dimension if total is None else total / n_fluid
+    system.particles.owned("volume")[fluid_mask(system)] = v0
+    return v0
+
+
+def start_from_snapshot(scene, system, path) -> dict:
+    """Move the owned fluid particles to their positions (by gid) in the psph snapshot `path`
+    (packing.start), give them V0 (set_packed_volume) and rebuild: a packing done once serves later runs
+    of the scene. The file must hold this scene's fluid, gid for gid, and its other particles where the
+    scene has them (the same walls and bodies): anything else is a SceneError naming packing.start and
+    what differs. Returns {start, start_time, start_step}. Collective (every rank reads the file)."""
+    from psph.errors import SceneError
+    from psph.io.snapshots import h5py
+
+    comm, p, d = system.comm, system.particles, scene.domain
+    key, dim = "packing.start", d.dimension
+    if not Path(path).is_file():
+        raise SceneError(key, f"no file {path}")
+    try:
+        with h5py.File(path, "r") as f:
+            group = f["particles"]
+            gid, kind, pos = (np.asarray(group[name][()]) for name in ("gid", "kind", "position"))
+            attrs = {name: f.attrs[name].item() for name in ("time", "step") if name in f.attrs}
+    except KeyError as err:
+        raise SceneError(key, f"{path} is not a psph snapshot ({err})") from None
+    except OSError as err:
+        raise SceneError(key, f"cannot read {path}: {' '.join(str(err).split())}") from None
+    if pos.ndim != 2 or pos.shape[1] != dim or len(gid) != len(pos) or len(kind) != len(pos):
+        raise SceneError(key, f"{path} holds positions of shape {pos.shape}, not n x {dim} beside its gids")
+    fluid = fluid_mask(system)
+    n_scene = int(allreduce_sum(comm, int(np.count_nonzero(fluid))))
+    n_file = int(np.count_nonzero(kind == Kind.FLUID))
+    if n_file != n_scene:
+        raise SceneError(key, f"{path} holds {n_file} fluid particles, this scene {n_scene} (another dx, fill "
+                         "or geometry?)")
+    order = np.argsort(gid)
+    gid, kind, pos = gid[order], kind[order], pos[order]
+    own_gid, own_kind = p.owned("gid"), p.owned("kind")
+    at = np.minimum(np.searchsorted(gid, own_gid), max(len(gid) - 1, 0))
+    found = (gid[at] == own_gid) & (kind[at] == own_kind) if len(gid) else np.zeros(len(own_gid), dtype=bool)
+    here = p.owned("position").copy()
+    system.domain.wrap(here)
+    moved = np.abs(pos[at] - here).max(axis=1) > 1e-6 * d.dx if len(gid) else found
+    error = None
+    bad = np.flatnonzero(~found | (~fluid & moved))
+    if bad.size:
+        k = int(bad[0])
+        what = f"{'fluid' if fluid[k] else Kind(int(own_kind[k])).name.lower()} particle gid {int(own_gid[k])}"
+        where = np.array2string(here[k], precision=6)
+        error = SceneError(key, f"{path} puts this scene's {what} at {np.array2string(pos[at][k], precision=6)}, "
+                           f"not {where} (another geometry?)" if found[k] else
+                           f"{path} does not hold this scene's {what} (at {where}; another geometry, or a "
+                           "snapshot after particles left or entered?)")
+    else:
+        start = pos[at][fluid]
+        bad = np.flatnonzero(~np.isfinite(start).all(axis=1) | system.domain.outside(start))
+        if bad.size:
+            k = int(bad[0])
+            error = SceneError(key, f"{path} puts fluid gid {int(own_gid[fluid][k])} at "
+                               f"{np.array2string(start[k], precision=6)}, outside the domain")
+    raise_if_any(comm, error)
+    p.owned("position")[fluid] = pos[at][fluid]
+    system.rebuild(rebalance=True)
+    set_packed_volume(scene, system)
+    return {"start": str(path), "start_time": float(attrs.get("time", np.nan)),
+            "start_step": int(attrs.get("step", -1))}
+
+
 def pack(scene, system, rows=None) -> dict:
     """Pack the fluid particles of `system` (seed 002 eq. 2.16; module docstring) and set their volumes to
     V0. Returns a report: iterations, whether T fell below the tolerance, T / beta, Linf(grad Gamma) h over
@@ -175,10 +250,7 @@ def pack(scene, system, rows=None) -> dict:
     spec, d = scene.packing, scene.domain
     comm, p, h = system.comm, system.particles, system.kernel.h
     start = time.perf_counter()
-    n_fluid = int(allreduce_sum(comm, int(np.count_nonzero(fluid_mask(system)))))
-    total = fluid_volume(scene)
-    v0 = d.dx ** d.dimension if total is None else total / n_fluid
-    p.owned("volume")[fluid_mask(system)] = v0
+    v0 = set_packed_volume(scene, system)
     n_frame = _add_frame(scene, system, v0)
     p.add_field(VELOCITY)
     spacing = v0 ** (1.0 / d.dimension)

@@ -1,6 +1,7 @@
 """Particle packing (seed 002): the frame that closes free surfaces, what the packing reaches, that it leaves
 no trace, the drop it initialises, and its failures."""
 
+import json
 import math
 
 import numpy as np
@@ -8,8 +9,9 @@ import pytest
 from mpi4py import MPI
 
 from psph.diagnostics import fluid_mask
-from psph.errors import NumericalError
-from psph.packing import frame_positions, pack
+from psph.errors import NumericalError, SceneError
+from psph.io.snapshots import SnapshotWriter, h5py
+from psph.packing import frame_positions, pack, start_from_snapshot
 from psph.particles import Kind
 from psph.scene.load import load_scene
 from psph.simulation import build_system
@@ -189,6 +191,91 @@ def test_packed_positions_independent_of_rank_count(comm):
     assert np.array_equal(gids, serial.particles.owned("gid")[order])
     assert np.array_equal(pos, serial.particles.owned("position")[order])
     assert a["Linf_grad_gamma"] == pytest.approx(b["Linf_grad_gamma"], rel=1e-12)
+
+
+@pytest.mark.mpi
+def test_a_start_from_a_packed_snapshot_takes_its_positions_on_any_rank_count(comm, mpi_tmp_path):
+    """packing.start: a system built afresh on 1, 2 or 3 ranks takes the packed positions written by a
+    parallel snapshot, to the last bit, with V0 as the packing gave."""
+    scene = drop_scene(10, "packing.iterations=100")
+    packed = build_system(scene, comm)
+    pack(scene, packed)
+    path = SnapshotWriter(comm, mpi_tmp_path, packed.domain).write(packed.particles, 0, 0.0)
+    fresh = build_system(scene, comm)
+    report = start_from_snapshot(scene, fresh, path)
+    assert report == {"start": str(path), "start_time": 0.0, "start_step": 0}
+    lattice = build_system(scene, comm)
+    for name in ("position", "volume", "kind"):
+        want = gather_by_gid(comm, packed.particles.owned("gid"), packed.particles.owned(name))
+        got = gather_by_gid(comm, fresh.particles.owned("gid"), fresh.particles.owned(name))
+        assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1]), name
+    # (the packing moved them off the lattice, which a system built afresh holds)
+    at_lattice = gather_by_gid(comm, lattice.particles.owned("gid"), lattice.particles.owned("position"))[1]
+    at_start = gather_by_gid(comm, fresh.particles.owned("gid"), fresh.particles.owned("position"))[1]
+    assert np.abs(at_lattice - at_start).max() > 0.05 * scene.domain.dx
+
+
+def test_a_packed_start_repeats_the_packed_run_and_packs_on_from_it(tmp_path):
+    """A run from packing.start = a packed run's first snapshot is that run to the last bit, without packing;
+    with packing.iterations it packs on from where the first stopped (its grad Gamma at the start is the
+    first's at its end)."""
+    common = ["--set", "domain.dx=0.1", "--set", "time.t_end=0.02", "--quiet"]
+    first = tmp_path / "packed"
+    res = run_psph("run", DROP, "--out", first, "--set", "packing.iterations=150", *common)
+    assert res.returncode == 0, res.stderr
+    start = first / "snapshot_000000.h5"
+    res = run_psph("run", DROP, "--out", tmp_path / "again", "--set", f"packing.start={start}",
+                   "--set", "packing.iterations=0", *common)
+    assert res.returncode == 0, res.stderr
+    assert not (tmp_path / "again" / "packing.csv").exists()
+    for snapshot in sorted(first.glob("snapshot_*.h5")):
+        with h5py.File(snapshot) as a, h5py.File(tmp_path / "again" / snapshot.name) as b:
+            for name in a["particles"]:
+                assert np.array_equal(a["particles"][name][()], b["particles"][name][()]), (snapshot.name, name)
+    report = json.loads((tmp_path / "again" / "summary.json").read_text())["packing"]
+    assert report == {"start": str(start), "start_time": 0.0, "start_step": 0}
+    res = run_psph("run", DROP, "--out", tmp_path / "on", "--set", f"packing.start={start}",
+                   "--set", "packing.iterations=150", *common)
+    assert res.returncode == 0, res.stderr
+    was = json.loads((first / "summary.json").read_text())["packing"]
+    now = json.loads((tmp_path / "on" / "summary.json").read_text())["packing"]
+    assert now["start"] == str(start) and now["iterations"] == 150
+    assert now["Linf_grad_gamma_start"] == pytest.approx(was["Linf_grad_gamma"], rel=1e-12)
+    assert now["Linf_grad_gamma"] < 0.5 * was["Linf_grad_gamma"] < 0.5 * was["Linf_grad_gamma_start"]
+
+
+def test_a_packed_start_from_another_scene_is_refused_naming_the_key(tmp_path):
+    """One line, exit 2, nothing run: no file, another dx, walls elsewhere, a flow's snapshot after particles
+    left, or a scheme that is not a flow."""
+    tank = CASES / "hydrostatic_tank.toml"
+    res = run_psph("run", tank, "--out", tmp_path / "tank", "--set", "domain.dx=0.1", "--set", "time.t_end=0.02",
+                   "--set", "packing.iterations=20", "--quiet")
+    assert res.returncode == 0, res.stderr
+    start = tmp_path / "tank" / "snapshot_000000.h5"
+    lower = tmp_path / "lower.toml"  # the tank's lid lowered: its fluid as before, its walls not
+    text = tank.read_text()
+    assert text.count("size = [2.0, 1.2]") == 1
+    lower.write_text(text.replace("size = [2.0, 1.2]", "size = [2.0, 1.1]"))
+    for scene, sets, said in (
+            (tank, ["packing.start=nothing.h5"], "no file nothing.h5"),
+            (tank, ["domain.dx=0.05"], "fluid particles, this scene"),
+            (lower, [], "wall particle gid"),
+            (CASES / "kinematic_tgv.toml", [], "needs a fluid scheme")):
+        sets = [f"packing.start={start}", "domain.dx=0.1", *sets]
+        res = run_psph("run", scene, "--out", tmp_path / "refused", *(a for s in sets for a in ("--set", s)))
+        assert res.returncode == 2, res.stderr
+        assert res.stderr.startswith("psph: error: packing.start: ") and said in res.stderr, res.stderr
+        assert len(res.stderr.strip().splitlines()) == 1 and not list((tmp_path / "refused").glob("*.h5"))
+    scene = load_scene(tank, ["domain.dx=0.1"])
+    system = build_system(scene, MPI.COMM_SELF)  # a flow's later snapshot, after a particle left
+    with h5py.File(start) as f:
+        data = {name: f["particles"][name][()] for name in ("gid", "kind", "position")}
+    gone = tmp_path / "gone.h5"
+    with h5py.File(gone, "w") as f:
+        for name, values in data.items():
+            f[f"particles/{name}"] = values[1:]
+    with pytest.raises(SceneError, match="holds 199 fluid particles, this scene 200"):
+        start_from_snapshot(scene, system, gone)
 
 
 def test_the_packed_drop_follows_the_analytic_ellipse_and_the_lattice_drop_does_not(tmp_path):

@@ -230,6 +230,8 @@ class FluidDriver(Driver):
             lines.append(f"{len(scene.output.probes)} probe(s): pressure and velocity at every history row in "
                          "OUT/probes.csv (Shepard interpolation of the fluid)")
         k = scene.packing
+        if k.start:
+            lines.append(f"the fluid starts at its positions in the snapshot {k.start} (packing.start)")
         if k.iterations:
             lines.append(f"particle packing first (seed 002 eq. 2.16): at most {k.iterations} iterations, alpha = "
                          f"{k.alpha:g}, cfl = {k.cfl:g}, until T < {k.tolerance:g} beta")
@@ -249,7 +251,7 @@ class FluidDriver(Driver):
         """The set-up on the Simulation: packing, pre-procedure, initial fields, boundaries, IIPS, diagnostics."""
         self.resumed = resumed_state(restart, scene)
         self.pre, self.packing = None, None
-        if restart is None and scene.packing.iterations > 0:
+        if restart is None and (scene.packing.iterations > 0 or scene.packing.start):
             self.packing = self.pack()
         if restart is None and scene.iips.pre_newton > 0:
             self.pre = self.pre_procedure()
@@ -312,24 +314,31 @@ class FluidDriver(Driver):
             self.open.restore(self.resumed.get("open"))
 
     def pack(self) -> dict:
-        """Colagrossi et al.'s particle packing (psph.packing, seed 002) before the fluid fields exist, then
-        the initial condition again at the packed positions; its history goes to OUT/packing.csv, also up to a
-        failure, which writes the state. Collective."""
-        from psph.packing import pack
+        """Colagrossi et al.'s particle packing (psph.packing, seed 002) before the fluid fields exist, from
+        the fluid's positions in the snapshot packing.start if it names one, then the initial condition again
+        at the packed positions; its history goes to OUT/packing.csv, also up to a failure, which writes the
+        state. Collective."""
+        from psph.packing import pack, start_from_snapshot
 
-        rows = []
-        try:
-            with self.sim.diagnose_failures(lambda: (0, 0.0)):
-                report = pack(self.scene, self.system, rows)
-        finally:
-            if self.sim.comm.rank == 0 and rows:
-                np.savetxt(self.sim.out_dir / "packing.csv", np.asarray(rows), delimiter=",",
-                           header="iteration,kinetic_energy_over_beta,Linf_grad_gamma", comments="", fmt="%.10g")
+        rows, report, path = [], {}, self.scene.packing.start
+        if path:
+            report = start_from_snapshot(self.scene, self.system, path)
+            self.sim.log(f"packing: the fluid starts at its positions in {path} (step {report['start_step']}, "
+                         f"t = {report['start_time']:g})")
+        if self.scene.packing.iterations > 0:
+            try:
+                with self.sim.diagnose_failures(lambda: (0, 0.0)):
+                    report |= pack(self.scene, self.system, rows)
+            finally:
+                if self.sim.comm.rank == 0 and rows:
+                    np.savetxt(self.sim.out_dir / "packing.csv", np.asarray(rows), delimiter=",", comments="",
+                               header="iteration,kinetic_energy_over_beta,Linf_grad_gamma", fmt="%.10g")
+            how = "T < tolerance" if report["converged"] else "the iteration limit (packing.iterations)"
+            self.sim.log(f"packing: {report['iterations']} iteration(s) to {how}, T/beta = "
+                         f"{report['kinetic_energy']:.2e}, Linf(grad Gamma) h {report['Linf_grad_gamma_start']:.3e} "
+                         f"-> {report['Linf_grad_gamma']:.3e} (frame of {report['frame_particles']} particles), "
+                         f"{report['time_s']:.1f} s")
         reset_initial_fields(self.scene, self.system.particles)
-        how = "T < tolerance" if report["converged"] else "the iteration limit (packing.iterations)"
-        self.sim.log(f"packing: {report['iterations']} iteration(s) to {how}, T/beta = {report['kinetic_energy']:.2e}, "
-                     f"Linf(grad Gamma) h {report['Linf_grad_gamma_start']:.3e} -> {report['Linf_grad_gamma']:.3e} "
-                     f"(frame of {report['frame_particles']} particles), {report['time_s']:.1f} s")
         return {k: v for k, v in report.items() if k != "rows"}
 
     def pre_procedure(self) -> dict:

@@ -323,6 +323,11 @@ class PackingSpec:
     tolerance: float = option(1e-8, doc="stop once the specific kinetic energy sum_i |u_i|^2 / 2 falls below this "
                               "x beta (seed 002 fig. 6: particles are practically motionless below 1e-8 beta)",
                               gt=0.0)
+    start: str = option("", doc="fluid runs: a psph snapshot (OUT/snapshot_NNNNNN.h5, its path relative to the "
+                        "working directory) whose fluid positions, by gid, replace the lattice's before any "
+                        "packing.iterations: snapshot_000000.h5 of a packed run of this scene starts another "
+                        "packed, without packing again. It must hold this scene's fluid particles and walls "
+                        "(same dx, fill and bodies); the fields are set afresh")
 
 
 @dataclass(frozen=True)
@@ -667,6 +672,9 @@ class Scene:
 
     def _check_packing(self, fluid):
         d = self.domain
+        if self.packing.start and not fluid:
+            raise SceneError("packing.start", "a packed start initialises a flow: it needs a fluid scheme, not "
+                             f"physics.scheme = {self.physics.scheme!r}")
         if self.packing.iterations > 0:
             if not fluid:
                 raise SceneError("packing.iterations", "packing initialises a flow: it needs a fluid scheme, not "
