@@ -369,6 +369,14 @@ def cmd_run(args, petsc_options, comm) -> int:
                         f"dx = -D grad C{'^' if lind else ''} (thesis eq. {'6.16' if lind else '6.13'}) amplifies "
                         f"the shortest waves on the lattice ({dom.kernel}, h/dx = {dom.h_over_dx:g}, "
                         f"{dom.dimension}-D): the distribution degrades instead of relaxing")
+    bare = scene.bare_fluid_faces()
+    if bare and not restart:  # (a 3-D audit: a box at rest stopped at step 6 on its density, a hydrostatic column
+        # with no floor at step 112 on particles leaving, neither naming the cause)
+        _warn(comm, f"psph: warning: the fluid reaches the bounded face(s) {', '.join(bare)} with no wall, outflow or "
+                    f"inflow there (domain.periodic = {list(scene.domain.periodic)}): its particles there have no "
+                    "neighbour beyond it, and the pressure, gravity or shifting pushes them out of the domain; make "
+                    "the axis periodic, wall the fluid (bodies, 2-D), name the face in domain.outflow, or leave a "
+                    "free surface there (initial.fill_lower / fill_upper)")
     phys = scene.physics
     mach = phys.reference_velocity / phys.sound_speed if phys.sound_speed > 0 else 1.0
     if phys.scheme == "riemann_ale" and phys.riemann_dissipation == "full" and mach < 0.05:

@@ -551,6 +551,25 @@ def test_a_riemann_time_step_beyond_its_stable_cfl_is_warned_about(tmp_path, sch
             "0.8" in res.stderr) is warned, res.stderr
 
 
+@pytest.mark.parametrize("periodic, said", [("[true, false]", "y-, y+"), ("[true, true]", None)])
+def test_a_fluid_reaching_a_bounded_face_with_nothing_there_is_warned_about(tmp_path, periodic, said):
+    """A 3-D audit: a box of fluid at rest with bare faces stopped at step 6 on its density (delta+ pushed the
+    particles along the faces out), naming neither the faces nor the cause; a periodic box of side 0.6 was
+    refused over diagnostics.test_wavelength, which no flow reads."""
+    res = run_psph("run", CASES / "taylor_green.toml", "--out", tmp_path, "--quiet", "--set", "domain.dx=0.1",
+                   "--set", "domain.upper=[0.6, 0.6]", "--set", "time.t_end=0.005", "--set", "output.every=0",
+                   "--set", f"domain.periodic={periodic}", "--set", "initial.velocity=zero")
+    assert res.returncode == (3 if said else 0), res.stderr  # (its perturbed start's bare rows leave at step 1)
+    warning = "warning: the fluid reaches the bounded face(s) "
+    assert (warning in res.stderr) is (said is not None), res.stderr
+    if said:
+        assert f"{warning}{said} with no wall, outflow or inflow there (domain.periodic = [True, False])" in res.stderr
+    info = run_psph("info", CASES / "taylor_green.toml", "--set", "diagnostics.test_wavelength=0.3")
+    assert info.returncode == 0 and "diagnostics.test_wavelength" in info.stdout, info.stderr
+    kinematic = run_psph("info", CASES / "kinematic_tgv.toml", "--set", "diagnostics.test_wavelength=0.3")
+    assert kinematic.returncode == 2 and "diagnostics.test_wavelength: must divide" in kinematic.stderr
+
+
 @pytest.mark.parametrize("update, warned", [("mls1", True), ("mls1_increment", False), ("mls2", False)])
 def test_the_plain_first_order_remap_in_a_flow_is_warned_about(tmp_path, update, warned):
     """iips.update = mls1 smooths every field at every call (Taylor-Green at dx = 0.05: kinetic energy -99.8%

@@ -860,6 +860,8 @@ class Scene:
             keys.append("iips.beta_from")
         if not fluid:  # (an audit: a kinematic run's physics.reference_length, not its L, went unmentioned)
             keys += ["time.retries", "time.integrator"] + [f"physics.{name}" for name in FLUID_PHYSICS]
+        else:
+            keys.append("diagnostics.test_wavelength")
         if scheme == "none":
             keys += ["time.t_end", "time.cfl", "output.every", "output.history_every"]
         if self.iips.update not in ("mls1", "mls2"):
@@ -928,6 +930,18 @@ class Scene:
                 if not hi or hi[a] >= d.upper[a] - 0.5 * d.dx:
                     faces.append("xyz"[a] + "+")
         return faces
+
+    def bare_fluid_faces(self) -> list:
+        """A flow's bounded faces that its fluid reaches with nothing there, _bare_faces but for the outflow
+        faces and the faces the inflows feed from (behind their velocity's axis and direction): the particles
+        there have no neighbour beyond, and leave (psph run warns)."""
+        if self.physics.scheme not in FLUID_SCHEMES:
+            return []
+        held = set(self.domain.outflow)
+        for inflow in self.inflow:
+            axis = int(np.argmax(np.abs(inflow.velocity)))
+            held.add("xyz"[axis] + ("-" if inflow.velocity[axis] > 0 else "+"))
+        return [face for face in self._bare_faces() if face not in held]
 
     def free_surface_axes(self) -> list:
         """The axes along which the fluid's fill region stops short of the domain (a free surface there)."""
@@ -1141,7 +1155,8 @@ class Scene:
                                  f"kernel support plus skin ({reach:g}); refine dx or lower h_over_dx")
         wavelength = self.diagnostics.test_wavelength
         for a in range(min(self.domain.dimension, 2)):
-            if self.domain.periodic[a]:
+            # (read by static and kinematic runs only: a 3-D audit found its default refusing fluid boxes)
+            if self.domain.periodic[a] and self.physics.scheme in ("none", "kinematic"):
                 waves = (self.domain.upper[a] - self.domain.lower[a]) / wavelength
                 if not math.isfinite(waves) or waves > 1e12:
                     raise SceneError("diagnostics.test_wavelength", f"{wavelength:g} is too short for axis {a} "

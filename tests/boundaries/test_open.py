@@ -462,6 +462,20 @@ def channel():
             "shifting": {"method": "delta_plus"}, "time": {"t_end": 0.5}, "output": {"history_every": 20}}
 
 
+def test_a_flows_bare_faces_are_those_no_wall_or_open_boundary_holds():
+    """psph run warns about a fluid that reaches a bounded face with nothing there (a 3-D audit: a box at rest
+    stopped at step 6 on its density, a column with no floor at step 112 on particles leaving): the channel's
+    inflow feeds from x- and its outflow face is x+, so it has none; without them both are bare."""
+    assert scene_from_table(channel()).bare_fluid_faces() == []
+    assert scene_from_table(apply_overrides(channel(), ["domain.outflow=[]", "inflow=[]", "initial.velocity=zero"])
+                            ).bare_fluid_faces() == ["x-", "x+"]
+    backwards = apply_overrides(channel(), ["domain.outflow=['x-']", "inflow.0.lower=[1.8,0.0]",
+                                            "inflow.0.upper=[2.0,1.0]", "inflow.0.velocity=[-1.0,0.0]"])
+    assert scene_from_table(backwards).bare_fluid_faces() == []
+    assert scene_from_table(apply_overrides(channel(), ["domain.outflow=['x-']", "inflow=[]",
+                                                        "initial.velocity=zero"])).bare_fluid_faces() == ["x+"]
+
+
 @pytest.mark.parametrize("ranks,buffer", [(1, False), (2, True)])
 def test_a_domain_all_its_fluid_leaves_runs_on_empty(tmp_path, ranks, buffer):
     """No inflow, and gravity along the channel: all the fluid leaves by t = 0.45. The snapshots after that
