@@ -1,5 +1,6 @@
 """A failure on one rank ends every rank promptly, with its message (no hang in a collective)."""
 
+import re
 import subprocess
 import sys
 import textwrap
@@ -73,33 +74,55 @@ def test_escaped_particles_are_counted_over_every_rank_with_step_and_time(tmp_pa
     assert "36 particle(s) left the domain [step 1, t = 0, particle gid" in proc.stderr, proc.stderr
 
 
-@pytest.mark.parametrize("ranks", [1, 2])
-def test_a_static_run_that_ends_worse_than_it_started_is_one_line_on_any_rank_count(tmp_path, ranks):
-    """A review: the error was one rank's, and 2 ranks ended in MPI_ABORT with every rank's line and no log."""
+def test_a_static_run_that_ends_worse_than_it_started_says_it_diverged(tmp_path):
+    """The cubic spline pairs particles and IIPS diverges. (On 2 ranks of an AMD EPYC machine its linear solve
+    diverged first, at iteration 2: the pairing's near-singular systems are chaotic; the next test checks the
+    same stop on several ranks.)"""
     from tests.helpers import run_psph
 
     proc = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path, "--quiet", "--set",
-                    "shifting.method=iips", "--set", "domain.dx=0.05", "--set", "domain.kernel=cubic_spline",
-                    ranks=ranks)
+                    "shifting.method=iips", "--set", "domain.dx=0.05", "--set", "domain.kernel=cubic_spline")
     assert proc.returncode == 3, proc.stderr
     lines = [line for line in proc.stderr.splitlines() if line.startswith("psph:")]
     assert len(lines) == 1 and lines[0].startswith("psph: error: the shifting left the distribution worse than it "
                                                    "started: L2(grad C) 0.0548 -> "), proc.stderr
-    assert "it diverged (a kernel that pairs particles" in lines[0] and "MPI_ABORT" not in proc.stderr
-    assert "the shifting left the distribution worse" in (tmp_path / "psph.log").read_text()
+    assert "it diverged (a kernel that pairs particles" in lines[0]
 
 
-def test_a_static_run_that_converged_and_drifted_away_is_told_where_to_stop(tmp_path):
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_a_static_run_that_converged_and_drifted_away_is_told_where_to_stop(tmp_path, ranks):
     """A review: a near-lattice start iterated 30 times reaches 1.7e-7 at iteration 3, then wanders up past its
-    start (the printed operator is not the exact Jacobian): not a divergence of the kind the message named."""
+    start (the printed operator is not the exact Jacobian): not a divergence of the kind the message named.
+    Another review: the stop was one rank's, and 2 ranks ended in MPI_ABORT with every rank's line and no log."""
     from tests.helpers import run_psph
 
     proc = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path, "--quiet", "--set",
                     "shifting.method=iips", "--set", "domain.dx=0.05", "--set", "initial.sigma_over_dx=0.0001",
-                    "--set", "iips.max_newton=30")
+                    "--set", "iips.max_newton=30", ranks=ranks)
     assert proc.returncode == 3, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("psph:")]
+    assert len(lines) == 1 and lines[0].startswith("psph: error: the shifting left the distribution worse than it "
+                                                   "started: L2(grad C) 0.000134 -> "), proc.stderr
     assert "(lowest 1.7e-07 at iteration 3): it converged and then drifted away (fewer iterations, " \
-           "iips.threshold, iips.backtrack or diagnostics.stop_at_cartesian stop near iteration 3)" in proc.stderr
+           "iips.threshold, iips.backtrack or diagnostics.stop_at_cartesian stop near iteration 3)" in lines[0]
+    assert "MPI_ABORT" not in proc.stderr
+    assert "the shifting left the distribution worse" in (tmp_path / "psph.log").read_text()
+
+
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_a_diverging_explicit_iteration_is_one_line_with_its_particle_and_state_on_any_rank_count(tmp_path, ranks):
+    """A failure audit: on 2 ranks the divergence was every rank's own error (MPI_ABORT, a line per rank) and
+    left no snapshot of the state; on any rank count it named no particle."""
+    from tests.helpers import run_psph
+
+    proc = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path, "--quiet", "--set",
+                    "shifting.method=explicit_iterative", "--set", "domain.dx=0.05", "--set", "shifting.diffusion=3.0",
+                    "--set", "initial.sigma_over_dx=0.1", ranks=ranks)
+    assert proc.returncode == 3, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("psph: error")]
+    assert len(lines) == 1 and "explicit iterative shifting diverged at iteration 1: L2(grad C) grew" in lines[0]
+    assert re.search(r"\[iteration 1, particle gid \d+, at \(", lines[0]) and "MPI_ABORT" not in proc.stderr
+    assert (tmp_path / "snapshot_000001.h5").exists()
 
 
 def test_a_non_finite_position_stops_before_the_neighbour_search(tmp_path):

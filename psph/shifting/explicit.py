@@ -18,9 +18,10 @@ import time
 
 import numpy as np
 
+from psph.diagnostics import fluid_mask
 from psph.errors import NumericalError
 from psph.particles import Kind
-from psph.shifting.base import Shifting, ShiftReport, measure
+from psph.shifting.base import Shifting, ShiftReport, measure, steepest
 
 GROWTH = 4.0
 
@@ -81,11 +82,14 @@ class ExplicitIterativeShifting(Shifting):
             report.iterations += 1
             self.iterations += 1
             report.L2_grad_c, report.Linf_grad_c = l2, linf
-            if not np.isfinite(l2) or l2 > GROWTH * start:
-                raise NumericalError(f"explicit iterative shifting diverged at iteration {report.iterations}: "
-                                     f"L2(grad C) grew from {start:.3e} to {l2:.3e} (shifting.diffusion = "
-                                     f"{self.spec.diffusion:g}: lower it; Wendland C6 at h/dx = 2 is stable up "
-                                     "to about 0.46)", **where)
+            if not np.isfinite(l2) or l2 > GROWTH * start:  # (l2 is every rank's: all raise it)
+                place = {**system.where, **where, **steepest(system, grad, np.flatnonzero(fluid_mask(system)))}
+                error = NumericalError(f"explicit iterative shifting diverged at iteration {report.iterations}: "
+                                       f"L2(grad C) grew from {start:.3e} to {l2:.3e} (shifting.diffusion = "
+                                       f"{self.spec.diffusion:g}: lower it; Wendland C6 at h/dx = 2 is stable up "
+                                       "to about 0.46)", **place)
+                error.collective = True
+                raise error
             if on_iteration is not None and on_iteration(
                     {"newton": report.iterations, "ksp_iterations": 0, "L2_grad_c": l2, "Linf_grad_c": linf,
                      "newton_time_s": time.perf_counter() - t0}):

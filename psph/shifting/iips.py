@@ -44,7 +44,7 @@ from psph.parallel.comm import allreduce_max, allreduce_sum
 from psph.particles import SCRATCH_FIELDS, FieldSpec
 from psph.profiling import phase
 from psph.scene.schema import ROUNDOFF_LINF
-from psph.shifting.base import Shifting, ShiftReport, measure
+from psph.shifting.base import Shifting, ShiftReport, measure, steepest
 from psph.shifting.iips_operator import AssembledOperator, iips_operator
 from psph.solvers.aij import chain_matrix, check_mat_type, family_of
 from psph.solvers.linear import LinearSolver, petsc_errors
@@ -365,15 +365,7 @@ class ImplicitShifting(Shifting):
         iteration in progress, which its driver keeps there; `last`: a failure of the last completed one), and
         the unknown of largest |grad C| over all ranks (the lowest gid of equals; a non-finite value counts as
         the largest): {"gid", "position"}. Collective."""
-        p = system.particles
-        rows = np.flatnonzero(self.surface.unknowns(system))
-        local = (-1.0, 0, None)
-        if rows.size:
-            size = np.nan_to_num(np.linalg.norm(grad[rows], axis=1), nan=np.inf)
-            k = rows[int(np.argmax(size))]
-            local = (float(size.max()), int(p.owned("gid")[k]), p.owned("position")[k].copy())
-        _, gid, position = max(system.comm.allgather(local), key=lambda item: (item[0], -item[1]))
-        place = {**system.where, **where, **({} if position is None else {"gid": gid, "position": position})}
+        place = {**system.where, **where, **steepest(system, grad, np.flatnonzero(self.surface.unknowns(system)))}
         if last is not None and "iteration" in place:
             place["iteration"] = last
         return place
