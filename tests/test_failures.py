@@ -180,3 +180,38 @@ def test_a_blow_up_near_a_wall_is_reported_by_its_density_not_as_a_wall_crossing
     lines = proc.stderr.strip().splitlines()
     assert proc.returncode == 3 and len(lines) == 1, proc.stderr
     assert lines[0].startswith("psph: error: density left the weakly compressible range") and "[step 1," in lines[0]
+
+
+def test_a_density_at_or_below_zero_stops_the_run_whatever_the_variation_limit(tmp_path):
+    """A failure audit: with physics.max_density_variation from 1 up, a blown-up riemann_ale run passed step 4
+    with a density of -135 and stopped a step later on a particle faster than sound, not on the density."""
+    from tests.helpers import run_psph
+
+    scene = tmp_path / "blows_up.toml"
+    scene.write_text(textwrap.dedent("""\
+        name = "blows_up"
+        [domain]
+        dimension = 2
+        lower = [0.0, 0.0]
+        upper = [1.0, 1.0]
+        periodic = [true, true]
+        dx = 0.05
+        [initial]
+        velocity = "taylor_green"
+        [physics]
+        scheme = "riemann_ale"
+        reynolds = 1e6
+        sound_speed = 10.0
+        max_density_variation = 1e6
+        max_volume_variation = 1e6
+        [time]
+        t_end = 0.5
+        cfl = 1.6
+        [neighbours]
+        skin = 0.5
+        """))
+    proc = run_psph("run", scene, "--out", tmp_path / "out", "--quiet")
+    assert proc.returncode == 3, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("psph: error")]
+    assert len(lines) == 1 and "a particle's density or volume fell to -" in lines[0], proc.stderr
+    assert "(at or below zero) [step " in lines[0] and list((tmp_path / "out").glob("snapshot_*.h5"))

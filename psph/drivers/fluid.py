@@ -616,8 +616,13 @@ class FluidDriver(Driver):
             | ~np.isfinite(p.owned("position")).all(axis=1)
         dev = np.abs(p.owned("density") / self.scheme.rho0 - 1.0)
         limit = self.scene.physics.max_density_variation
+        empty = (p.owned("density") <= 0.0) | (p.owned("volume") <= 0.0)
         if bad.any():
             problem, k = "non-finite field (NaN/Inf)", int(np.flatnonzero(bad)[0])
+        elif empty.any():  # (whatever physics.max_density_variation: from 1 on it let rho <= 0 pass, an audit)
+            k = int(np.flatnonzero(empty)[0])
+            problem = (f"a particle's density or volume fell to {min(p.owned('density')[k], p.owned('volume')[k]):.3g}"
+                       " (at or below zero)")
         elif dev.size and dev.max() > limit:
             k = int(np.argmax(dev))
             problem = (f"density left the weakly compressible range: |rho/rho0 - 1| = {dev[k]:.3g} > {limit:g} "
