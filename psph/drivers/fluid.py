@@ -39,6 +39,7 @@ from psph.schemes.integrators import INTEGRATORS, STAGE_REACH
 from psph.schemes.viscous_limit import ViscousLimit
 from psph.shifting.field_update import make_field_update
 from psph.shifting.iips import pre_procedure
+from psph.shifting.velocity import strength_advice
 from psph.simulation import Simulation
 from psph.stop import checkpoint_message
 from psph.system import ListsExpired
@@ -197,11 +198,6 @@ def hold_step_advice(needed, skin, cfl) -> str:
     if needed <= SKIN_MAX:
         return f"a neighbours.skin of {needed:.2g} would hold the step, as would {shorter}"
     return f"no neighbours.skin (at most {SKIN_MAX:g}) holds it: it needs {shorter} or shorter"
-
-
-# the key that scales an uncapped explicit shifting law's velocity (psph.shifting.velocity; delta+ and Lind's
-# are capped at U/2, and Neuhauser's P^F reads no P_S)
-STRENGTH_KEYS = {"skillen": "skillen_a", "neuhauser": "neuhauser_ps"}
 
 
 class FluidDriver(Driver):
@@ -488,20 +484,10 @@ class FluidDriver(Driver):
                             f"neighbour-list skin ({0.5 * system.skin:.3g}); "
                             + hold_step_advice(needed, system.skin / system.kernel.support, self.scene.time.cfl))
                 if speed > 3.0 * self.scene.physics.reference_velocity:
-                    what += self._shifting_strength()
+                    what += strength_advice(self.scene.shifting)
                 error = NumericalError(what, step=step, time=t, gid=err.gid, position=err.position)
             raise_if_any(self.sim.comm, error)
         return 1
-
-    def _shifting_strength(self) -> str:
-        """For the message of a particle moving at several times the reference velocity: the explicit
-        shifting law's strength key and value, which can drive the particles that fast (an explicit-shifting
-        audit: skillen_a = 100 and neuhauser_ps = 1000 stopped in a few steps naming no shifting key, the
-        second advising a larger skin); "" without such a law."""
-        s = self.scene.shifting
-        key = None if s.method == "neuhauser" and s.fictitious_pressure else STRENGTH_KEYS.get(s.method)
-        return (f" (shifting.method = {s.method}: a law too strong, shifting.{key} = {getattr(s, key):g}, does that "
-                "too)") if key else ""
 
     def restore(self, arrays, t) -> None:
         """Put back the owned particles saved before a failed step (time.retries); fields the step

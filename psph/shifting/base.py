@@ -34,14 +34,14 @@ def measure(system, volume="volume", mask=None):
     return grad, l2, linf
 
 
-def steepest(system, grad, rows) -> dict:
-    """The owned `rows`' particle of largest |grad C| over all ranks (the lowest gid of equals; a non-finite
-    value counts as the largest), as a failure's place: {"gid", "position"}, or {} where no rank has a row.
-    Collective."""
+def steepest(system, vectors, rows) -> dict:
+    """The owned `rows`' particle of largest |vector| (grad C, a shifting velocity) over all ranks (the lowest
+    gid of equals; a non-finite value counts as the largest), as a failure's place: {"gid", "position"}, or
+    {} where no rank has a row. Collective."""
     p = system.particles
     local = (-1.0, 0, None)
     if rows.size:
-        size = np.nan_to_num(np.linalg.norm(grad[rows], axis=1), nan=np.inf)
+        size = np.nan_to_num(np.linalg.norm(vectors[rows], axis=1), nan=np.inf)
         k = rows[int(np.argmax(size))]
         local = (float(size.max()), int(p.owned("gid")[k]), p.owned("position")[k].copy())
     _, gid, position = max(system.comm.allgather(local), key=lambda item: (item[0], -item[1]))

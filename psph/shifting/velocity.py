@@ -34,6 +34,25 @@ import numpy as np
 from psph.compute.shift_velocity import corrected_grad_c, limit_magnitude, neuhauser_acceleration
 from psph.particles import FieldSpec, Kind
 
+# the key that scales an uncapped explicit shifting law's velocity (delta+ and Lind's are capped at U/2, and
+# Neuhauser's P^F reads no P_S)
+STRENGTH_KEYS = {"skillen": "skillen_a", "neuhauser": "neuhauser_ps"}
+
+
+def strength_key(spec) -> str:
+    """The explicit shifting law's strength key and value ("shifting.skillen_a = 100") of `spec`, the scene's
+    shifting section, or "" without such a law."""
+    key = None if spec.method == "neuhauser" and spec.fictitious_pressure else STRENGTH_KEYS.get(spec.method)
+    return f"shifting.{key} = {getattr(spec, key):g}" if key else ""
+
+
+def strength_advice(spec) -> str:
+    """For the message of a particle driven at several times the reference velocity: the law's strength key
+    (strength_key), which can drive it that fast (an explicit-shifting audit: skillen_a = 100 and
+    neuhauser_ps = 1000 stopped in a few steps naming no shifting key, the second advising a larger skin)."""
+    key = strength_key(spec)
+    return f" (shifting.method = {spec.method}: a law too strong, {key}, does that too)" if key else ""
+
 TAIT_GAMMA = 7.0
 
 

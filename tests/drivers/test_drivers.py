@@ -132,6 +132,22 @@ def test_explicit_laws_shift_a_kinematic_run(tmp_path):
     assert "shifting: Neuhauser Riemann-based transport-velocity correction with P_S = 10" in info.stdout, info.stdout
 
 
+@pytest.mark.parametrize("law, key", [("skillen", "shifting.skillen_a = 1e+06"),
+                                      ("neuhauser", "shifting.neuhauser_ps = 1e+06")])
+def test_a_kinematic_law_faster_than_sound_stops_naming_its_strength(tmp_path, law, key):
+    """A failure audit: with skillen_a = 1e6 the law threw the particles 8-10 dx a step, at random through
+    the box, and the run ended with exit 0 (neuhauser_ps alike); a fluid run stops on a particle faster than
+    sound. Now: exit 3 within a few steps, one line naming the law's key and a particle, the state written."""
+    res = run_psph("run", CASES / "kinematic_tgv.toml", "--out", tmp_path, *LAW_RUN, "--quiet",
+                   "--set", f"shifting.method={law}", "--set", f"shifting.{key.split('.')[1].split(' ')[0]}=1e6")
+    assert res.returncode == 3, res.stderr
+    lines = [line for line in res.stderr.splitlines() if line.startswith("psph: error")]
+    assert len(lines) == 1 and "the explicit shifting law's velocity reached" in lines[0], res.stderr
+    assert "times the speed of sound c0 = 10" in lines[0] and f"the law is too strong ({key}) [step " in lines[0]
+    step = int(lines[0].split(" [step ")[1].split(",")[0])  # (from the lattice: step 2 or 3)
+    assert step <= 3 and "particle gid " in lines[0] and (tmp_path / "snapshot_000001.h5").exists()
+
+
 def test_a_kinematic_neuhauser_run_continues_bit_for_bit(tmp_path):
     """Neuhauser's law reads the transport velocity of the step before (a field the checkpoint keeps): a run
     continued from its checkpoint ends with the particles of the run made in one go."""
