@@ -32,6 +32,28 @@ def perturb(gid: np.ndarray, pos: np.ndarray, sigma: float, seed: int) -> None:
         pos += sigma * gaussian_by_gid(seed, gid, pos.shape[1])
 
 
+def _check_inside(scene, comm, gid, pos) -> None:
+    """Refuse, on every rank, a perturbed lattice (initial.sigma_over_dx) that puts a particle outside the
+    domain along a bounded axis (a failure audit: the first neighbour search stopped it as an escaped
+    particle, exit 3, naming neither the stage nor the key, with no state written). Collective."""
+    from psph.parallel.comm import raise_if_any
+
+    d = scene.domain
+    out, open_faces = np.zeros(len(gid), dtype=bool), d.outflow_faces()  # (past an outflow face it just leaves)
+    for a in range(d.dimension):
+        if not d.periodic[a]:
+            out |= ((pos[:, a] < d.lower[a]) & ((a, -1) not in open_faces)) \
+                | ((pos[:, a] > d.upper[a]) & ((a, 1) not in open_faces))
+    error = None
+    if out.any():
+        k = int(np.flatnonzero(out)[0])
+        error = SceneError("initial.sigma_over_dx", f"{scene.initial.sigma_over_dx:g} (seed {scene.initial.seed}) "
+                           f"moves particle gid {int(gid[k])} to {np.array2string(pos[k], precision=6)}, outside the "
+                           "domain: lower it, or keep the fill region off the bounded faces (initial.fill_lower / "
+                           "fill_upper)")
+    raise_if_any(comm, error)
+
+
 def initial_fields(scene, pos) -> dict:
     """Fields the scene's initial condition sets at the fluid positions `pos`: the analytic Taylor-Green
     velocity and pressure, or the hydrostatic pressure (none for initial.velocity = zero, pressure = zero)."""
@@ -99,6 +121,8 @@ def create_particles(scene, comm, specs=()) -> ParticleSet:
         raise SceneError(key, f"no lattice node of dx = {dspec.dx:g} lies in the fluid's region (the fill region or "
                          "drop, outside the bodies): no fluid particle")
     perturb(gid, pos, scene.initial.sigma_over_dx * dspec.dx, scene.initial.seed)
+    if not scene.bodies:  # (beyond walls, the initial state's check names the wall crossed and writes the state)
+        _check_inside(scene, comm, gid, pos)
     fields = initial_fields(scene, pos)
     for name in fields:
         particles.add_field(INITIAL_FIELD_SPECS[name])

@@ -215,3 +215,19 @@ def test_a_density_at_or_below_zero_stops_the_run_whatever_the_variation_limit(t
     lines = [line for line in proc.stderr.splitlines() if line.startswith("psph: error")]
     assert len(lines) == 1 and "a particle's density or volume fell to -" in lines[0], proc.stderr
     assert "(at or below zero) [step " in lines[0] and list((tmp_path / "out").glob("snapshot_*.h5"))
+
+
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_a_perturbation_that_puts_particles_outside_the_domain_is_refused_naming_the_key(tmp_path, ranks):
+    """A failure audit: sigma = dx on a fill reaching the bounded floor put particles below it, and the first
+    neighbour search stopped the run as an escape (exit 3), naming neither the stage nor the key, with nothing
+    written. Now a scene error (exit 2, one line, no output directory)."""
+    from tests.helpers import run_psph
+
+    proc = run_psph("run", CASES / "taylor_green.toml", "--out", tmp_path / "out", "--quiet", "--set",
+                    "domain.periodic=[true, false]", "--set", "initial.sigma_over_dx=1.0", "--set", "domain.dx=0.05",
+                    "--set", "initial.velocity=zero", "--set", "initial.pressure=zero", ranks=ranks)
+    assert proc.returncode == 2, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("psph: error")]
+    assert len(lines) == 1 and lines[0].startswith("psph: error: initial.sigma_over_dx: 1 (seed "), proc.stderr
+    assert "outside the domain: lower it" in lines[0] and not (tmp_path / "out").exists()
