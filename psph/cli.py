@@ -67,7 +67,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--overwrite", action="store_true",
                      help="replace results already in the output directory (psph's own files are removed first)")
     run.add_argument("--allow-large", action="store_true",
-                     help="run even if the estimated memory exceeds this machine's")
+                     help="run even if the estimated memory exceeds this machine's, or the estimated steps 1e9")
     run.add_argument("--quiet", action="store_true", help="print nothing but errors (the log file still gets it all)")
     run.add_argument("--log", metavar="FILE", help="log file (default: OUT/psph.log, which --overwrite starts "
                      "afresh); messages and errors are appended")

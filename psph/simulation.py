@@ -338,7 +338,17 @@ def estimate_resources(scene, ranks=1, assembled=False) -> tuple:
 
 
 def estimate_time_step(scene) -> str:
-    """The time step a run of `scene` starts with and its number of steps, as a line (empty for static runs).
+    """The time step a run of `scene` starts with and its number of steps, as a line (empty for static runs):
+    time_step_estimate's."""
+    dt, how, steps = time_step_estimate(scene)
+    if dt is None:
+        return ""
+    count = f"{steps}" if steps < 1e9 else f"{steps:.3g}"  # (a failure audit: nu = 1e304 printed 304 digits)
+    return f"estimated time step: {dt:.4g} ({how}), about {count} steps to t_end = {scene.time.t_end:g}"
+
+
+def time_step_estimate(scene) -> tuple:
+    """(dt, how it was found, steps to t_end) a run of `scene` starts with, or (None, "", 0) for a static run.
 
     Fluid: cfl h / (c0 + U) (thesis eq. 5.52, U the reference velocity; the run adapts it to the actual
     speed) and at most the viscous operator's limit on the lattice (psph.schemes.viscous_limit; disorder
@@ -347,7 +357,7 @@ def estimate_time_step(scene) -> str:
 
     d, ph, t = scene.domain, scene.physics, scene.time
     if ph.scheme == "none":
-        return ""
+        return None, "", 0
     if ph.scheme == "kinematic":
         dt = t.cfl * d.dx / ph.sound_speed
         how = f"cfl dx / c0 = {t.cfl:g} x {d.dx:g} / {ph.sound_speed:g}"
@@ -366,7 +376,8 @@ def estimate_time_step(scene) -> str:
                 dt = limit.step
                 how = (f"viscous limit {limit.step * scheme.nu / d.h**2:.3g} h^2 / nu on the lattice, h = {d.h:g}, "
                        f"nu = {scheme.nu:g}")
-    return f"estimated time step: {dt:.4g} ({how}), about {math.ceil(t.t_end / dt)} steps to t_end = {t.t_end:g}"
+    steps = t.t_end / dt
+    return dt, how, math.ceil(steps) if steps < 1e15 else steps
 
 
 def machine_memory() -> int:
@@ -375,10 +386,14 @@ def machine_memory() -> int:
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
+MAX_STEPS = 1e9  # more steps than a run takes in a year at 30 ms a step
+
+
 def check_resources(scene, allow_large=False, ranks=1, node_ranks=None) -> None:
     """Refuse (SceneError on domain.dx) a scene whose estimated memory (estimate_resources, with the IIPS
     operator PETSc's options choose) exceeds 80% of this machine's: the share of `node_ranks` of the run's
-    `ranks` ranks (all of them if None; on a cluster, the ranks on this node)."""
+    `ranks` ranks (all of them if None; on a cluster, the ranks on this node); and (on time.t_end) one that
+    would take more than MAX_STEPS steps (time_step_estimate)."""
     from psph.errors import SceneError
 
     n, nbytes, _ = estimate_resources(scene, ranks, iips_assembled(scene))
@@ -388,3 +403,7 @@ def check_resources(scene, allow_large=False, ranks=1, node_ranks=None) -> None:
     if need > 0.8 * machine_memory() and not allow_large:
         raise SceneError("domain.dx", f"{n} particles need about {need / 2**30:.3g} GiB{on}, more than 80% of "
                          f"this machine's {machine_memory() / 2**30:.3g} GiB (run with --allow-large to try anyway)")
+    dt, how, steps = time_step_estimate(scene)
+    if steps > MAX_STEPS and not allow_large:  # (a failure audit: Re = 1e-300 ran 77 440 steps to t = 5e-299)
+        raise SceneError("time.t_end", f"{scene.time.t_end:g} takes about {steps:.3g} steps of {dt:.3g} ({how}), "
+                         f"more than {MAX_STEPS:.0e} (run with --allow-large to try anyway)")

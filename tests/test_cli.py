@@ -1,6 +1,7 @@
 """The command line: bad input gives one line and exit 2 with nothing written; runs honour the contract."""
 
 import json
+import re
 
 import h5py
 import numpy as np
@@ -348,6 +349,19 @@ def test_what_the_machine_refuses_is_one_line_not_a_bug(tmp_path):
                    "--set", "domain.dx=1e-6", "--set", "time.t_end=0.001")
     assert res.returncode == 1 and "Traceback" not in res.stderr, res.stderr
     assert res.stderr.strip().startswith("psph: error: out of memory: Unable to allocate"), res.stderr
+
+
+def test_a_run_of_more_steps_than_a_year_holds_is_refused_and_its_estimate_printed_short(tmp_path):
+    """A failure audit: physics.reynolds = 1e-300 gave a viscous time step of 7e-304 from the first step, and
+    the run went on for 77 440 steps to t = 5e-299 until stopped; psph info printed the step count with 304
+    digits."""
+    sets = ["--set", "physics.reynolds=1e-300", "--set", "domain.dx=0.1"]
+    res = run_psph("run", CASES / "taylor_green.toml", "--out", tmp_path / "out", "--quiet", *sets)
+    assert res.returncode == 2 and not (tmp_path / "out").exists(), res.stderr
+    assert res.stderr.startswith("psph: error: time.t_end: 1 takes about 3") and "e+302 steps of " in res.stderr
+    assert "(viscous limit " in res.stderr and "more than 1e+09 (run with --allow-large" in res.stderr
+    info = run_psph("info", CASES / "taylor_green.toml", *sets)
+    assert info.returncode == 0 and re.search(r"about \d\.\d+e\+302 steps to t_end = 1\n", info.stdout), info.stdout
 
 
 @pytest.mark.parametrize("ranks, options, message", [
