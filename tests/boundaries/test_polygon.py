@@ -18,6 +18,14 @@ SQUARE = [[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]]
 TRAPEZOID = CASES / "trapezoidal_tank.toml"
 
 
+def PARTITIONED(width):  # noqa: N802 (a table of corners)
+    """The trapezoidal tank's corners with a partition `width` thick rising 0.9 from its floor at x = 0.7
+    (clockwise if width < 0)."""
+    corners = [[0.0, 0.0], [0.7, 0.0], [0.7, 0.9], [0.7 + abs(width), 0.9], [0.7 + abs(width), 0.0], [1.0, 0.0],
+               [1.6, 1.2], [0.0, 1.2]]
+    return corners[:1] + corners[1:][::-1] if width < 0 else corners
+
+
 @pytest.mark.parametrize("order", [1, -1])
 def test_the_profile_is_the_same_in_either_sense_with_normals_out_of_the_fluid(order):
     corners = SQUARE if order == 1 else SQUARE[::-1]
@@ -109,8 +117,15 @@ def test_the_trapezoidal_tank_fills_the_lattice_and_holds_water_at_rest(tmp_path
     (["bodies.0.vertices=[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [1.0, 0.5], [0.0, 1.0]]"], "bodies[0].vertices[2]",
      "folds back on itself"),
     (["domain.periodic=[true, false]"], "bodies[0].shape", "a periodic axis does not allow"),
+    # a partition 1.5 dx thick between two basins (a failure audit: 0.8 dx let fluid through, exit 0)
+    ([f"bodies.0.vertices={PARTITIONED(0.15)}"], "bodies[0].vertices",
+     "the wall of 'tank' behind its edge 1 ([0.7, 0.0] to [0.7, 0.9]) is at most 0.175 thick at (0.7, 0.1), less "
+     "than 2 dx = 0.2: no solid particle would fill it, and the fluid would cross it"),
+    ([f"bodies.0.vertices={PARTITIONED(-0.15)}"], "bodies[0].vertices",
+     "behind its edge 4 ([0.85, 0.0] to [0.85, 0.9]) is at most 0.175 thick at (0.85, 0.1)"),
 ])
 def test_bad_polygons_are_refused_by_key(sets, key, words):
+    load_scene(TRAPEZOID, ["domain.dx=0.1", f"bodies.0.vertices={PARTITIONED(0.2)}"])  # 2 dx: admitted
     load_scene(TRAPEZOID, ["domain.dx=0.1"])
     with pytest.raises(SceneError) as info:
         load_scene(TRAPEZOID, ["domain.dx=0.1", *sets])
