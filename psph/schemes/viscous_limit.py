@@ -42,6 +42,21 @@ def lattice_offsets(kernel, dim: int, dx: float) -> tuple:
     return offsets[keep], r[keep], -kernel.radial(r[keep]) * dx ** dim  # F = -W'(r)/r >= 0
 
 
+def zone_maximum(largest, dim: int, top: float) -> float:
+    """The maximum over k in [0, top]^d of largest(k) (k: an (m, d) array of waves -> m values): over a grid
+    of 33 points per axis (17 in 3-D), then refined from the grid's best point by bounded L-BFGS-B (a 3-D
+    audit: the 17-point grid alone put Wendland C6's explicit-shifting limit at 0.4630 h^2, where 33 points
+    give 0.4615)."""
+    from scipy.optimize import minimize
+
+    waves = np.linspace(0.0, top, 33 if dim < 3 else 17)
+    k = np.stack(np.meshgrid(*[waves] * dim, indexing="ij"), axis=-1).reshape(-1, dim)
+    values = largest(k)
+    best = k[int(np.argmax(values))]
+    refined = minimize(lambda q: -float(largest(q[None, :])[0]), best, method="L-BFGS-B", bounds=[(0.0, top)] * dim)
+    return max(float(values.max()), -float(refined.fun))
+
+
 def lattice_symbol(kernel, dim: int, dx: float, morris: bool) -> tuple:
     """(lambda_max, D): the largest eigenvalue, per unit nu, of the viscous operator on the Cartesian lattice
     of spacing dx, from its Fourier symbol over the Brillouin zone, and the lattice's diagonal weight D (what
@@ -52,15 +67,16 @@ def lattice_symbol(kernel, dim: int, dx: float, morris: bool) -> tuple:
     (1 - cos k.x_j) e_j e_j^T (e_j = x_j / |x_j|), over k in [0, pi / dx]^d (the symbols are even in each
     component of k)."""
     offsets, r, weight = lattice_offsets(kernel, dim, dx)
-    waves = np.linspace(0.0, np.pi / dx, 33 if dim < 3 else 17)
-    k = np.stack(np.meshgrid(*[waves] * dim, indexing="ij"), axis=-1).reshape(-1, dim)
-    c = (1.0 - np.cos(k @ offsets.T)) * weight  # (wave, neighbour)
-    if morris:
-        return float(2.0 * c.sum(axis=1).max()), float(weight.sum())
     e = offsets / r[:, None]
-    symbol = 2.0 * (dim + 2) * np.einsum("kj,ja,jb->kab", c, e, e)
-    diagonal = np.einsum("j,ja,jb->ab", weight, e, e)
-    return float(np.linalg.eigvalsh(symbol)[:, -1].max()), float(np.linalg.eigvalsh(diagonal)[-1])
+
+    def largest(k):
+        c = (1.0 - np.cos(k @ offsets.T)) * weight  # (wave, neighbour)
+        if morris:
+            return 2.0 * c.sum(axis=1)
+        return np.linalg.eigvalsh(2.0 * (dim + 2) * np.einsum("kj,ja,jb->kab", c, e, e))[:, -1]
+
+    diagonal = weight.sum() if morris else np.linalg.eigvalsh(np.einsum("j,ja,jb->ab", weight, e, e))[-1]
+    return zone_maximum(largest, dim, np.pi / dx), float(diagonal)
 
 
 class ViscousLimit:
