@@ -605,14 +605,14 @@ class FluidDriver(Driver):
         empty = (p.owned("density") <= 0.0) | (p.owned("volume") <= 0.0)
         if bad.any():
             problem, k = "non-finite field (NaN/Inf)", int(np.flatnonzero(bad)[0])
-        elif empty.any():  # (whatever physics.max_density_variation: from 1 on it let rho <= 0 pass, an audit)
-            k = int(np.flatnonzero(empty)[0])
-            problem = (f"a particle's density or volume fell to {min(p.owned('density')[k], p.owned('volume')[k]):.3g}"
-                       " (at or below zero)")
         elif dev.size and dev.max() > limit:
             k = int(np.argmax(dev))
             problem = (f"density left the weakly compressible range: |rho/rho0 - 1| = {dev[k]:.3g} > {limit:g} "
                        "(physics.max_density_variation)")
+        elif empty.any():  # (with physics.max_density_variation from 1 up, rho <= 0 passed: a failure audit)
+            k = int(np.flatnonzero(empty)[0])
+            problem = (f"a particle's density or volume fell to {min(p.owned('density')[k], p.owned('volume')[k]):.3g}"
+                       " (at or below zero)")
         elif self.scheme.walls is not None and (hit := self.scheme.walls.trespassers(
                 p.owned("position")[fluid_mask(self.system)], t, 0.5 * self.scene.domain.dx)) is not None:
             problem, k = f"a fluid particle crossed the wall of body {hit[1]!r}", \
