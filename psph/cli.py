@@ -65,10 +65,12 @@ def _parser() -> argparse.ArgumentParser:
                      help="same as --set output.checkpoint_minutes=T")
     run.add_argument("--out", help="output directory (default: ./<scene name>_out; on restart, the checkpoint's)")
     run.add_argument("--overwrite", action="store_true",
-                     help="replace results already in the output directory (psph's own files are removed first)")
+                     help="replace results already in the output directory (psph's own files are set aside, and "
+                     "put back if the run is refused while it sets up)")
     run.add_argument("--allow-large", action="store_true",
                      help="run even if the estimated memory exceeds this machine's, or the estimated steps 1e9")
-    run.add_argument("--quiet", action="store_true", help="print nothing but errors (the log file still gets it all)")
+    run.add_argument("--quiet", action="store_true",
+                     help="print nothing but warnings and errors (the log file still gets it all)")
     run.add_argument("--log", metavar="FILE", help="log file (default: OUT/psph.log, which --overwrite starts "
                      "afresh); messages and errors are appended")
     info = sub.add_parser("info", help="print the resolved scene, its model terms and estimated size")

@@ -227,17 +227,32 @@ def start_from_snapshot(scene, system, path) -> dict:
                            "snapshot after particles left or entered?)")
     else:
         start = pos[at][fluid]
-        bad = np.flatnonzero(~np.isfinite(start).all(axis=1) | system.domain.outside(start))
+        bad = np.flatnonzero(~np.isfinite(start).all(axis=1) | system.domain.outside(start) | ~_near_fill(scene, start))
         if bad.size:
             k = int(bad[0])
             error = SceneError(key, f"{path} puts fluid gid {int(own_gid[fluid][k])} at "
-                               f"{np.array2string(start[k], precision=6)}, outside the domain")
+                               f"{np.array2string(start[k], precision=6)}, more than dx/2 outside this scene's fluid "
+                               "region (the fill region or drop): a later state of a flow?")
     raise_if_any(comm, error)
     p.owned("position")[fluid] = pos[at][fluid]
     system.rebuild(rebalance=True)
     set_packed_volume(scene, system)
     return {"start": str(path), "start_time": float(attrs.get("time", np.nan)),
             "start_step": int(attrs.get("step", -1))}
+
+
+def _near_fill(scene, points) -> np.ndarray:
+    """Which points lie within dx/2 (along an axis) of the scene's fluid region (psph.boundaries.fluid_mask:
+    the fill region or drop, outside the bodies): where a packing keeps its particles (the drop's frame
+    starts dx/2 outside its rim; a packing audit's t = 0.1 snapshot of the stretched drop, started from
+    and packed, put particles into the frame and diverged, blaming packing.cfl)."""
+    from psph.boundaries import fluid_mask as fills
+
+    d = scene.domain
+    near = fills(scene, points)
+    for offset in np.concatenate([np.eye(d.dimension), -np.eye(d.dimension)]) * 0.5 * d.dx:
+        near |= fills(scene, points + offset)
+    return near
 
 
 def pack(scene, system, rows=None) -> dict:

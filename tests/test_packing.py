@@ -219,7 +219,7 @@ def test_a_packed_start_repeats_the_packed_run_and_packs_on_from_it(tmp_path):
     """A run from packing.start = a packed run's first snapshot is that run to the last bit, without packing;
     with packing.iterations it packs on from where the first stopped (its grad Gamma at the start is the
     first's at its end)."""
-    common = ["--set", "domain.dx=0.1", "--set", "time.t_end=0.02", "--quiet"]
+    common = ["--set", "domain.dx=0.1", "--set", "time.t_end=0.1", "--set", "output.every=0.1", "--quiet"]
     first = tmp_path / "packed"
     res = run_psph("run", DROP, "--out", first, "--set", "packing.iterations=150", *common)
     assert res.returncode == 0, res.stderr
@@ -242,6 +242,11 @@ def test_a_packed_start_repeats_the_packed_run_and_packs_on_from_it(tmp_path):
     assert now["start"] == str(start) and now["iterations"] == 150
     assert now["Linf_grad_gamma_start"] == pytest.approx(was["Linf_grad_gamma"], rel=1e-12)
     assert now["Linf_grad_gamma"] < 0.5 * was["Linf_grad_gamma"] < 0.5 * was["Linf_grad_gamma_start"]
+    # the drop stretched by t = 0.1 reaches past its frame's first ring: packed from there, it diverged (a
+    # README audit), and its initial fields are the disc's
+    later = first / "snapshot_000001.h5"
+    res = run_psph("run", DROP, "--out", tmp_path / "later", "--set", f"packing.start={later}", *common)
+    assert res.returncode == 2 and "more than dx/2 outside this scene's fluid region" in res.stderr, res.stderr
 
 
 def test_a_packed_start_from_another_scene_is_refused_naming_the_key(tmp_path):
