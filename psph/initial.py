@@ -121,8 +121,8 @@ def create_particles(scene, comm, specs=()) -> ParticleSet:
         raise SceneError(key, f"no lattice node of dx = {dspec.dx:g} lies in the fluid's region (the fill region or "
                          "drop, outside the bodies): no fluid particle")
     perturb(gid, pos, scene.initial.sigma_over_dx * dspec.dx, scene.initial.seed)
-    if not scene.bodies:  # (beyond walls, the initial state's check names the wall crossed and writes the state)
-        _check_inside(scene, comm, gid, pos)
+    if not any(b.container for b in scene.bodies):  # (in a container, the initial state's check names the wall
+        _check_inside(scene, comm, gid, pos)  # crossed and writes the state; an immersed body walls no face)
     fields = initial_fields(scene, pos)
     for name in fields:
         particles.add_field(INITIAL_FIELD_SPECS[name])

@@ -311,32 +311,45 @@ def check_placement(scene) -> None:
 
 
 def _check_polygon_walls(spec, path, dx) -> None:
-    """Refuse a polygon (a container) whose solid side is thinner than 2 dx behind some edge (a partition
-    between two parts of the fluid), which its bounding box does not show: no
-    solid particle fills it, and fluid crossed it unseen (a failure audit: a tank's partition 0.8 dx thick
-    let 63 particles through, and the run ended with exit 0). From points along every edge (dx from its
-    ends), the solid side is probed dx/4 to 2 dx deep along the edge's normal."""
+    """Refuse a polygon (a container) whose solid is thinner than 2 dx between two of its sides that share
+    no corner (a partition between two parts of the fluid), which its bounding box does not show: no solid
+    particle fills it, and fluid crossed it unseen (a failure audit: a tank's partition 0.8 dx thick let 63
+    particles through, and the run ended with exit 0). From points along every side (dx from its ends), a
+    probe 2 dx long into the solid along the side's normal must meet no other side but its neighbours (the
+    solid coming to a point at a corner, a weir's crest or a sill, is no partition: a review)."""
     from psph.errors import SceneError
 
     v = np.asarray(spec.vertices, dtype=float)
+    n = len(v)
     edges = np.roll(v, -1, axis=0) - v
     area = 0.5 * float(np.sum(v[:, 0] * np.roll(v[:, 1], -1) - np.roll(v[:, 0], -1) * v[:, 1]))
-    shape = shape_spec(spec)
-    depths = np.arange(1, 9) * 0.25 * dx * (1.0 - 1e-6)
+
+    def cross(a, b):
+        return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
     for i, (start, edge) in enumerate(zip(v, edges)):
         length = float(np.hypot(*edge))
         if length <= 2.0 * dx:
             continue
         outward = np.array([edge[1], -edge[0]]) / length * np.sign(area)  # (counter-clockwise: to the right)
         points = start + np.arange(dx, length - dx + 1e-9 * dx, 0.5 * dx)[:, None] * edge / length
-        fluid = inside(shape, (points[:, None, :] + depths[None, :, None] * outward).reshape(-1, 2))
-        if fluid.any():
-            k = int(np.flatnonzero(fluid)[0])
-            at, depth = points[k // len(depths)], depths[k % len(depths)]
-            raise SceneError(f"{path}.vertices", f"the wall of {spec.name!r} behind its edge {i} ({start.tolist()} to "
-                             f"{(start + edge).tolist()}) is at most {depth:.3g} thick at ({at[0]:.6g}, "
-                             f"{at[1]:.6g}), less than 2 dx = {2 * dx:g}: no solid particle would fill it, and the "
-                             "fluid would cross it")
+        others = [j for j in range(n) if j not in (i, (i - 1) % n, (i + 1) % n)]
+        if not others:
+            continue
+        a, b = v[others], edges[others]  # the other sides: a + u b, u in [0, 1]
+        rel = a[None, :, :] - points[:, None, :]  # (point, side, 2)
+        denom = cross(outward, b)  # (side,): parallel sides never meet the probe
+        with np.errstate(divide="ignore", invalid="ignore"):
+            depth = cross(rel, b[None]) / denom  # along the probe
+            u = cross(rel, np.broadcast_to(outward, rel.shape)) / denom
+        hits = (denom != 0.0) & (depth > 0.0) & (depth < 2.0 * dx * (1.0 - 1e-9)) & (u >= 0.0) & (u <= 1.0)
+        if hits.any():
+            k, m = np.unravel_index(np.argmin(np.where(hits, depth, np.inf)), hits.shape)
+            at = points[k]
+            raise SceneError(f"{path}.vertices", f"the wall of {spec.name!r} between its sides {i} ({start.tolist()} "
+                             f"to {(start + edge).tolist()}) and {others[m]} is {depth[k, m]:.3g} thick at "
+                             f"({at[0]:.6g}, {at[1]:.6g}), less than 2 dx = {2 * dx:g}: no solid particle would "
+                             "fill it, and the fluid would cross it")
 
 
 def within_walls(spec, points) -> np.ndarray:
