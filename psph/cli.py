@@ -70,7 +70,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--allow-large", action="store_true",
                      help="run even if the estimated memory exceeds this machine's, or the estimated steps 1e9")
     run.add_argument("--quiet", action="store_true",
-                     help="print nothing but warnings and errors (the log file still gets it all)")
+                     help="print nothing but errors and set-up warnings (the log file still gets it all)")
     run.add_argument("--log", metavar="FILE", help="log file (default: OUT/psph.log, which --overwrite starts "
                      "afresh); messages and errors are appended")
     info = sub.add_parser("info", help="print the resolved scene, its model terms and estimated size")

@@ -16,7 +16,7 @@ def make_shifting(scene, comm):
     if method == "explicit_iterative":
         from psph.shifting.explicit import ExplicitIterativeShifting
 
-        return ExplicitIterativeShifting(scene.shifting)
+        return ExplicitIterativeShifting(scene.shifting, scene.domain)
     return NoShifting()
 
 
