@@ -294,6 +294,11 @@ def cmd_run(args, petsc_options, comm) -> int:
         raise UsageError(f"output directory {out!r} already holds results; choose another --out or pass --overwrite")
     if os.path.exists(out) and not os.path.isdir(out):
         raise UsageError(f"output path {out!r} exists and is not a directory")
+    start = scene.packing.start
+    if start and restart is None and os.path.realpath(os.path.dirname(os.path.abspath(start))) == os.path.realpath(out):
+        # (a review: --overwrite set the snapshot aside with the rest, and the run said there was no file)
+        raise SceneError("packing.start", f"{start} lies in the output directory {out}, whose results this run "
+                         "replaces: copy it elsewhere first, or choose another --out")
     later = []  # an in-place continuation: what the directory holds past the checkpoint, replaced
     if continuing:
         foreign = comm.bcast(foreign_snapshots(out, restart[0].get("run")) if comm.rank == 0 else None, root=0)
