@@ -200,7 +200,7 @@ def start_from_snapshot(scene, system, path) -> dict:
         with h5py.File(path, "r") as f:
             group = f["particles"]
             gid, kind, pos = (np.asarray(group[name][()]) for name in ("gid", "kind", "position"))
-            attrs = {name: f.attrs[name].item() for name in ("time", "step") if name in f.attrs}
+            attrs = {name: f.attrs[name].item() for name in ("time", "step")}
     except KeyError as err:
         raise SceneError(key, f"{path} is not a psph snapshot ({err})") from None
     except OSError as err:
@@ -243,8 +243,7 @@ def start_from_snapshot(scene, system, path) -> dict:
     p.owned("position")[fluid] = pos[at][fluid]
     system.rebuild(rebalance=True)
     set_packed_volume(scene, system)
-    return {"start": str(path), "start_time": float(attrs.get("time", np.nan)),
-            "start_step": int(attrs.get("step", -1))}
+    return {"start": str(path), "start_time": float(attrs["time"]), "start_step": int(attrs["step"])}
 
 
 def _near_fill(scene, points) -> np.ndarray:

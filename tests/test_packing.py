@@ -315,6 +315,10 @@ def test_a_packed_start_from_another_scene_is_refused_naming_the_key(tmp_path):
     with h5py.File(gone, "w") as f:
         for name, values in data.items():
             f[f"particles/{name}"] = values[1:]
+    with pytest.raises(SceneError, match="gone.h5 is not a psph snapshot .*'time'"):  # (no time, no step)
+        start_from_snapshot(scene, system, gone)
+    with h5py.File(gone, "a") as f:
+        f.attrs["time"], f.attrs["step"] = 0.5, 40
     with pytest.raises(SceneError, match="holds 199 fluid particles, this scene 200"):
         start_from_snapshot(scene, system, gone)
 

@@ -326,8 +326,8 @@ class PackingSpec:
     start: str = option("", doc="fluid runs: a psph snapshot (OUT/snapshot_NNNNNN.h5, its path relative to the "
                         "working directory) whose fluid positions, by gid, replace the lattice's before any "
                         "packing.iterations: snapshot_000000.h5 of a packed run of this scene starts another "
-                        "packed, without packing again. It must hold this scene's fluid particles and walls "
-                        "(same dx, fill and bodies); the fields are set afresh")
+                        "packed, without packing again. It must hold this scene's fluid particles, within dx/2 of its "
+                        "fluid region, and its walls (same dx, fill and bodies); the fields are set afresh")
 
 
 @dataclass(frozen=True)
