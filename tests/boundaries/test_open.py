@@ -476,6 +476,38 @@ def test_a_flows_bare_faces_are_those_no_wall_or_open_boundary_holds():
                                                         "initial.velocity=zero"])).bare_fluid_faces() == ["x+"]
 
 
+def test_buffer_particles_no_fluid_reaches_are_removed_not_left_falling(tmp_path):
+    """An open-boundary audit: beside a layer at rest, the start's deepest buffer row stands a support from
+    the fluid; the extrapolation left it as it was and gravity carried it down for ever, through the floor
+    and out of the domain ("2 particle(s) left the domain" at t = 0.457, no fluid having left). Such rows
+    are removed once no fluid lies within the lists' radius: the run ends, the buffer rows no lower than
+    that radius below the fluid's bottom row, and no fluid has left."""
+    import h5py
+
+    from tests.helpers import run_psph
+    from tests.scene.test_fuzz import toml_document
+
+    table = {"name": "layer", "domain": {"dimension": 2, "lower": [0.0, -0.3], "upper": [1.0, 0.6],
+                                         "periodic": [False, False], "dx": 0.05, "outflow": ["x-", "x+"],
+                                         "outflow_buffer": True},
+             "initial": {"fill_lower": [0.0, 0.0], "fill_upper": [1.0, 0.4], "pressure": "hydrostatic"},
+             "physics": {"scheme": "delta_ale", "gravity": [0.0, -9.81], "reference_velocity": 2.0,
+                         "sound_speed": 20.0},
+             "time": {"t_end": 0.6}, "output": {"every": 0.6, "history_every": 50},
+             "bodies": [{"name": "floor", "shape": "rectangle", "center": [0.5, -0.15], "size": [2.0, 0.3],
+                         "wall": "free_slip"}]}
+    scene = tmp_path / "layer.toml"
+    scene.write_text(toml_document(table))
+    done = run_psph("run", scene, "--out", tmp_path / "out", "--quiet")
+    assert done.returncode == 0, done.stderr
+    with h5py.File(tmp_path / "out" / "snapshot_000001.h5") as f:
+        kind, y = f["particles/kind"][()], f["particles/position"][:, 1]
+    # (the lists' radius: a support of 4 dx = 0.2 and its 10% skin; the fluid's bottom row at y = dx/2)
+    assert np.count_nonzero(kind == Kind.OUTLET) and y[kind == Kind.OUTLET].min() > 0.025 - 0.22
+    rows = (tmp_path / "out" / "history.csv").read_text().splitlines()
+    assert float(rows[-1].split(",")[rows[0].split(",").index("mass_out")]) == 0.0
+
+
 @pytest.mark.parametrize("ranks,buffer", [(1, False), (2, True)])
 def test_a_domain_all_its_fluid_leaves_runs_on_empty(tmp_path, ranks, buffer):
     """No inflow, and gravity along the channel: all the fluid leaves by t = 0.45. The snapshots after that
