@@ -65,11 +65,16 @@ class ExplicitIterativeShifting(Shifting):
     def __init__(self, spec, domain=None):
         """domain: the scene's domain section, whose kernel's lattice limit (stability_limit) a divergence
         names (without it, the message names the function)."""
-        self.spec = spec
+        self.spec, self.domain = spec, domain
         self.iterations = 0
-        self.limit = ("the lattice's stability limit (psph.shifting.explicit.stability_limit)" if domain is None else
-                      f"{domain.kernel} at h/dx = {domain.h_over_dx:g} is stable up to "
-                      f"{stability_limit(domain.kernel, domain.dimension, domain.h_over_dx):.3g} on the lattice")
+
+    def _limit(self) -> str:
+        """The divergence message's words on the lattice limit (computed only then)."""
+        d = self.domain
+        if d is None:
+            return "the lattice's stability limit (psph.shifting.explicit.stability_limit)"
+        return (f"{d.kernel} at h/dx = {d.h_over_dx:g} is stable up to "
+                f"{stability_limit(d.kernel, d.dimension, d.h_over_dx):.3g} on the lattice")
 
     def correct(self, system, on_iteration=None, iterations=None, **where) -> ShiftReport:
         n = self.spec.iterations_per_step if iterations is None else iterations
@@ -91,7 +96,7 @@ class ExplicitIterativeShifting(Shifting):
                 place = {**system.where, **where, **steepest(system, grad, np.flatnonzero(fluid_mask(system)))}
                 error = NumericalError(f"explicit iterative shifting diverged at iteration {report.iterations}: "
                                        f"L2(grad C) grew from {start:.3e} to {l2:.3e} (shifting.diffusion = "
-                                       f"{self.spec.diffusion:g}: lower it; {self.limit})", **place)
+                                       f"{self.spec.diffusion:g}: lower it; {self._limit()})", **place)
                 error.collective = True
                 raise error
             if on_iteration is not None and on_iteration(
