@@ -253,8 +253,8 @@ class FluidDriver(Driver):
             self.pre = self.pre_procedure()
         self.scheme.initialize(self.system, t=self.resumed["time"] if restart else 0.0, fresh=restart is None)
         self.open = make_open_boundaries(scene, self.system)
-        if restart is None and scene.domain.outflow_buffer:
-            self.open.fill_outflow_buffers(self.system)
+        if restart is None:
+            self.open.start(self.system)
         self.emptied = False  # all the fluid has left (logged once)
         self.integrate = INTEGRATORS[scene.time.integrator]
         self.viscous_limit = ViscousLimit.of_scene(scene, self.scheme, self.system.kernel)
