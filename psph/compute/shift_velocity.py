@@ -1,9 +1,10 @@
 """Kernels of the explicit particle-shifting laws (numba). The laws themselves (coefficients, limiters)
 are in psph/shifting/velocity.py.
 
-Sign convention: grad_i W_ij = f(r) x_ij points from j to i for a decreasing kernel, so grad C_i points up
-the concentration; shifting moves particles down it (dx = -D grad C). The thesis prints some of these
-laws with grad W_ij = d W / d x_j (eq. 8.6), i.e. the opposite sign; psph uses the physical direction.
+Sign convention: grad_i W_ij = f(r) x_ij, x_ij = x_i - x_j, points from i to j for a decreasing kernel
+(f < 0), so grad C_i points up the concentration; shifting moves particles down it (dx = -D grad C). The
+thesis prints some of these laws with grad W_ij = d W / d x_j (eq. 8.6), i.e. the opposite sign; psph uses
+the physical direction.
 """
 
 import numpy as np

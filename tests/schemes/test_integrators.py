@@ -45,14 +45,22 @@ def test_order(name, order):
     assert np.log2(errors[0] / errors[1]) == pytest.approx(order, abs=0.15)
 
 
-def test_printed_rk3_last_stage_is_only_first_order():
-    """Thesis eq. 5.51 as printed (dt only on H1) is not a consistent third-order scheme."""
+def test_printed_rk3_last_stage_is_not_consistent():
+    """Thesis eq. 5.51 as printed (dt on H1 only) is no consistent scheme: its step tends to (5/6) A y0, not
+    to zero, as dt -> 0; psph's last stage (dt on every stage) takes the step of the exact solution."""
     ode = LinearODE()
     y0 = ode.y.copy()
+
+    def printed_step(dt):
+        h1 = ode.a @ y0
+        h2 = ode.a @ (y0 + 0.5 * dt * h1)
+        h3 = ode.a @ (y0 - dt * h1 + 2 * dt * h2)
+        return dt * h1 / 6 + 2 * h2 / 3 + h3 / 6
+
+    for dt in (1e-2, 1e-4):
+        assert np.allclose(printed_step(dt), 5.0 / 6.0 * ode.a @ y0, rtol=0.0, atol=10.0 * dt)
     dt = 0.01
-    h1 = ode.a @ y0
-    h2 = ode.a @ (y0 + 0.5 * dt * h1)
-    h3 = ode.a @ (y0 - dt * h1 + 2 * dt * h2)
-    printed = y0 + dt * h1 / 6 + 2 * h2 / 3 + h3 / 6
     INTEGRATORS["rk3"](ode, AnyStage(), 0.0, dt)
-    assert np.abs(printed - ode.y).max() > 0.1
+    from scipy.linalg import expm
+
+    assert np.abs(ode.y - expm(ode.a * dt) @ y0).max() < 1e-7  # (third order: dt^4 |A|^4 / 24 = 7e-9)
