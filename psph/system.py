@@ -143,10 +143,12 @@ class ParticleSystem:
     def check_lists(self) -> None:
         """Raise ListsExpired on every rank if some owned particle moved more than half the skin since the
         last rebuild (the lists may then miss pairs); for moves that cannot rebuild, such as the stages of a
-        time step. Collective."""
+        time step. A non-finite position stops all ranks instead (check_escaped). Collective."""
         p = self.particles
         moved = max_displacement(p["position"], self._reference, p.n_owned)
         worst = allreduce_max(self.comm, moved)
+        if worst == np.inf:  # a non-finite position (a stage's NaN reached the walls' node search: an audit)
+            self.check_escaped()
         if 2.0 * worst > self.skin:
             gid, position = None, None
             if moved == worst and p.n_owned:

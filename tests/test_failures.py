@@ -143,6 +143,37 @@ def test_a_non_finite_position_stops_before_the_neighbour_search(tmp_path):
         system.rebuild()
 
 
+def test_a_stage_that_makes_a_position_non_finite_stops_the_run_before_the_wall_terms(tmp_path, monkeypatch):
+    """A delta-ALE audit: an overflowing shifting law (shifting.delta_plus_n = 3000) made a stage's positions
+    NaN; the stage check (check_lists) saw no move in a NaN, and the clone walls' node search indexed past its
+    nodes: an IndexError, "internal error (a bug)", exit 1. A non-finite stage position now stops the run
+    with the step and the count, the state saved, as at the end of a step."""
+    import h5py
+    from mpi4py import MPI
+
+    from psph.drivers.fluid import FluidDriver
+    from psph.errors import NumericalError
+    from psph.particles import Kind
+    from psph.scene.load import load_scene
+    from psph.schemes.delta_ale import DeltaALE
+
+    original = DeltaALE.rhs
+
+    def overflowing(self, system, t, dt):  # the transport velocity gone NaN, as the audit's overflow made it
+        out = original(self, system, t, dt)
+        out["position"][system.particles.owned("kind") == Kind.FLUID] = np.nan
+        return out
+
+    monkeypatch.setattr(DeltaALE, "rhs", overflowing)
+    scene = load_scene(CASES / "lid_driven_cavity.toml", ["domain.dx=0.1", "time.t_end=0.05",
+                                                           "shifting.method=delta_plus", "iips.update=none"])
+    with FluidDriver(scene, MPI.COMM_SELF, tmp_path, log=lambda message: None) as driver:
+        with pytest.raises(NumericalError, match=r"^100 particle\(s\) with a non-finite position \[step 1, t = 0, "):
+            driver.run()
+    with h5py.File(tmp_path / "snapshot_000001.h5", "r") as f:
+        assert int(f.attrs["step"]) == 1
+
+
 def test_a_failure_names_its_place_and_says_when_that_is_not_finite():
     from psph.errors import NumericalError
 

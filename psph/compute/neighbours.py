@@ -314,7 +314,8 @@ def closest_pair(pos, flagged, ptr, idx):
 
 @njit(cache=True)
 def max_displacement(pos, ref, n):
-    """max_i |pos_i - ref_i| over the first n particles."""
+    """max_i |pos_i - ref_i| over the first n particles; infinite if a position is not finite (NaN compares
+    false, so such a particle passed for one that had not moved)."""
     d = pos.shape[1]
     m = 0.0
     for i in range(n):
@@ -322,6 +323,8 @@ def max_displacement(pos, ref, n):
         for a in range(d):
             t = pos[i, a] - ref[i, a]
             r2 += t * t
+        if not r2 < np.inf:
+            return np.inf
         if r2 > m:
             m = r2
     return np.sqrt(m)

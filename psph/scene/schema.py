@@ -464,8 +464,11 @@ class ShiftingSpec:
                                    "its kernel's limit is warned about)", gt=0.0, le=10.0)
     max_iterations: int = option(1000, doc="explicit_iterative: iterations of a static run", ge=1)
     iterations_per_step: int = option(1, doc="explicit_iterative: iterations per time step", ge=1)
-    delta_plus_r: float = option(0.2, doc="delta_plus: R in [1 + R (W_ij / W(dx))^n] (seed 001 eq. 17)", ge=0.0)
-    delta_plus_n: float = option(4.0, doc="delta_plus: n (seed 001 eq. 17)", gt=0.0)
+    # bounded so that the factor stays finite: W_ij / W(dx) reaches 17 (C6, h/dx = 1), and n = 3000 overflowed
+    # it to NaN positions (a delta-ALE audit); Monaghan's tensile correction takes R = 0.2-0.3, n = 4
+    delta_plus_r: float = option(0.2, doc="delta_plus: R in [1 + R (W_ij / W(dx))^n] (seed 001 eq. 17)", ge=0.0,
+                                 le=10.0)
+    delta_plus_n: float = option(4.0, doc="delta_plus: n (seed 001 eq. 17)", gt=0.0, le=16.0)
     skillen_a: float = option(2.0, doc="skillen: the constant A of thesis eq. 6.18", gt=0.0)
     neuhauser_ps: float = option(10.0, doc="neuhauser: particle-shifting coefficient P_S (thesis eq. 7.1; "
                                  "1 = the original formulation)", gt=0.0)

@@ -57,6 +57,7 @@ def test_minimal_scene_gets_defaults():
     ("initial.seed", -3, "initial.seed", ">= 0"),
     ("initial.seed", 2**64, "initial.seed", "< 9223372036854775808"),
     ("shifting.method", "magic", "shifting.method", "not one of"),
+    ("shifting.delta_plus_n", 3000.0, "shifting.delta_plus_n", "<= 16.0"),  # overflowed to NaN positions
     ("shifting", 3, "shifting", "expected a table"),
     ("physics.scheme", {"deep": {"deeper": 1}}, "physics.scheme", "expected string"),
     ("diagnostics.test_wavelength", 0.3, "diagnostics.test_wavelength", "must divide"),
