@@ -512,7 +512,8 @@ def viscous_operator_on_lattice(n, dim, h_over_dx, morris, sigma, rng, kernel="w
         else:
             sums.viscous_pi(pos, vol, ptr, idx, kern.params, images, out)
         matrix[:, column] = out.ravel()
-    diagonal = sums.largest_kernel_factor_sum(pos, vol, ptr, idx, kern.params, np.arange(m), not morris)
+    diagonal = sums.largest_kernel_factor_sum(pos, vol, ptr, idx, kern.params, np.arange(m), not morris,
+                                              np.zeros((0, dim, dim)))
     return matrix, dx, kern, diagonal
 
 

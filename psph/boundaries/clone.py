@@ -13,7 +13,16 @@ import numpy as np
 
 from psph.boundaries.bodies import make_bodies
 from psph.boundaries.geometry import contour_distance, nearest_nodes
-from psph.compute.walls import NO_MATRIX, clone_rhs, ghost_grad_c, ghost_images, ghost_rhs, near_wall_rows, off_walls
+from psph.compute.walls import (
+    NO_MATRIX,
+    clone_rhs,
+    clone_viscous_weight,
+    ghost_grad_c,
+    ghost_images,
+    ghost_rhs,
+    near_wall_rows,
+    off_walls,
+)
 from psph.parallel.comm import allreduce_sum
 from psph.particles import Kind
 from psph.schemes.eos import GAMMA
@@ -234,6 +243,25 @@ class WallTerms:
                   system.nbr_ptr, system.nbr_idx, system.kernel.params, scheme.c0, scheme.rho0, eos_b, GAMMA,
                   scheme.mu, scheme.morris, self.gravity, self.ds, scheme.variant, scheme.shift.active,
                   switch, no_pull, self.centers, d_rho, d_mom, self.force, self.torque, self.particle_force)
+
+    def viscous_weight(self, system, rows, t) -> np.ndarray:
+        """The no-slip clone walls' extra diagonal weight in the viscous operators for the owned fluid `rows`
+        at time t, (len(rows), 2, 2) (compute.walls.clone_viscous_weight), for the viscous step limit: with
+        Morris' operator a Poiseuille flow between no-slip plates at the lattice's limit blew up (a new user's
+        audit). Not collective."""
+        p = system.particles
+        out = np.zeros((len(rows), 2, 2))
+        if not self.clones or not self.no_slip.any():
+            return out
+        near = near_wall_rows(p["kind"], system.nbr_ptr, system.nbr_idx)
+        at = np.searchsorted(rows, near)  # both sorted; near-wall rows are fluid rows
+        _, s_i = self.nearest_node_data(system, near, t)
+        part = np.zeros((len(near), 2, 2))
+        clone_viscous_weight(p["position"], p["volume"], p["kind"], p["body"], p["normal"], p["wall_distance"],
+                             near, s_i, self.no_slip, system.nbr_ptr, system.nbr_idx, system.kernel.params, self.ds,
+                             part)
+        out[at] = part
+        return out
 
     def _ghost_images(self, system):
         """Owned fluid rows within a support of a ghost wall and the images they see."""

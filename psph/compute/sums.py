@@ -180,17 +180,26 @@ def divergence(pos, vol, ptr, idx, kp, u, out):
 
 
 @njit(cache=True)
-def largest_kernel_factor_sum(pos, vol, ptr, idx, kp, rows, directional):
+def largest_kernel_factor_sum(pos, vol, ptr, idx, kp, rows, directional, extra):
     """The largest over `rows` of sum_j F_ij V_j (F_ij = -W'(r)/r >= 0, seed 001 eq. 14's factor: the diagonal
     of Morris' Laplacian over 2) or, with `directional`, of the largest eigenvalue of the d x d matrix
     sum_j F_ij V_j e_ij e_ij^T (e_ij = x_ij / r, the pi_ij operator's weighting: particles packed closer along one
     direction widen its spectrum in that direction). Their excess over the lattice's scales the viscous
-    operators' largest eigenvalue (psph.schemes.viscous_limit). 0 without rows."""
+    operators' largest eigenvalue (psph.schemes.viscous_limit). extra: (len(rows), d, d) added to each row's
+    matrix (its trace to the scalar sum): the no-slip clone walls' weight (compute.walls.clone_viscous_weight),
+    or an empty array. 0 without rows."""
     d = pos.shape[1]
     largest = 0.0
     a = np.zeros((d, d))
-    for i in rows:
+    for m in range(rows.size):
+        i = rows[m]
         a[:] = 0.0
+        if extra.shape[0]:
+            if directional:
+                a[:] = extra[m]
+            else:
+                for p in range(d):
+                    a[0, 0] += extra[m, p, p]
         for k in range(ptr[i], ptr[i + 1]):
             j = idx[k]
             r0, r1, r2, r = pair(pos, i, j, d)

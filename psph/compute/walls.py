@@ -145,6 +145,34 @@ def near_wall_rows(kind, ptr, idx):
 
 
 @njit(cache=True)
+def clone_viscous_weight(pos, vol, kind, body, normal, wall_dist, rows, s_i_all, no_slip, ptr, idx, kp, ds_min,
+                         out):
+    """The no-slip clone pairs' extra diagonal weight in the viscous operators, for their stability limit
+    (psph.schemes.viscous_limit): eq. 7 mirrors the tangential velocity as u_j.t = -u_i.t s_j / max(s_i, ds)
+    (a wall at rest), so such a pair weighs u_i.t by (1 + s_j / max(s_i, ds)) F_ij V_j, where
+    sums.largest_kernel_factor_sum counts F_ij V_j: with s_i = dx / 2 and s_j up to the support, up to 9
+    times. Adds F_ij V_j s_j / max(s_i, ds) t t^T (t the tangent of j's wall) to out[r] (2 x 2) for row
+    rows[r] (s_i_all: nearest_node_data's distances, (rows, bodies)). Free-slip pairs (u_j = u_i) add
+    nothing."""
+    support = 2.0 * kp[1]
+    for r in range(rows.size):
+        i = rows[r]
+        for k in range(ptr[i], ptr[i + 1]):
+            j = idx[k]
+            if not solid(kind[j]) or not no_slip[body[j]]:
+                continue
+            _, _, _, rr = pair(pos, i, j, 2)
+            if rr >= support or rr == 0.0:
+                continue
+            w = -kernel_f(rr, kp) * vol[j] * wall_dist[j] / max(s_i_all[r, body[j]], ds_min)
+            t0, t1 = -normal[j, 1], normal[j, 0]
+            out[r, 0, 0] += w * t0 * t0
+            out[r, 0, 1] += w * t0 * t1
+            out[r, 1, 0] += w * t1 * t0
+            out[r, 1, 1] += w * t1 * t1
+
+
+@njit(cache=True)
 def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel, wall_vel, rows, n_i_all, s_i_all,
               no_slip, ptr, idx, kp, c0, rho0, eos_b, eos_gamma, mu, morris, gravity, ds_min, variant,
               with_shift, tensile_switch, no_pull, centers, d_rho, d_mom, force, torque, particle_force):

@@ -99,7 +99,7 @@ def warm_up(dim: int, kernel_name: str, parts=PARTS) -> None:
     if "fluid" not in parts:
         return
     for directional in (False, True):  # the viscous step limit (schemes.viscous_limit)
-        sums.largest_kernel_factor_sum(pos, vol, ptr, idx, kp, np.arange(n), directional)
+        sums.largest_kernel_factor_sum(pos, vol, ptr, idx, kp, np.arange(n), directional, np.zeros((0, dim, dim)))
     fluid.fluid_momentum_totals(kind, field, vector, vector, True, np.empty(2 * dim + 1))
     fluid.add_uniform_acceleration(kind, field, np.zeros(dim), True, vector.copy())
     pairs = fluid.PairCache()
@@ -136,6 +136,9 @@ def warm_up(dim: int, kernel_name: str, parts=PARTS) -> None:
                         0.1, 0, True, np.zeros(n, dtype=np.int8), np.zeros(n, dtype=np.int8), np.zeros((bodies, 2)),
                         scalar.copy(), vector.copy(), np.zeros((bodies, 2, 2)), np.zeros((bodies, 2)), np.zeros((n, 2)))
         walls.off_walls(np.zeros((1, 2, 2)), np.zeros(1, dtype=np.int64), vector.copy())
+        walls.clone_viscous_weight(pos, vol, kind, np.zeros(n, dtype=np.int64), vector, scalar, rows,
+                                   np.zeros((0, bodies)), np.zeros(bodies, dtype=np.bool_), ptr, idx, kp, 0.1,
+                                   np.zeros((0, 2, 2)))
 
 
 def warm_up_more(dim: int) -> None:

@@ -517,12 +517,12 @@ class FluidDriver(Driver):
                      "for the flow's largest speed (its strength and cap scale with it): set it to about the "
                      "largest speed the flow reaches")
 
-    def time_step(self) -> float:
+    def time_step(self, t) -> float:
         s, scheme = self.scene, self.scheme
         h = self.system.kernel.h
         vmax, signal = allreduce_max(self.sim.comm, scheme.max_speeds(self.system))
         dt = s.time.cfl * h / signal
-        return min(dt, self.viscous_limit(self.system, dt)), float(vmax)
+        return min(dt, self.viscous_limit(self.system, dt, t)), float(vmax)
 
     def _min_spacing(self, mask, row_group, col_group) -> float:
         """The smallest distance, in dx, from an owned particle in `mask` to a neighbour j with col_group[j] ==
@@ -666,7 +666,7 @@ class FluidDriver(Driver):
             progress = sim.progress(state["time"], t_end)
             while state["time"] < t_end * (1.0 - 1e-12):
                 start = time.perf_counter()
-                dt, vmax = self.time_step()
+                dt, vmax = self.time_step(state["time"])
                 self.first_dt = self.first_dt or dt
                 self.check_reference_velocity(vmax, state)
                 allowed = dt * 0.5 ** self.halvings

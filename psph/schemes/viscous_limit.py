@@ -87,23 +87,28 @@ class ViscousLimit:
 
     BOTHER = 4.0
 
-    def __init__(self, kernel, dim: int, dx: float, nu: float, morris: bool, integrator: str):
-        self.nu, self.morris = nu, morris
+    def __init__(self, kernel, dim: int, dx: float, nu: float, morris: bool, integrator: str, walls=None):
+        """walls: the scheme's boundaries.clone.WallTerms, whose no-slip clones weigh a row's velocity more than
+        a fluid neighbour does (WallTerms.viscous_weight), or None."""
+        self.nu, self.morris, self.walls = nu, morris, walls
         self.lattice, self.diagonal = lattice_symbol(kernel, dim, dx, morris)
         self.step = SAFETY * REAL_AXIS_REACH[integrator] / (nu * self.lattice) if nu > 0.0 else np.inf
 
     @classmethod
     def of_scene(cls, scene, scheme, kernel):
-        """The limit of `scene` run with `scheme` (its nu and operator) and `kernel`."""
-        return cls(kernel, scene.domain.dimension, scene.domain.dx, scheme.nu, scheme.morris, scene.time.integrator)
+        """The limit of `scene` run with `scheme` (its nu, operator and walls) and `kernel`."""
+        return cls(kernel, scene.domain.dimension, scene.domain.dx, scheme.nu, scheme.morris, scene.time.integrator,
+                   getattr(scheme, "walls", None))
 
-    def __call__(self, system, dt_cfl: float) -> float:
-        """The viscous limit on the step of `system` now, or inf where it cannot bind. Collective."""
+    def __call__(self, system, dt_cfl: float, t: float = 0.0) -> float:
+        """The viscous limit on the step of `system` at time t now, or inf where it cannot bind. Collective."""
         if self.step >= self.BOTHER * dt_cfl:
             return np.inf
         p = system.particles
+        rows = np.flatnonzero(fluid_mask(system))
+        d = p.dim
+        extra = np.zeros((0, d, d)) if self.walls is None else self.walls.viscous_weight(system, rows, t)
         local = largest_kernel_factor_sum(p["position"], p["volume"], system.nbr_ptr, system.nbr_idx,
-                                          system.kernel.params, np.flatnonzero(fluid_mask(system)),
-                                          not self.morris)
+                                          system.kernel.params, rows, not self.morris, extra)
         spread = max(1.0, allreduce_max(system.comm, local) / self.diagonal)
         return self.step / spread

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from psph.compute.smoothing import KERNEL_NAMES
+from psph.compute.smoothing import KERNEL_NAMES, make_kernel
 from psph.schemes.viscous_limit import REAL_AXIS_REACH, SAFETY, lattice_symbol
 from psph.studies import viscous_operator_on_lattice
 from tests.helpers import CASES, run_psph
@@ -75,3 +75,36 @@ def test_a_viscous_taylor_green_runs_stably_at_the_limit(tmp_path):
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert 30 <= summary["steps"] <= 33  # 2e-4 / 6.66e-6 = 30.0: the viscous limit sets the step
     assert summary["final"]["L2_vx_error"] < 0.02
+
+
+def test_no_slip_clone_walls_shorten_the_viscous_step_and_a_poiseuille_flow_stays_stable(tmp_path):
+    """A new user's audit: Poiseuille flow between no-slip clone plates (Re = 1, Morris' operator, the default
+    cfl 0.2) ran at the lattice's viscous limit and blew up at t = 0.48 ("a particle moved ... more than half
+    the skin"): eq. 7 mirrors a wall row's tangential velocity with the weight 1 + s_j / s_i, up to 9 times a
+    fluid neighbour's. The limit counts it now (compute.walls.clone_viscous_weight): the steps are shorter
+    than the lattice's limit, the run reaches the steady profile u = 4 y (1 - y) within 1.5%."""
+    import h5py
+
+    from tests.scene.test_fuzz import toml_document
+
+    table = {"name": "poiseuille", "domain": {"dimension": 2, "lower": [0.0, 0.0], "upper": [1.0, 1.0],
+                                              "periodic": [True, False], "dx": 0.05},
+             "physics": {"scheme": "delta_ale", "reynolds": 1.0, "sound_speed": 10.0, "gravity": [8.0, 0.0],
+                         "viscosity": "morris"},
+             "time": {"t_end": 1.0}, "output": {"every": 1.0, "history_every": 1000},
+             "bodies": [{"name": "plates", "shape": "box", "center": [0.5, 0.5], "size": [1.0, 1.0],
+                         "wall": "no_slip"}]}
+    scene = tmp_path / "poiseuille.toml"
+    scene.write_text(toml_document(table))
+    res = run_psph("run", scene, "--out", tmp_path / "out", "--quiet")
+    assert res.returncode == 0, res.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    h, nu = 0.1, 1.0
+    lattice, _ = lattice_symbol(make_kernel("wendland_c6", 2, h), 2, 0.05, True)
+    # the lattice's limit, 0.0018, would take 556 steps to t = 1
+    assert summary["steps"] > 1.0 / (0.8 * SAFETY * REAL_AXIS_REACH["rk3"] / (nu * lattice)), summary["steps"]
+    with h5py.File(tmp_path / "out" / "snapshot_000001.h5", "r") as f:
+        kind, pos, vel = f["particles/kind"][()], f["particles/position"][()], f["particles/velocity"][()]
+    fluid = kind == 0
+    exact = 4.0 * pos[fluid, 1] * (1.0 - pos[fluid, 1])
+    assert np.abs(vel[fluid, 0] - exact).max() < 0.015, np.abs(vel[fluid, 0] - exact).max()
