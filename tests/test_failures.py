@@ -62,6 +62,22 @@ def test_a_petsc_option_file_only_rank_0_opens_ends_every_rank_with_exit_2(tmp_p
         assert "rank 0" in proc.stderr or words == "cannot write", proc.stderr
 
 
+def test_a_missing_petsc_options_file_ends_every_rank_with_exit_2(tmp_path):
+    """A PETSc-options audit: `-options_file /nonexistent` on 2 ranks hung until killed: PETSc's rank 0 reads
+    the file alone, failed, and left as for an error of every rank while rank 1 waited. A plain path is
+    refused before PETSc starts, on every rank; one through ${WORKINGDIRECTORY}, which PETSc expands, fails on
+    rank 0, which now ends the job."""
+    from tests.helpers import run_psph
+
+    for path, words in ((f"{tmp_path}/missing.opts", "-options_file " + f"{tmp_path}/missing.opts: no file"),
+                        ("${WORKINGDIRECTORY}/missing.opts", "error on rank 0: PETSc did not start")):
+        proc = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "out", "--quiet",
+                        "--set", "shifting.method=iips", "--set", "domain.dx=0.1", "-options_file", path, ranks=2,
+                        timeout=60, cwd=tmp_path)
+        assert proc.returncode == 2 and words in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+        assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("ranks", [1, 2])
 def test_escaped_particles_are_counted_over_every_rank_with_step_and_time(tmp_path, ranks):
     """The cavity without its walls: its corner particles leave the box in the first step. The report

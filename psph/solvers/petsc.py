@@ -54,9 +54,13 @@ def initialize(options=()) -> None:
             from psph.errors import UsageError  # -options_file /nonexistent gave a traceback)
 
             code = getattr(err, "ierr", None)
-            raise UsageError(f"PETSc did not start with the options {' '.join(options) or '(none)'}"
-                             + (f": error code {code}" if code is not None else "")
-                             + " (PETSc's report above)") from None
+            refusal = UsageError(f"PETSc did not start with the options {' '.join(options) or '(none)'}"
+                                 + (f": error code {code}" if code is not None else "")
+                                 + " (PETSc's report above)")
+            # one rank's, maybe: rank 0 alone reads an options file, and the others waited for it for ever (a
+            # PETSc-options audit); the command line then ends every rank (cli)
+            refusal.collective = False
+            raise refusal from None
         _state["argv"] = argv
         _ignore_sigpipe()
         release_freed_memory()
@@ -65,12 +69,16 @@ def initialize(options=()) -> None:
         raise RuntimeError("PETSc is already initialised with other options")
 
 
+# options naming a file of options, which PETSc's rank 0 reads alone
+OPTIONS_FILES = ("-options_file", "-options_file_yaml")
 # viewer types whose second field names a file (PETSc's viewer syntax, `[type]:[file][:format][:mode]`)
 FILE_VIEWERS = ("", "ascii", "binary", "hdf5", "vtk")
 
 
 def check_viewer_files(options) -> None:
-    """Refuse a viewer option (`-log_view :path`, `-iips_ksp_view ascii:path:ascii_info`,
+    """Refuse an options file (`-options_file path`) that cannot be read, on every rank (PETSc's rank 0 reads
+    it alone: a missing one stopped rank 0 and left the others waiting for ever, a PETSc-options audit), and
+    a viewer option (`-log_view :path`, `-iips_ksp_view ascii:path:ascii_info`,
     `-iips_ksp_converged_reason ascii:path`: any option whose value names a file viewer) whose file cannot be
     written, before the run: PETSc opens `-log_view`'s file only in PetscFinalize, after the run, where its
     error cannot change the exit status any more (a fuzzing audit: `-log_view :/bad/x` exited 0 with the
@@ -80,6 +88,9 @@ def check_viewer_files(options) -> None:
 
     options = list(options)
     for name, value in zip(options, options[1:] + [""]):
+        if name in OPTIONS_FILES and "${" not in value and not (os.path.isfile(value) and os.access(value, os.R_OK)):
+            raise UsageError(f"{name} {value}: no file {value!r} to read" if value and not value.startswith("-")
+                             else f"{name}: needs a file name")
         if not name.startswith("-") or value.startswith("-") or ":" not in value:
             continue
         kind, path = value.split(":")[:2]
