@@ -372,8 +372,13 @@ def test_a_run_of_more_steps_than_a_year_holds_is_refused_and_its_estimate_print
     (1, ["-iips_ksp_max_it", "1"], "max_it 1) fails on a small well-posed test system: iips linear solve diverged"),
     # stored unchecked by setFromOptions, checked when a rebuild's fresh KSP copied it: a crash mid-run
     (1, ["-iips_ksp_rtol", "1.5"], "Relative tolerance 1.5 must be non-negative and less than 1.0"),
-    # a type outside AIJ / BAIJ gets no trial solve; an unknown one failed at the first call, after the output
+    # an unknown type failed at the first call, after the output
     (1, ["-iips_mat_type", "nonsense"], "Unknown Mat type given: nonsense"),
+    # a type outside AIJ / BAIJ got no trial solve: GAMG on SELL failed at the first call, after the output;
+    # SBAIJ and IS crashed on 2 ranks, and SBAIJ solved another system on 1 (a PETSc-options audit)
+    (2, ["-iips_mat_type", "sell", "-iips_pc_type", "gamg"], "No method creategraph for Mat of type mpisell"),
+    (2, ["-iips_mat_type", "sbaij"], "-iips_mat_type sbaij: SBAIJ stores the upper triangle only"),
+    (1, ["-iips_mat_type", "is"], "-iips_mat_type is: IS takes no values"),
     # PETSC_ERR_MISSING_FACTOR: was one rank's error, each rank printing it and aborting the job
     (2, ["-iips_pc_type", "ilu"], "Could not locate a solver type for factorization type ILU")])
 def test_a_bad_iips_option_keeps_the_results_overwrite_would_replace(tmp_path, ranks, options, message):
@@ -466,7 +471,8 @@ ONE_D = ["--set", "domain.dimension=1", "--set", "domain.lower=[0.0]", "--set", 
 
 
 @pytest.mark.parametrize("options", [
-    ["-iips_mat_type", "sell"],  # no trial: PETSc 3.18's SELL mangles the trial's small matrix
+    ["-iips_mat_type", "sell"],  # PETSc 3.18's SELL mangled a trial of 4 block rows per rank
+    ["-iips_mat_type", "dense"],
     ONE_D + ["-iips_mat_type", "baij", "-iips_pc_type", "gamg"],  # BAIJ of block size 1 is AIJ (a traceback)
     ["-iips_pc_type", "hypre"]])
 def test_the_trial_solve_refuses_no_solver_that_works(tmp_path, options):

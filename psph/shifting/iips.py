@@ -58,8 +58,10 @@ BEST_FIELD = FieldSpec(SCRATCH_FIELDS[0], ("d",), scratch=True)
 GUESS_FIELD = FieldSpec(SCRATCH_FIELDS[1], ("d",), scratch=True)
 # the last Newton step (iips.backtrack halves it back; a field, so that it follows the particles)
 STEP_FIELD = FieldSpec(SCRATCH_FIELDS[2], ("d",), scratch=True)
-# block rows per rank of the trial system (trial)
+# block rows per rank of the trial system (trial); 16 for the matrix types written generically (SELL mangled 4
+# rows per rank on 3 ranks)
 TRIAL_ROWS = 4
+TRIAL_ROWS_GENERIC = 16
 # particles closer than COINCIDENT h count as coincident and are first nudged NUDGE h apart
 COINCIDENT = 1e-6
 NUDGE = 1e-3
@@ -254,15 +256,18 @@ class ImplicitShifting(Shifting):
         only a diagonal, which any type gives), so that a solver PETSc refuses only at a first solve stops a run
         before it touches its output (LinearSolver.trial; a -iips_ksp_max_it too small for the test system is
         refused unless iips.on_failure = "reject" undoes the calls it fails). The matrix-free operator's trial
-        matrix is AIJ (it reads no -iips_mat_type, which the run does not read either); an assembled operator of a
-        type other than AIJ or BAIJ (-iips_mat_type sell, ...) gets no trial: PETSc 3.18's SELL mangles so small a
-        matrix. Collective."""
+        matrix is AIJ (it reads no -iips_mat_type, which the run does not read either). An assembled operator of a
+        type other than AIJ or BAIJ (-iips_mat_type sell, dense) is checked first (solvers.aij.check_mat_type:
+        SBAIJ and IS are refused) and tried on TRIAL_ROWS_GENERIC block rows per rank (PETSc 3.18's SELL mangles
+        4; GAMG on SELL or dense failed at the first IIPS call, after the run had written its output: a
+        PETSc-options audit). Collective."""
         assembled = isinstance(self.operator, AssembledOperator)
+        rows = TRIAL_ROWS
         if assembled and family_of(self.solver.prefix) is None:
             with petsc_errors("creating the IIPS matrix"):
                 check_mat_type(self.solver.comm, self.solver.prefix)
-            return
-        matrix = chain_matrix(self.solver.comm, TRIAL_ROWS, dim, self.solver.prefix if assembled else "psph_trial_")
+            rows = TRIAL_ROWS_GENERIC
+        matrix = chain_matrix(self.solver.comm, rows, dim, self.solver.prefix if assembled else "psph_trial_")
         try:
             self.solver.trial(matrix.mat, capped=self.spec.on_failure == "reject")
         finally:
