@@ -499,6 +499,21 @@ def test_the_trial_solve_leaves_the_iteration_cap_to_the_run(tmp_path):
     assert json.loads((tmp_path / "summary.json").read_text())["steps"] == 0
 
 
+@pytest.mark.parametrize("on_failure", ["stop", "reject"])
+def test_petsc_raising_on_a_solve_that_did_not_converge_is_a_diverged_solve(tmp_path, on_failure):
+    """-iips_ksp_error_if_not_converged makes PETSc raise where it would return a diverged reason: the run
+    exited 1 with no step or particle named, and "reject" did not reject (a PETSc-options audit). It is the
+    diverged solve psph handles by iips.on_failure."""
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path, "--quiet", "--set", "domain.dx=0.05",
+                   "--set", "shifting.method=iips", "--set", f"iips.on_failure={on_failure}", "-iips_ksp_max_it", "5",
+                   "-iips_ksp_error_if_not_converged")
+    diverged = "iips linear solve diverged: DIVERGED_MAX_IT after 5 iterations"
+    if on_failure == "stop":
+        assert res.returncode == 3 and res.stderr.startswith(f"psph: error: {diverged} [iteration 1, particle gid")
+    else:
+        assert res.returncode == 0 and f"IIPS call rejected: {diverged}" in (tmp_path / "psph.log").read_text()
+
+
 def test_the_trial_solve_prints_nothing(tmp_path):
     """The trial solve runs without the options that make a solve print: -iips_ksp_view and
     -iips_ksp_converged_reason print once per Newton iteration of the run, on a Python (matrix-free) matrix."""

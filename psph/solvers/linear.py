@@ -24,6 +24,9 @@ OPTION_ERRORS = (56, 62, 63, 75, 83, 86, 92)
 # PETSC_ERR_FILE_OPEN, _FILE_READ, _FILE_WRITE: an option's file (-iips_ksp_monitor ascii:PATH), which only
 # some ranks may open
 FILE_ERRORS = (65, 66, 67)
+# PETSC_ERR_NOT_CONVERGED: a solve that -ksp_error_if_not_converged makes raise, which psph handles as the
+# diverged solve it would have returned (iips.on_failure; it exited 1 with no step named: a PETSc-options audit)
+NOT_CONVERGED = 91
 TRACE = re.compile(r"\w+\(\) at ")
 # iterations a trial solve may take where the run tolerates capped solves (LinearSolver.trial: capped)
 TRIAL_MAX_IT = 1000
@@ -151,8 +154,14 @@ class LinearSolver:
     def solve(self, b, x, trial=False) -> int:
         """Solve operator x = b (x holds the initial guess); returns iterations or raises SolverError. trial:
         the trial solve (see trial()), where an option's error is the options' and so every rank's."""
+        stopped = False
         with phase("ksp_solve"), petsc_errors(f"the -{self.prefix} solve", options_collective=trial):
-            self.ksp.solve(b, x)
+            try:
+                self.ksp.solve(b, x)
+            except petsc().Error as exc:  # -<prefix>ksp_error_if_not_converged (of this solver or an inner one)
+                if exc.ierr != NOT_CONVERGED:
+                    raise
+                stopped = True
         reason = self.ksp.getConvergedReason()
         its = self.ksp.getIterationNumber()
         self.iterations += its
@@ -160,10 +169,14 @@ class LinearSolver:
         error = None
         if reason < 0:
             error = SolverError(name, reason_name(reason), its)
+        elif stopped:  # an inner solver's, mid-iteration (maybe on some ranks only): its reason is not this KSP's
+            error = SolverError(name, "an inner solver did not converge (its -..._error_if_not_converged)", its)
         elif not np.isfinite(x.norm()):  # collective: every rank sees the same norm
             error = SolverError(name, "DIVERGED_NANORINF", its)
         if error is not None:
-            error.collective = True  # reason and norm are global: every rank raises it
+            # reason and norm are global: every rank raises it; an inner solver's error may be some ranks' only,
+            # which the command line then ends by MPI_Abort
+            error.collective = reason < 0 or not stopped
             raise error
         return its
 
