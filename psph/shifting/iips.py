@@ -201,7 +201,10 @@ class ImplicitShifting(Shifting):
                 lowest[0] = min(lowest[0], info["Linf_grad_c"])
                 return on_iteration(info) if on_iteration is not None else None
 
-            report = self._iterate(system, self.spec.pre_newton, None, False, track, {})
+            # a failure stops the run whatever iips.on_failure says: "reject" undid the whole pre-procedure, and
+            # the beta threshold then came from the unrelaxed start, which no call reached (a PETSc-options audit:
+            # no Newton iteration in 50 steps, exit 0)
+            report = self._iterate(system, self.spec.pre_newton, None, False, track, {}, on_failure="stop")
             last = report.Linf_grad_c
             self.set_initial_linf(min(lowest[0], last) if self.spec.beta_from == "lowest" else last)
             # fewer where iips.backtrack found no descent (counting the undone iteration)
@@ -291,7 +294,10 @@ class ImplicitShifting(Shifting):
         return self._iterate(system, self.spec.max_newton, self.threshold, self.spec.procedure == "A",
                              on_iteration, where)
 
-    def _iterate(self, system, max_newton, threshold, at_least_one, on_iteration, where) -> ShiftReport:
+    def _iterate(self, system, max_newton, threshold, at_least_one, on_iteration, where,
+                 on_failure=None) -> ShiftReport:
+        """Newton iterations (see correct); on_failure: a divergence's or diverged solve's mode instead of
+        iips.on_failure's."""
         p = system.particles
         p.owned(SHIFT_FIELD.name)[:] = 0.0
         h = system.kernel.h
@@ -344,7 +350,7 @@ class ImplicitShifting(Shifting):
                     {"newton": report.iterations, "ksp_iterations": its, "L2_grad_c": l2, "Linf_grad_c": linf,
                      "newton_time_s": time.perf_counter() - t0}):
                 break
-        mode = self.spec.on_failure
+        mode = on_failure or self.spec.on_failure
         if failure is None and threshold is not None and linf > threshold and (report.iterations >= max_newton
                                                                                or stuck):
             mode = self.spec.on_stall

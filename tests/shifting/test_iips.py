@@ -144,6 +144,23 @@ def test_beta_threshold_from_pre_procedure():
     assert distribution_report(system, 0.5)["Linf_grad_c"] == pytest.approx(init)
 
 
+def test_a_failure_in_the_pre_procedure_stops_whatever_on_failure_says():
+    """A PETSc-options audit: with iips.on_failure = "reject" a diverged solve in the pre-procedure undid it
+    all, the beta threshold came from the unrelaxed start (0.292 x 5), and no call of the run iterated (exit
+    0). The pre-procedure is the set-up: a failure there stops the run."""
+
+    scene = periodic_scene(n=20, sigma=0.1, **KINEMATIC,
+                           iips={"pre_newton": 10, "beta": 5.0, "on_failure": "reject"})
+    system = build_system(scene, MPI.COMM_SELF)
+    with petsc_options(iips_ksp_max_it=2):
+        shifting = ImplicitShifting(scene.iips, MPI.COMM_SELF)
+        try:
+            with pytest.raises(NumericalError, match="DIVERGED_MAX_IT after 2 iterations"):
+                shifting.prepare(system)
+        finally:
+            shifting.destroy()
+
+
 def test_beta_can_scale_the_lowest_iterate_of_the_pre_procedure():
     """iips.beta_from = "lowest": Linf(grad C)_Init is the lowest value the pre-procedure passed through (the
     thesis' "initial minimal value", p. 1892), not its last iterate, which at h/dx = 1.3 lies above it
