@@ -14,7 +14,7 @@ import sys
 import traceback
 
 from psph import stop
-from psph.errors import PsphError, SceneError, UsageError, is_collective
+from psph.errors import NumericalError, PsphError, SceneError, UsageError, is_collective
 
 
 class _Parser(argparse.ArgumentParser):
@@ -193,7 +193,7 @@ MAX_NAME = 200  # (+ "_out": within the 255 bytes of a file name)
 RESTART_KEYS = ("time.", "output.", "neighbours.")  # skin and balance: results change as with the rank count
 
 
-def _scene_and_restart(args, comm):
+def _scene_and_restart(args, comm, petsc_options=()):
     """The scene to run and, for --restart, the checkpoint's contents (read collectively)."""
     from psph.drivers import StaticDriver, driver_for
     from psph.scene.load import apply_overrides, load_scene, scene_from_table
@@ -236,7 +236,12 @@ def _scene_and_restart(args, comm):
     elif args.scene:
         scene = load_scene(args.scene, sets)
     else:
-        raise UsageError("run needs a scene file (or --restart CHECKPOINT)")
+        # a PETSc option without a value before the scene took the scene for its value (a PETSc-options audit)
+        taken = [f"{name} {value}" for name, value in zip(petsc_options, list(petsc_options[1:]) + [""])
+                 if name.startswith("-") and value.endswith(".toml")]
+        raise UsageError("run needs a scene file (or --restart CHECKPOINT)"
+                         + (f": PETSc options go after it ({taken[0]!r} took the scene as the option's value)"
+                            if taken else ""))
     out = scene.output
     if (out.checkpoint_every or out.checkpoint_minutes) and driver_for(scene) is StaticDriver:
         key = "output.checkpoint_every" if out.checkpoint_every else "output.checkpoint_minutes"
@@ -271,7 +276,7 @@ def cmd_run(args, petsc_options, comm) -> int:
     from psph.simulation import check_resources, iips_runs
     from psph.solvers.petsc import initialize
 
-    scene, restart = _scene_and_restart(args, comm)
+    scene, restart = _scene_and_restart(args, comm, petsc_options)
     initialize(petsc_options)  # the memory check asks PETSc's options which IIPS operator the run builds
     node = comm.Split_type(MPI.COMM_TYPE_SHARED)  # the ranks on this machine
     node_ranks = node.Get_size()
@@ -501,8 +506,10 @@ AT_FINALIZE = ("-options_left", "-options_view", "-malloc_dump", "-memory_view",
 def _warn_unused_options(comm) -> None:
     """Warn (stderr and the log) about command-line PETSc options that nothing read: a misspelling
     (-iips_ksp_rtoll) or an option of a solver the scene does not have (-iips_* without IIPS)."""
-    from psph.solvers.petsc import unused_options
+    from psph.solvers.petsc import is_initialized, unused_options
 
+    if not is_initialized():
+        return
     unused = [o for o in unused_options() if not o.startswith(AT_FINALIZE)]
     if unused:
         _warn(comm, f"psph: warning: PETSc options that nothing read: {', '.join(unused)} (misspelt, or for a "
@@ -560,6 +567,8 @@ def main(argv=None) -> int:
                 line = f"psph: {err}" if isinstance(err, stop.Stopped) else f"psph: error: {err}"
                 print(line, file=sys.stderr, flush=True)
                 _append_log(line)
+            if isinstance(err, (NumericalError, stop.Stopped)):  # the run ran: a misspelt option may be why (a
+                _warn_unused_options(comm)  # PETSc-options audit: only a run that ended well told of them)
             return err.exit_code
         print(f"psph: error on rank {comm.rank}: {err}", file=sys.stderr, flush=True)
         _append_log(f"psph: error on rank {comm.rank}: {err}")

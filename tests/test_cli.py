@@ -330,6 +330,14 @@ def test_petsc_options_that_nothing_read_are_named_in_a_warning(tmp_path):
     assert res.returncode == 2 and res.stderr.strip() == ("psph: error: -iips_mat_type aij: iips.operator = "
                                                            "\"matrix_free\" builds no matrix; drop the option, or "
                                                            "use iips.operator = \"assembled\""), res.stderr
+    # a run that stops says so too: the misspelling may be why (a PETSc-options audit: only a run that ended
+    # well told of them)
+    res = run_psph("run", CASES / "static_perturbed.toml", "--out", tmp_path / "d", "--quiet", "--set",
+                   "domain.dx=0.1", "--set", "shifting.method=iips", "-iips_ksp_rtoll", "1e-3", "-iips_ksp_type",
+                   "lsqr")  # LSQR breaks down with Jacobi
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 3 and lines[0].startswith("psph: error: iips linear solve diverged"), res.stderr
+    assert lines[1].startswith("psph: warning: PETSc options that nothing read: -iips_ksp_rtoll 1e-3"), res.stderr
 
 
 def test_what_the_machine_refuses_is_one_line_not_a_bug(tmp_path):
@@ -499,6 +507,16 @@ def test_the_trial_solve_leaves_the_iteration_cap_to_the_run(tmp_path):
     assert json.loads((tmp_path / "summary.json").read_text())["steps"] == 0
 
 
+def test_a_petsc_flag_before_the_scene_is_told_to_go_after_it(tmp_path):
+    """A PETSc option takes the next word for its value: before the scene file it took the scene, and psph
+    only said that run needs a scene file (a PETSc-options audit)."""
+    res = run_psph("run", "-iips_ksp_monitor", CASES / "static_perturbed.toml", "--out", tmp_path / "out")
+    assert res.returncode == 2 and not (tmp_path / "out").exists()
+    assert res.stderr.strip().startswith("psph: error: run needs a scene file (or --restart CHECKPOINT): PETSc "
+                                         "options go after it ('-iips_ksp_monitor "), res.stderr
+    assert "static_perturbed.toml' took the scene as the option's value)" in res.stderr
+
+
 @pytest.mark.parametrize("on_failure", ["stop", "reject"])
 def test_petsc_raising_on_a_solve_that_did_not_converge_is_a_diverged_solve(tmp_path, on_failure):
     """-iips_ksp_error_if_not_converged makes PETSc raise where it would return a diverged reason: the run
@@ -512,6 +530,22 @@ def test_petsc_raising_on_a_solve_that_did_not_converge_is_a_diverged_solve(tmp_
         assert res.returncode == 3 and res.stderr.startswith(f"psph: error: {diverged} [iteration 1, particle gid")
     else:
         assert res.returncode == 0 and f"IIPS call rejected: {diverged}" in (tmp_path / "psph.log").read_text()
+
+
+def test_a_solver_viewer_to_a_file_keeps_every_solve(tmp_path):
+    """A PETSc-options audit: -iips_ksp_converged_reason ascii:F kept 1 line of 291, -iips_ksp_view ascii:F none:
+    each neighbour-list rebuild's new KSP opened F for writing again. F is emptied once and appended to: it
+    holds what the terminal gets, on 2 ranks."""
+    sets = ["--quiet", "--set", "domain.dx=0.05", "--set", "time.t_end=0.02", "--set", "output.every=0"]
+    on_screen = run_psph("run", CASES / "kinematic_tgv.toml", "--out", tmp_path / "a", *sets,
+                         "-iips_ksp_converged_reason", ranks=2)
+    (tmp_path / "reasons.txt").write_text("an earlier run's\n")
+    to_file = run_psph("run", CASES / "kinematic_tgv.toml", "--out", tmp_path / "b", *sets,
+                       "-iips_ksp_converged_reason", f"ascii:{tmp_path}/reasons.txt", ranks=2)
+    assert on_screen.returncode == 0 and to_file.returncode == 0, to_file.stderr
+    lines = [ln for ln in on_screen.stdout.splitlines() if ln.startswith("Linear iips_ solve")]
+    assert len(lines) > 20 and (tmp_path / "reasons.txt").read_text().splitlines() == lines
+    assert json.loads((tmp_path / "b" / "summary.json").read_text())["neighbour_rebuilds"] > 1
 
 
 def test_the_trial_solve_prints_nothing(tmp_path):

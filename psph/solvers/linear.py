@@ -56,6 +56,9 @@ def petsc_errors(what: str, options_collective: bool = True):
         raise err from None
 
 
+# options whose value may name a viewer's file (LinearSolver._append_to_viewer_files), and the files emptied
+VIEWER_OPTIONS = re.compile(r"view|monitor|converged_reason|converged_rate")
+_EMPTIED = set()
 # options that make a solve print, or raise where it would return a diverged reason, at any level (the inner
 # solvers' -iips_sub_ksp_view, -iips_mg_levels_ksp_monitor, ...); a trial solve is done without them
 OUTPUT_OPTIONS = re.compile(r"view|monitor|converged_reason|converged_rate|compute_eigenvalues|"
@@ -94,9 +97,31 @@ class LinearSolver:
         self.prefix = prefix
         self.defaults = dict(ksp_type=ksp_type, pc_type=pc_type, rtol=rtol, atol=atol, max_it=max_it,
                              initial_guess_nonzero=initial_guess_nonzero)
+        self._append_to_viewer_files()
         self.ksp = self._create()
         self.operator_sizes = None  # of the current operator (which a caller may have freed since)
         self.iterations = 0
+
+    def _append_to_viewer_files(self) -> None:
+        """Make this solver's viewer options that name an ASCII file (-<prefix>ksp_monitor ascii:PATH,
+        -<prefix>ksp_view :PATH:ascii_info, ...) append to it, emptied once at the first solver's set-up:
+        PETSc opens such a file for writing, which empties it, whenever a KSP is set up from the options, and
+        each neighbour-list rebuild makes a new KSP (_renew): the file held the last rebuild's lines, or none
+        (a PETSc-options audit). A mode the option gives itself is kept. Collective."""
+        options = petsc().Options()
+        for key, value in options.getAll().items():
+            if not key.startswith(self.prefix) or not VIEWER_OPTIONS.search(key) or not isinstance(value, str):
+                continue
+            fields = value.split(":")
+            if len(fields) < 2 or fields[0] not in ("", "ascii") or not fields[1] or "${" in fields[1]:
+                continue
+            if len(fields) < 4 or not fields[3]:
+                if fields[1] not in _EMPTIED:
+                    if self.comm.rank == 0:
+                        open(fields[1], "w").close()
+                    _EMPTIED.add(fields[1])
+                options.setValue(key, ":".join((fields + ["", ""])[:3] + ["append"]))
+        self.comm.Barrier()  # emptied before any rank's KSP opens it
 
     def _create(self, settings=None):
         """A KSP with `settings` (the code defaults unless given), then the options database's (which win)."""
