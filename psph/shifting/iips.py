@@ -65,8 +65,10 @@ TRIAL_ROWS_GENERIC = 16
 # particles closer than COINCIDENT h count as coincident and are first nudged NUDGE h apart
 COINCIDENT = 1e-6
 NUDGE = 1e-3
-# Linf(grad C) below this is round-off (a perfect lattice gives ~1e-14): growth from there is not divergence
-DIVERGENCE_FLOOR = 1e-6
+# growth is measured from at least this Linf(grad C), a relaxed distribution's level (1e-5 to 1e-4; a lattice's
+# is ~1e-14): growth from round-off to below divergence_factor x this is no divergence (a new user's flow with
+# iips.threshold = 0 stopped on "divergence" from 1.4e-6 to 1.7e-4, below any threshold one would set)
+DIVERGENCE_FLOOR = 1e-4
 PREFIX = "iips_"  # the options prefix of the IIPS solver and matrix
 
 

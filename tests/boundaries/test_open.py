@@ -639,6 +639,17 @@ def test_an_extrapolated_inflow_buffer_starts_extrapolated_without_an_outflow_bu
         assert np.allclose(p.owned("density")[buffer], density, rtol=1e-12, atol=0.0)
 
 
+def test_a_plate_touching_the_buffer_to_round_off_is_no_overlap():
+    """A new user's audit: a plate of center y 1.15 and height 0.3 ends at 0.9999999999999999, and was refused
+    as overlapping the buffer that ends at y = 1; one reaching 0.05 into the buffer still is."""
+    table = walled_channel("extrapolated")
+    table["bodies"][1].update(center=[2.2, 1.15], size=[4.4, 0.3])
+    scene_from_table(table)
+    table["bodies"][1].update(center=[2.2, 1.1])
+    with pytest.raises(SceneError, match=r"the buffer overlaps bodies\[1\] \('top'\)"):
+        scene_from_table(table)
+
+
 def channel_against_gravity(density, g, t_end):
     """A channel 4 x 1, periodic across, from a buffer 4 dx deep at U = 1 to an outflow face, dx = 0.1, no
     shifting, driven against gravity g along it: a uniform flow needs rho0 g L at the inlet (an

@@ -161,6 +161,24 @@ def test_a_failure_in_the_pre_procedure_stops_whatever_on_failure_says():
             shifting.destroy()
 
 
+def test_growth_from_round_off_to_a_level_below_any_threshold_is_no_divergence(tmp_path):
+    """A new user's audit: a Poiseuille flow between plates with IIPS and no threshold (iips.threshold = 0,
+    warned about) stopped at step 2 on "IIPS Newton iteration diverged: Linf(grad C) grew from 1.393e-06 to
+    1.718e-04": 100 times round-off is still a level distribution. Growth counts from DIVERGENCE_FLOOR."""
+    from psph.drivers.fluid import FluidDriver
+    from psph.scene.load import scene_from_table
+
+    table = {"name": "poiseuille", "domain": {"dimension": 2, "lower": [0.0, 0.0], "upper": [1.0, 1.0],
+                                              "periodic": [True, False], "dx": 0.1},
+             "physics": {"scheme": "delta_ale", "reynolds": 1.0, "sound_speed": 10.0, "gravity": [8.0, 0.0]},
+             "shifting": {"method": "iips"}, "time": {"t_end": 0.02}, "output": {"every": 0.0},
+             "bodies": [{"name": "plates", "shape": "box", "center": [0.5, 0.5], "size": [1.0, 1.0],
+                         "wall": "no_slip"}]}
+    with FluidDriver(scene_from_table(table), MPI.COMM_SELF, tmp_path, log=lambda message: None) as driver:
+        driver.run()
+        assert driver.iips.newton_iterations > 20
+
+
 def test_beta_can_scale_the_lowest_iterate_of_the_pre_procedure():
     """iips.beta_from = "lowest": Linf(grad C)_Init is the lowest value the pre-procedure passed through (the
     thesis' "initial minimal value", p. 1892), not its last iterate, which at h/dx = 1.3 lies above it
