@@ -391,6 +391,12 @@ def cmd_run(args, petsc_options, comm) -> int:
                     "free surface there (initial.fill_lower / fill_upper)")
     phys = scene.physics
     mach = phys.reference_velocity / phys.sound_speed if phys.sound_speed > 0 else 1.0
+    if phys.scheme in FLUID_SCHEMES and mach > MAX_MACH * (1.0 + 1e-9) and not restart:  # (a new user's audit:
+        # c0 = 0.5 at U = 1 ran without a word)
+        _warn(comm, f"psph: warning: physics.sound_speed = {phys.sound_speed:g} is {1.0 / mach:.3g} times "
+                    f"physics.reference_velocity = {phys.reference_velocity:g}: weakly compressible SPH takes c0 >= "
+                    f"{1.0 / MAX_MACH:g} U (Mach <= {MAX_MACH:g}), which keeps the density within about 1% of rho0 "
+                    "(its variation grows as Mach^2)")
     if phys.scheme == "riemann_ale" and phys.riemann_dissipation == "full" and mach < 0.05:
         _warn(comm, f"psph: warning: physics.sound_speed / reference_velocity = {1.0 / mach:g}: the acoustic Riemann "
                     "solver's dissipation z (u_L - u_R) / 2 grows with c0 (Taylor-Green, dx = 0.05, t = 0.01: kinetic "
@@ -499,6 +505,8 @@ def _prepare_output(args, out, log_path, first, continuing, later):
 # the largest time.cfl at which a scheme ran stably in an audit's runs (riemann_ale: 1-D acoustic wave, 2-D
 # Taylor-Green; delta_ale with delta+ ran Taylor-Green at 1.5, as far as the neighbour skin allowed)
 STABLE_CFL = {"riemann_ale": 0.8}
+# the largest Mach number U / c0 of a weakly compressible flow (psph run warns above it)
+MAX_MACH = 0.1
 # PETSc options read only when PETSc finalises, after psph's check
 AT_FINALIZE = ("-options_left", "-options_view", "-malloc_dump", "-memory_view", "-objects_dump")
 

@@ -726,6 +726,8 @@ class Scene:
                 if b.container and (bounds(b)[side > 0][a] - (d.upper[a] if side > 0 else d.lower[a])) * side > -d.dx:
                     raise SceneError(f"domain.outflow[{k}]", f"bodies[{j}] (a {b.shape}) has a wall along face "
                                      f"{face}: no fluid would reach it")
+                if d.outflow_buffer and not b.container:
+                    self._check_wall_through_buffer(j, b, face, a, side)
         if not self.inflow:
             return
         if not fluid or self.physics.scheme == "riemann_ale":
@@ -744,6 +746,29 @@ class Scene:
         if not self.describe_free_surface():
             raise SceneError("inflow", "the fluid fills a closed domain: what the buffers bring in has nowhere to "
                              "go (give domain.outflow, or a fill region with a free surface)")
+
+    def _check_wall_through_buffer(self, j, b, face, a, side):
+        """A body beside the fluid that reaches outflow face `face` (axis a, side) must go on a kernel support
+        past it, as the outflow buffer does: a wall that ended at the face left the buffer beside it with no
+        wall, and a channel drained through it (a new user's audit: plates ending at the outlet, mass -6% by
+        t = 1.06, then the density failed at the corner; with the plates continued 0.4 past it the run went
+        on)."""
+        from psph.boundaries.bodies import bounds
+
+        d = self.domain
+        lo, hi = bounds(b)
+        face_at = d.upper[a] if side > 0 else d.lower[a]
+        reach = ((hi if side > 0 else lo)[a] - face_at) * side  # how far the body goes past the face
+        fill_lo = np.asarray(self.initial.fill_lower or d.lower, dtype=float)[:2]
+        fill_hi = np.asarray(self.initial.fill_upper or d.upper, dtype=float)[:2]
+        beside = _overlap(np.delete(lo - d.support, a), np.delete(hi + d.support, a), np.delete(fill_lo, a),
+                          np.delete(fill_hi, a))
+        if beside and -0.5 * d.dx < reach < d.support - 1e-6 * d.dx:
+            end = face_at + side * d.support
+            raise SceneError(f"bodies[{j}].size", f"bodies[{j}] ({b.name!r}) ends {reach:.3g} past the outflow face "
+                             f"{face} (domain.outflow_buffer = true): its wall must go on a kernel support past the "
+                             f"face, to {'xyz'[a]} = {end:g} or beyond, as the buffer does; beside a wall that "
+                             "ended at the face the buffer had none, and the fluid drained through it")
 
     def _check_buffer(self, k, f):
         """One inflow buffer: inside the domain, on the fluid's lattice, at least a kernel support deep, its
