@@ -431,6 +431,8 @@ def cmd_run(args, petsc_options, comm) -> int:
                 driver.sim.summary_extra["iips_solver"] = solver
             summary = driver.run()
             rejected = sum(getattr(m, "rejections", 0) for m in driver.shifting_methods())
+            solvers = {id(m.solver): m.solver for m in driver.shifting_methods() if hasattr(m, "solver")}
+            loose = [w for solver in solvers.values() if (w := solver.loose_warning())]
         late = stop.requested(comm)
     except BaseException as err:
         if not settled:
@@ -445,6 +447,8 @@ def cmd_run(args, petsc_options, comm) -> int:
     if rejected:  # with iips.on_failure/on_stall = "reject" a run ends well even if no call moved anything
         _warn(comm, f"psph: warning: {rejected} IIPS call(s) were rejected and their displacements undone "
                     f"(iips.on_failure / iips.on_stall = \"reject\"; each is in the log)")
+    for warning in loose:
+        _warn(comm, f"psph: warning: {warning}")
     _warn_unused_options(comm)
     return 0
 

@@ -548,6 +548,22 @@ def test_a_solver_viewer_to_a_file_keeps_every_solve(tmp_path):
     assert json.loads((tmp_path / "b" / "summary.json").read_text())["neighbour_rebuilds"] > 1
 
 
+def test_solves_that_meet_their_tolerance_only_in_the_preconditioned_residual_are_warned_about(tmp_path):
+    """A PETSc-options audit: with ILU (left-preconditioned) the solves stopped at rtol in the preconditioned
+    residual while the true one stayed near |b|; the static run ended at L2(grad C) 3.4e-3 against Jacobi's
+    1.4e-4, exit 0, no word. The true residual of each solve with a non-diagonal preconditioner is checked,
+    and the loose ones are counted in a warning; Jacobi's solves are not checked."""
+    base = ["run", CASES / "static_perturbed.toml", "--quiet", "--set", "domain.dx=0.05", "--set",
+            "shifting.method=iips", "--set", "iips.max_newton=5"]
+    res = run_psph(*base, "--out", tmp_path / "ilu", "-iips_pc_type", "ilu")
+    assert res.returncode == 0, res.stderr
+    assert re.match(r"psph: warning: [1-5] of 5 -iips_ solves met their tolerance in the preconditioned residual "
+                    r"while the true residual \|b - A x\| stayed up to .* \(PC ilu", res.stderr), res.stderr
+    assert "preconditioned residual" in (tmp_path / "ilu" / "psph.log").read_text()
+    res = run_psph(*base, "--out", tmp_path / "jacobi")
+    assert res.returncode == 0 and res.stderr == "", res.stderr
+
+
 def test_the_trial_solve_prints_nothing(tmp_path):
     """The trial solve runs without the options that make a solve print: -iips_ksp_view and
     -iips_ksp_converged_reason print once per Newton iteration of the run, on a Python (matrix-free) matrix."""
