@@ -296,32 +296,39 @@ def iips_assembled(scene) -> bool:
 
 
 def initial_particles_bound(scene) -> int:
-    """An upper bound on a scene's particles at t = 0, without building them: the lattice nodes of the fill
-    box and of each body's box within the domain (a container's: the band a support and a node wide inside
-    the domain's faces). A 3-D column filling an eighth of its box was counted as the whole box (a new
-    user's audit: 6400 estimated, 800 run)."""
+    """An upper bound on a scene's particles at the start, without building them (a new user's audit: a 3-D
+    column filling an eighth of its box was counted as the whole box, 6400 for 800): the lattice nodes, both
+    faces of a box counted, of the fill box within the domain; of an outflow buffer across it, a support and
+    a node deep, at each buffered outflow face; of each body's box within the domain widened by a support and
+    a node (solid particles lie past the domain's faces: a container's walls, a plate going on past an
+    outflow face); and of a container's band that wide on either side of the domain's faces."""
     import math
 
     import numpy as np
 
-    d = scene.domain
-    lower, upper = np.asarray(d.lower, dtype=float), np.asarray(d.upper, dtype=float)
-
-    def nodes(lo, hi):
-        extent = np.minimum(hi, upper) - np.maximum(lo, lower)
-        return math.prod(max(0, int(round(x / d.dx))) for x in extent)
-
-    n = nodes(np.asarray(scene.initial.fill_lower or d.lower, dtype=float),
-              np.asarray(scene.initial.fill_upper or d.upper, dtype=float))
     from psph.boundaries.bodies import bounds
 
+    d = scene.domain
+    band = d.support + d.dx
+    lower, upper = np.asarray(d.lower, dtype=float), np.asarray(d.upper, dtype=float)
+
+    def nodes(lo, hi, within=(lower, upper)):
+        extent = np.minimum(hi, within[1]) - np.maximum(lo, within[0])
+        return math.prod(math.floor(x / d.dx + 1e-9) + 1 if x >= 0.0 else 0 for x in extent)
+
+    fill = (np.asarray(scene.initial.fill_lower or d.lower, dtype=float),
+            np.asarray(scene.initial.fill_upper or d.upper, dtype=float))
+    n = nodes(*fill)
+    for a, _ in d.outflow_faces() if d.outflow_buffer else ():
+        lo, hi = fill[0].copy(), fill[1].copy()
+        lo[a], hi[a] = lower[a], lower[a] + band  # the buffer's layers, across the fill's cross-section
+        n += nodes(lo, hi)
+    wide = (lower - band, upper + band)
     for b in scene.bodies:
         if b.container:
-            band = d.support + d.dx
-            n += nodes(lower, upper) - nodes(lower + band, upper - band)
+            n += nodes(*wide, within=wide) - nodes(lower + band, upper - band)
         else:
-            lo, hi = bounds(b)
-            n += nodes(np.concatenate([lo, lower[2:]]), np.concatenate([hi, upper[2:]]))
+            n += nodes(*bounds(b), within=wide)
     return n
 
 

@@ -44,7 +44,7 @@ def main():
             out = comm.bcast(out, root=0)
             scene = load_scene(CASES / f"{case}.toml", sets + ["time.t_end=1.0"])  # only for its time step
             with FluidDriver(scene, comm, out) as driver:
-                dt, _ = driver.time_step()
+                dt, _ = driver.time_step(0.0)
             short = load_scene(CASES / f"{case}.toml", sets + [f"time.t_end={10 * dt}"])
             with FluidDriver(short, comm, out) as warm_up:
                 warm_up.run()

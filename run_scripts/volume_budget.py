@@ -123,7 +123,7 @@ def budget(scene, t0, t1, out_dir):
         totals = drv.new_totals()
         eps = []
         while state["time"] < t1 * (1.0 - 1e-12):
-            dt, vmax = drv.time_step()
+            dt, vmax = drv.time_step(state["time"])
             drv.first_dt = drv.first_dt or dt
             dt = min(dt, t1 - state["time"])
             drv.advance(state, dt, vmax, totals)

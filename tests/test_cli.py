@@ -546,6 +546,14 @@ def test_a_solver_viewer_to_a_file_keeps_every_solve(tmp_path):
     lines = [ln for ln in on_screen.stdout.splitlines() if ln.startswith("Linear iips_ solve")]
     assert len(lines) > 20 and (tmp_path / "reasons.txt").read_text().splitlines() == lines
     assert json.loads((tmp_path / "b" / "summary.json").read_text())["neighbour_rebuilds"] > 1
+    # a viewer file named in an options file, which the command line's check does not see: one line, exit 2,
+    # nothing written (a review: rank 0's failure to empty it was an input/output error, exit 1, an MPI_ABORT
+    # on 2 ranks)
+    (tmp_path / "bad.opts").write_text(f"-iips_ksp_converged_reason ascii:{tmp_path}/missing/reasons.txt\n")
+    bad = run_psph("run", CASES / "kinematic_tgv.toml", "--out", tmp_path / "c", *sets, "-options_file",
+                   tmp_path / "bad.opts", ranks=2)
+    assert bad.returncode == 2 and not (tmp_path / "c").exists(), bad.stderr
+    assert f"psph: error: -iips_ksp_converged_reason ascii:{tmp_path}/missing/reasons.txt: cannot write" in bad.stderr
 
 
 def test_solves_that_meet_their_tolerance_only_in_the_preconditioned_residual_are_warned_about(tmp_path):
@@ -811,11 +819,18 @@ def test_a_viewer_path_with_petscs_variables_is_left_to_petsc(tmp_path):
 def test_petsc_options_petsc_cannot_start_with_are_one_line_of_psph(tmp_path):
     """-options_file naming no file: PETSc reports it and petsc4py raised, which psph took for its own bug
     (exit 1 and a traceback; a fuzzing audit). It is bad input: exit 2, one psph line, nothing written."""
+    missing = tmp_path / "missing.txt"  # refused by psph before PETSc starts (test_failures: on 2 ranks it hung)
     res = run_psph("run", SCENE, "--out", tmp_path / "out", "--quiet", "--set", "domain.dx=0.1", "-options_file",
-                   str(tmp_path / "missing.txt"))
+                   str(missing))
+    assert res.returncode == 2 and res.stderr.strip() == f"psph: error: -options_file {missing}: no file " \
+                                                         f"'{missing}' to read", res.stderr
+    # through PETSc's variables, which psph leaves to PETSc
+    res = run_psph("run", SCENE, "--out", tmp_path / "out", "--quiet", "--set", "domain.dx=0.1", "-options_file",
+                   "${WORKINGDIRECTORY}/missing.txt", cwd=tmp_path)
     assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
-    assert res.stderr.strip().splitlines()[-1] == (f"psph: error: PETSc did not start with the options -options_file "
-                                                   f"{tmp_path / 'missing.txt'}: error code 83 (PETSc's report above)")
+    assert res.stderr.strip().splitlines()[-1] == ("psph: error: PETSc did not start with the options -options_file "
+                                                   "${WORKINGDIRECTORY}/missing.txt: error code 83 (PETSc's report "
+                                                   "above)")
     assert not (tmp_path / "out").exists()
 
 

@@ -151,7 +151,8 @@ def clone_viscous_weight(pos, vol, kind, body, normal, wall_dist, rows, s_i_all,
     (psph.schemes.viscous_limit): eq. 7 mirrors the tangential velocity as u_j.t = -u_i.t s_j / max(s_i, ds)
     (a wall at rest), so such a pair weighs u_i.t by (1 + s_j / max(s_i, ds)) F_ij V_j, where
     sums.largest_kernel_factor_sum counts F_ij V_j: with s_i = dx / 2 and s_j up to the support, up to 9
-    times. Adds F_ij V_j s_j / max(s_i, ds) t t^T (t the tangent of j's wall) to out[r] (2 x 2) for row
+    times. Adds F_ij V_j s_j / max(s_i, ds) t t^T (t the tangent of j's own wall, where clone_rhs takes the
+    row's own normal behind a wall, eq. 5: an estimate, as the limit's scaling is) to out[r] (2 x 2) for row
     rows[r] (s_i_all: nearest_node_data's distances, (rows, bodies)). Free-slip pairs (u_j = u_i) add
     nothing."""
     support = 2.0 * kp[1]

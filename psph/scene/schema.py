@@ -493,7 +493,9 @@ class IIPSSpec:
     pre_newton: int = option(0, doc="Newton iterations of the static pre-procedure before a time-dependent "
                              "run, whatever the shifting method (thesis: 100); from a perturbed lattice "
                              "(initial.sigma_over_dx) it gives a relaxed start", ge=0)
-    divergence_factor: float = option(100.0, doc="a call whose Linf(grad C) grows by this factor has diverged",
+    divergence_factor: float = option(100.0, doc="a call whose Linf(grad C) grows by this factor, counted from "
+                                      "1e-4 at least (a relaxed distribution's level: growth from round-off to "
+                                      "below 1e-2 is no divergence), has diverged",
                                       gt=1.0)
     backtrack: int = option(0, doc="a Newton step that raises L2(grad C) is halved, up to this many times, "
                             "and undone if that does not help, which ends the call (a stall if above the "
@@ -765,10 +767,11 @@ class Scene:
                           np.delete(fill_hi, a))
         if beside and -0.5 * d.dx < reach < d.support - 1e-6 * d.dx:
             end = face_at + side * d.support
-            raise SceneError(f"bodies[{j}].size", f"bodies[{j}] ({b.name!r}) ends {reach:.3g} past the outflow face "
-                             f"{face} (domain.outflow_buffer = true): its wall must go on a kernel support past the "
-                             f"face, to {'xyz'[a]} = {end:g} or beyond, as the buffer does; beside a wall that "
-                             "ended at the face the buffer had none, and the fluid drained through it")
+            raise SceneError(f"bodies[{j}].size", f"bodies[{j}] ({b.name!r}) reaches the outflow face {face} and "
+                             f"ends {max(reach, 0.0):.3g} past it (domain.outflow_buffer = true): its wall must go "
+                             f"on a kernel support past the face, to {'xyz'[a]} = {end:g} or beyond, as the buffer "
+                             "does; beside a wall that ended at the face the buffer had none, and the fluid drained "
+                             "through it")
 
     def _check_buffer(self, k, f):
         """One inflow buffer: inside the domain, on the fluid's lattice, at least a kernel support deep, its

@@ -14,7 +14,7 @@ from mpi4py import MPI
 
 from psph.errors import PsphError, SolverError, UsageError
 from psph.profiling import phase
-from psph.solvers.petsc import petsc, petsc_comm
+from psph.solvers.petsc import petsc, petsc_comm, viewer_file
 
 # PETSc's error codes an option can cause (petscerror.h): PETSC_ERR_SUP, _ARG_WRONG, _ARG_OUTOFRANGE,
 # _ARG_INCOMP, _USER (hypre's unknown option values), _ARG_UNKNOWN_TYPE, _MISSING_FACTOR (a factorization no
@@ -61,12 +61,13 @@ def petsc_errors(what: str, options_collective: bool = True):
 DIAGONAL_PCS = ("jacobi", "pbjacobi", "none")
 LOOSE_RESIDUAL = 0.5
 # options whose value may name a viewer's file (LinearSolver._append_to_viewer_files), and the files emptied
-VIEWER_OPTIONS = re.compile(r"view|monitor|converged_reason|converged_rate")
+VIEWERS = r"view|monitor|converged_reason|converged_rate"
+VIEWER_OPTIONS = re.compile(VIEWERS)
 _EMPTIED = set()
 # options that make a solve print, or raise where it would return a diverged reason, at any level (the inner
 # solvers' -iips_sub_ksp_view, -iips_mg_levels_ksp_monitor, ...); a trial solve is done without them
-OUTPUT_OPTIONS = re.compile(r"view|monitor|converged_reason|converged_rate|compute_eigenvalues|"
-                            r"compute_singularvalues|print_statistics|error_if_not_converged")
+OUTPUT_OPTIONS = re.compile(VIEWERS + r"|compute_eigenvalues|compute_singularvalues|print_statistics|"
+                            r"error_if_not_converged")
 
 
 @contextmanager
@@ -110,24 +111,28 @@ class LinearSolver:
 
     def _append_to_viewer_files(self) -> None:
         """Make this solver's viewer options that name an ASCII file (-<prefix>ksp_monitor ascii:PATH,
-        -<prefix>ksp_view :PATH:ascii_info, ...) append to it, emptied once at the first solver's set-up:
-        PETSc opens such a file for writing, which empties it, whenever a KSP is set up from the options, and
-        each neighbour-list rebuild makes a new KSP (_renew): the file held the last rebuild's lines, or none
-        (a PETSc-options audit). A mode the option gives itself is kept. Collective."""
+        -<prefix>ksp_view :PATH:ascii_info, ...) append to it, emptied once per process at the first solver's
+        set-up: PETSc opens such a file for writing, which empties it, whenever a KSP is set up from the
+        options, and each neighbour-list rebuild makes a new KSP (_renew): the file held the last rebuild's
+        lines, or none (a PETSc-options audit). A mode the option gives itself is kept. A file rank 0 cannot
+        write (one named in an options file or PETSC_OPTIONS, which check_viewer_files does not see) is a
+        UsageError on every rank. Collective."""
         options = petsc().Options()
+        failed = None
         for key, value in options.getAll().items():
-            if not key.startswith(self.prefix) or not VIEWER_OPTIONS.search(key) or not isinstance(value, str):
+            fields = viewer_file(value) if key.startswith(self.prefix) and isinstance(value, str) else None
+            if fields is None or fields[0] not in ("", "ascii") or not VIEWER_OPTIONS.search(key) or fields[3]:
                 continue
-            fields = value.split(":")
-            if len(fields) < 2 or fields[0] not in ("", "ascii") or not fields[1] or "${" in fields[1]:
-                continue
-            if len(fields) < 4 or not fields[3]:
-                if fields[1] not in _EMPTIED:
-                    if self.comm.rank == 0:
-                        open(fields[1], "w").close()
-                    _EMPTIED.add(fields[1])
-                options.setValue(key, ":".join((fields + ["", ""])[:3] + ["append"]))
-        self.comm.Barrier()  # emptied before any rank's KSP opens it
+            if fields[1] not in _EMPTIED and self.comm.rank == 0 and failed is None:
+                try:
+                    open(fields[1], "w").close()
+                except OSError as err:
+                    failed = f"-{key} {value}: cannot write {fields[1]!r} ({err.strerror})"
+            _EMPTIED.add(fields[1])
+            options.setValue(key, ":".join(fields[:3] + ["append"]))
+        failed = self.comm.bcast(failed, root=0)  # (emptied before any rank's KSP opens it)
+        if failed:
+            raise UsageError(failed)
 
     def _create(self, settings=None):
         """A KSP with `settings` (the code defaults unless given), then the options database's (which win)."""

@@ -76,8 +76,9 @@ FILE_VIEWERS = ("", "ascii", "binary", "hdf5", "vtk")
 
 
 def check_viewer_files(options) -> None:
-    """Refuse an options file (`-options_file path`) that cannot be read, on every rank (PETSc's rank 0 reads
-    it alone: a missing one stopped rank 0 and left the others waiting for ever, a PETSc-options audit), and
+    """Refuse an options file (`-options_file path`) that rank 0 cannot read, on every rank (PETSc's rank 0
+    reads it alone: a missing one stopped rank 0 and left the others waiting for ever, a PETSc-options audit),
+    and
     a viewer option (`-log_view :path`, `-iips_ksp_view ascii:path:ascii_info`,
     `-iips_ksp_converged_reason ascii:path`: any option whose value names a file viewer) whose file cannot be
     written, before the run: PETSc opens `-log_view`'s file only in PetscFinalize, after the run, where its
@@ -88,18 +89,39 @@ def check_viewer_files(options) -> None:
 
     options = list(options)
     for name, value in zip(options, options[1:] + [""]):
-        if name in OPTIONS_FILES and "${" not in value and not (os.path.isfile(value) and os.access(value, os.R_OK)):
+        if name in OPTIONS_FILES and "${" not in value and not _rank_0_reads(value):
             raise UsageError(f"{name} {value}: no file {value!r} to read" if value and not value.startswith("-")
                              else f"{name}: needs a file name")
-        if not name.startswith("-") or value.startswith("-") or ":" not in value:
+        if not name.startswith("-") or value.startswith("-"):
             continue
-        kind, path = value.split(":")[:2]
-        if kind not in FILE_VIEWERS or not path or "${" in path:
+        fields = viewer_file(value)
+        if fields is None:
             continue
+        path = fields[1]
         folder = os.path.dirname(os.path.abspath(path))
         if not os.path.isdir(folder) or not os.access(folder, os.W_OK | os.X_OK) or os.path.isdir(path):
             raise UsageError(f"{name} {value}: cannot write {path!r}"
                              + ("" if os.path.isdir(folder) else f" (no directory {folder!r})"))
+
+
+def viewer_file(value):
+    """PETSc's viewer syntax `[type]:[file][:format][:mode]`: its fields, four strings, where `value` names a
+    file of a type FILE_VIEWERS lists, plainly (not through PETSc's variables, `${...}`); else None."""
+    fields = (value.split(":") + ["", "", ""])[:4] if ":" in value else None
+    if fields is None or fields[0] not in FILE_VIEWERS or not fields[1] or "${" in fields[1]:
+        return None
+    return fields
+
+
+def _rank_0_reads(path) -> bool:
+    """Whether rank 0 of the world, the one PETSc reads an options file on, can read `path` (a readable file
+    or pipe: not a directory). Collective over MPI's world where MPI runs: a rank that does not see rank 0's
+    file system would otherwise stop alone while rank 0 went on into PETSc's start."""
+    from mpi4py import MPI
+
+    readable = os.access(path, os.R_OK) and not os.path.isdir(path)
+    world = MPI.COMM_WORLD
+    return world.bcast(readable, root=0) if MPI.Is_initialized() and world.size > 1 else readable
 
 
 # glibc's mallopt parameters

@@ -659,8 +659,8 @@ def test_a_wall_ending_at_a_buffered_outflow_face_is_refused():
     scene_from_table(table)  # the plates go on 0.4 past x = 4
     for k in (0, 1):
         table["bodies"][k].update(center=[2.0, table["bodies"][k]["center"][1]], size=[4.0, 0.5])
-    with pytest.raises(SceneError, match=r"bodies\[0\] \('bottom'\) ends 0 past the outflow face x\+ .*to x = "
-                                         r"4\.4 or beyond") as err:
+    with pytest.raises(SceneError, match=r"bodies\[0\] \('bottom'\) reaches the outflow face x\+ and ends 0 past "
+                                         r"it .*to x = 4\.4 or beyond") as err:
         scene_from_table(table)
     assert err.value.key == "bodies[0].size"
     scene_from_table(apply_overrides(table, ["domain.outflow_buffer=false"]))  # no buffer: the fluid just leaves
