@@ -138,7 +138,7 @@ def cmd_info(args, petsc_options, comm) -> int:
     from psph.solvers.petsc import initialize
 
     scene = load_scene(args.scene, args.set)
-    initialize(petsc_options)  # which IIPS operator the options choose (the memory estimate)
+    initialize(petsc_options, comm)  # which IIPS operator the options choose (the memory estimate)
     solver = None
     if iips_runs(scene):  # the solver the command line's PETSc options give (collective)
         from psph.shifting.iips import ImplicitShifting
@@ -277,7 +277,7 @@ def cmd_run(args, petsc_options, comm) -> int:
     from psph.solvers.petsc import initialize
 
     scene, restart = _scene_and_restart(args, comm, petsc_options)
-    initialize(petsc_options)  # the memory check asks PETSc's options which IIPS operator the run builds
+    initialize(petsc_options, comm)  # the memory check asks PETSc's options which IIPS operator the run builds
     node = comm.Split_type(MPI.COMM_TYPE_SHARED)  # the ranks on this machine
     node_ranks = node.Get_size()
     node.Free()

@@ -30,8 +30,9 @@ def _find_debian_petsc4py() -> None:
             return
 
 
-def initialize(options=()) -> None:
-    """Initialise petsc4py with `options` (e.g. ['-iips_pc_type', 'hypre', '-log_view']).
+def initialize(options=(), comm=None) -> None:
+    """Initialise petsc4py with `options` (e.g. ['-iips_pc_type', 'hypre', '-log_view']); comm: the ranks that
+    start together (the command line's world), whose rank 0 reads an options file for all (check_viewer_files).
 
     Must run before `from petsc4py import PETSc` anywhere in the process; later calls with the same
     options are no-ops, with different options an error.
@@ -47,7 +48,7 @@ def initialize(options=()) -> None:
 
     argv = [sys.argv[0] if sys.argv else "psph"] + list(options)
     if _state["argv"] is None:
-        check_viewer_files(options)
+        check_viewer_files(options, comm)
         try:
             petsc4py.init(argv)
         except Exception as err:  # petsc4py's Error, once PETSc has printed its own report (a fuzzing audit:
@@ -75,7 +76,7 @@ OPTIONS_FILES = ("-options_file", "-options_file_yaml")
 FILE_VIEWERS = ("", "ascii", "binary", "hdf5", "vtk")
 
 
-def check_viewer_files(options) -> None:
+def check_viewer_files(options, comm=None) -> None:
     """Refuse an options file (`-options_file path`) that rank 0 cannot read, on every rank (PETSc's rank 0
     reads it alone: a missing one stopped rank 0 and left the others waiting for ever, a PETSc-options audit),
     and
@@ -89,7 +90,7 @@ def check_viewer_files(options) -> None:
 
     options = list(options)
     for name, value in zip(options, options[1:] + [""]):
-        if name in OPTIONS_FILES and "${" not in value and not _rank_0_reads(value):
+        if name in OPTIONS_FILES and "${" not in value and not _rank_0_reads(value, comm):
             raise UsageError(f"{name} {value}: no file {value!r} to read" if value and not value.startswith("-")
                              else f"{name}: needs a file name")
         if not name.startswith("-") or value.startswith("-"):
@@ -113,15 +114,13 @@ def viewer_file(value):
     return fields
 
 
-def _rank_0_reads(path) -> bool:
-    """Whether rank 0 of the world, the one PETSc reads an options file on, can read `path` (a readable file
-    or pipe: not a directory). Collective over MPI's world where MPI runs: a rank that does not see rank 0's
-    file system would otherwise stop alone while rank 0 went on into PETSc's start."""
-    from mpi4py import MPI
-
+def _rank_0_reads(path, comm=None) -> bool:
+    """Whether rank 0 of `comm` (the ranks starting PETSc together; None: this process alone), the one PETSc
+    reads an options file on, can read `path` (a readable file or pipe: not a directory). Collective over
+    comm: a rank that does not see rank 0's file system would otherwise stop alone while rank 0 went on into
+    PETSc's start."""
     readable = os.access(path, os.R_OK) and not os.path.isdir(path)
-    world = MPI.COMM_WORLD
-    return world.bcast(readable, root=0) if MPI.Is_initialized() and world.size > 1 else readable
+    return comm.bcast(readable, root=0) if comm is not None and comm.size > 1 else readable
 
 
 # glibc's mallopt parameters
