@@ -161,6 +161,8 @@ def cmd_info(args, petsc_options, comm) -> int:
         step = estimate_time_step(scene)
         if step:
             print(f"# {step}")
+        for warning in scene_warnings(scene):
+            print(f"# warning: {warning}")
         unread = scene.unread_keys()
         if unread:
             print(f"# keys set that this run does not read (another method's?): {', '.join(unread)} "
@@ -272,7 +274,6 @@ def cmd_run(args, petsc_options, comm) -> int:
     from psph.io.files import discard_results, holds_results, restore_results
     from psph.io.snapshots import foreign_snapshots
     from psph.parallel.comm import raise_if_any
-    from psph.scene.schema import FLUID_SCHEMES
     from psph.simulation import check_resources, iips_runs
     from psph.solvers.petsc import initialize
 
@@ -349,63 +350,8 @@ def cmd_run(args, petsc_options, comm) -> int:
     elif restart and not continuing:
         log(f"psph: {os.path.join(out, 'psph.xdmf')} lists the snapshots from the checkpoint on; the earlier ones "
             f"are in {os.path.dirname(os.path.abspath(args.restart))}")
-    iips = scene.iips
-    if (scene.shifting.method == "iips" and scene.physics.scheme != "none" and iips.threshold == 0.0
-            and iips.beta == 0.0):  # time-dependent: a static run iterates to iips.max_newton by design
-        _warn(comm, f"psph: warning: iips.threshold = 0 (and no iips.beta): every IIPS call of this run iterates "
-                    f"until iips.max_newton = {iips.max_newton} (or a step without descent ends it), on past "
-                    "convergence, where round-off grows and the results differ between rank counts (thesis: 0.02 "
-                    "with a free surface, 0.08 in bounded flows, 0.001 in Taylor-Green)")
-    if (iips_runs(scene) and scene.physics.scheme != "none" and iips.update == "nfts"
-            and scene.initial.sigma_over_dx > 0 and iips.pre_newton == 0 and not restart):
-        _warn(comm, f"psph: warning: initial.sigma_over_dx = {scene.initial.sigma_over_dx:g} with iips.update = nfts "
-                    "and no iips.pre_newton: the first IIPS calls level the perturbed start inside the flow, and "
-                    "NFTS's mass line exceeds rho x its volume line by 2 rho V s . grad C (thesis eq. 9.7), so they "
-                    "change a uniform density (at rest, sigma = 0.1 dx: by -5.6% / +1.3% in one call); give "
-                    "iips.pre_newton")
-    if scene.shifting.method == "iips" and scene.physics.scheme in FLUID_SCHEMES and iips.update == "mls1":
-        _warn(comm, "psph: warning: iips.update = mls1 replaces every field by its first-order fit at every IIPS "
-                    "call, which smooths the flow (Taylor-Green at dx = 0.05 from a relaxed start: kinetic energy "
-                    "-99.8% by t = 1, against -0.07% with no update; one call took 5.2%); mls1_increment adds only "
-                    "the fit's change, and mls2 smooths less")
-    if scene.shifting.method in ("explicit_iterative", "lind"):
-        from psph.shifting.explicit import stability_limit
-        from psph.shifting.velocity import Lind
-
-        dom, lind = scene.domain, scene.shifting.method == "lind"
-        limit = stability_limit(dom.kernel, dom.dimension, dom.h_over_dx, Lind.grad_c_weights if lind else (0, 4))
-        key = "lind_diffusion" if lind else "diffusion"
-        value = getattr(scene.shifting, key)
-        if value > limit:
-            _warn(comm, f"psph: warning: shifting.{key} = {value:g} exceeds {limit:.3g}, the limit above which "
-                        f"dx = -D grad C{'^' if lind else ''} (thesis eq. {'6.16' if lind else '6.13'}) amplifies "
-                        f"the shortest waves on the lattice ({dom.kernel}, h/dx = {dom.h_over_dx:g}, "
-                        f"{dom.dimension}-D): the distribution degrades instead of relaxing")
-    bare = scene.bare_fluid_faces()
-    if bare and not restart:  # (a 3-D audit: a box at rest stopped at step 6 on its density, a hydrostatic column
-        # with no floor at step 112 on particles leaving, neither naming the cause)
-        _warn(comm, f"psph: warning: the fluid reaches the bounded face(s) {', '.join(bare)} with no wall, outflow or "
-                    f"inflow there (domain.periodic = {list(scene.domain.periodic)}): its particles there have no "
-                    "neighbour beyond it, and the pressure, gravity or shifting pushes them out of the domain; make "
-                    "the axis periodic, wall the fluid (bodies, 2-D), name the face in domain.outflow, or leave a "
-                    "free surface there (initial.fill_lower / fill_upper)")
-    phys = scene.physics
-    mach = phys.reference_velocity / phys.sound_speed if phys.sound_speed > 0 else 1.0
-    if phys.scheme in FLUID_SCHEMES and mach > MAX_MACH * (1.0 + 1e-9) and not restart:  # (a new user's audit:
-        # c0 = 0.5 at U = 1 ran without a word)
-        _warn(comm, f"psph: warning: physics.sound_speed = {phys.sound_speed:g} is {1.0 / mach:.3g} times "
-                    f"physics.reference_velocity = {phys.reference_velocity:g}: weakly compressible SPH takes c0 >= "
-                    f"{1.0 / MAX_MACH:g} U (Mach <= {MAX_MACH:g}), which keeps the density within about 1% of rho0 "
-                    "(its variation grows as Mach^2)")
-    if phys.scheme == "riemann_ale" and phys.riemann_dissipation == "full" and mach < 0.05:
-        _warn(comm, f"psph: warning: physics.sound_speed / reference_velocity = {1.0 / mach:g}: the acoustic Riemann "
-                    "solver's dissipation z (u_L - u_R) / 2 grows with c0 (Taylor-Green, dx = 0.05, t = 0.01: kinetic "
-                    "energy -2.3% at c0/U = 10, -10% at 50, -89% at 1000); physics.riemann_dissipation = \"low\" "
-                    "keeps it (-0.13%)")
-    if phys.scheme == "riemann_ale" and scene.time.cfl > STABLE_CFL["riemann_ale"]:
-        _warn(comm, f"psph: warning: time.cfl = {scene.time.cfl:g} with physics.scheme = \"riemann_ale\": the scheme "
-                    f"runs stably up to about {STABLE_CFL['riemann_ale']:g} (an acoustic wave and Taylor-Green blew "
-                    "up from 1.0 in 2-D and 1.2 in 1-D; the thesis uses 0.2, eq. 5.52)")
+    for warning in scene_warnings(scene, restart):
+        _warn(comm, f"psph: warning: {warning}")
     if iips_runs(scene):
         log(f"psph: IIPS linear solver: {ImplicitShifting.describe_settings(solver)}")
     given = {item.split("=", 1)[0].strip() for item in args.set}  # a scene file may hold other methods' keys
@@ -513,6 +459,73 @@ STABLE_CFL = {"riemann_ale": 0.8}
 MAX_MACH = 0.1
 # PETSc options read only when PETSc finalises, after psph's check
 AT_FINALIZE = ("-options_left", "-options_view", "-malloc_dump", "-memory_view", "-objects_dump")
+
+
+def scene_warnings(scene, restart=None) -> list:
+    """What psph run warns of in this scene before it starts (psph info prints them too): settings that run
+    but give poor or misleading results. A continuation (restart) is not warned again of its start."""
+    from psph.scene.schema import FLUID_SCHEMES
+    from psph.simulation import iips_runs
+
+    warnings = []
+    iips = scene.iips
+    if (scene.shifting.method == "iips" and scene.physics.scheme != "none" and iips.threshold == 0.0
+            and iips.beta == 0.0):  # time-dependent: a static run iterates to iips.max_newton by design
+        warnings.append(f"iips.threshold = 0 (and no iips.beta): every IIPS call of this run iterates "
+                        f"until iips.max_newton = {iips.max_newton} (or a step without descent ends it), on past "
+                        "convergence, where round-off grows and the results differ between rank counts (thesis: 0.02 "
+                        "with a free surface, 0.08 in bounded flows, 0.001 in Taylor-Green)")
+    if (iips_runs(scene) and scene.physics.scheme != "none" and iips.update == "nfts"
+            and scene.initial.sigma_over_dx > 0 and iips.pre_newton == 0 and not restart):
+        warnings.append(f"initial.sigma_over_dx = {scene.initial.sigma_over_dx:g} with iips.update = nfts "
+                        "and no iips.pre_newton: the first IIPS calls level the perturbed start inside the flow, and "
+                        "NFTS's mass line exceeds rho x its volume line by 2 rho V s . grad C (thesis eq. 9.7), so "
+                        "they change a uniform density (at rest, sigma = 0.1 dx: by -5.6% / +1.3% in one call); give "
+                        "iips.pre_newton")
+    if scene.shifting.method == "iips" and scene.physics.scheme in FLUID_SCHEMES and iips.update == "mls1":
+        warnings.append("iips.update = mls1 replaces every field by its first-order fit at every IIPS "
+                        "call, which smooths the flow (Taylor-Green at dx = 0.05 from a relaxed start: kinetic energy "
+                        "-99.8% by t = 1, against -0.07% with no update; one call took 5.2%); mls1_increment adds only "
+                        "the fit's change, and mls2 smooths less")
+    if scene.shifting.method in ("explicit_iterative", "lind"):
+        from psph.shifting.explicit import stability_limit
+        from psph.shifting.velocity import Lind
+
+        dom, lind = scene.domain, scene.shifting.method == "lind"
+        limit = stability_limit(dom.kernel, dom.dimension, dom.h_over_dx, Lind.grad_c_weights if lind else (0, 4))
+        key = "lind_diffusion" if lind else "diffusion"
+        value = getattr(scene.shifting, key)
+        if value > limit:
+            warnings.append(f"shifting.{key} = {value:g} exceeds {limit:.3g}, the limit above which "
+                            f"dx = -D grad C{'^' if lind else ''} (thesis eq. {'6.16' if lind else '6.13'}) amplifies "
+                            f"the shortest waves on the lattice ({dom.kernel}, h/dx = {dom.h_over_dx:g}, "
+                            f"{dom.dimension}-D): the distribution degrades instead of relaxing")
+    bare = scene.bare_fluid_faces()
+    if bare and not restart:  # (a 3-D audit: a box at rest stopped at step 6 on its density, a hydrostatic column
+        # with no floor at step 112 on particles leaving, neither naming the cause)
+        warnings.append(f"the fluid reaches the bounded face(s) {', '.join(bare)} with no wall, outflow or "
+                        f"inflow there (domain.periodic = {list(scene.domain.periodic)}): its particles there have "
+                        "no neighbour beyond it, and the pressure, gravity or shifting pushes them out of the domain; "
+                        "make the axis periodic, wall the fluid (bodies, 2-D), name the face in domain.outflow, or "
+                        "leave a free surface there (initial.fill_lower / fill_upper)")
+    phys = scene.physics
+    mach = phys.reference_velocity / phys.sound_speed if phys.sound_speed > 0 else 1.0
+    if phys.scheme in FLUID_SCHEMES and mach > MAX_MACH * (1.0 + 1e-9) and not restart:  # (a new user's audit:
+        # c0 = 0.5 at U = 1 ran without a word)
+        warnings.append(f"physics.sound_speed = {phys.sound_speed:g} is {1.0 / mach:.3g} times "
+                        f"physics.reference_velocity = {phys.reference_velocity:g}: weakly compressible SPH takes "
+                        f"c0 >= {1.0 / MAX_MACH:g} U (Mach <= {MAX_MACH:g}), which keeps the density within about 1% "
+                        "of rho0 (its variation grows as Mach^2)")
+    if phys.scheme == "riemann_ale" and phys.riemann_dissipation == "full" and mach < 0.05:
+        warnings.append(f"physics.sound_speed / reference_velocity = {1.0 / mach:g}: the acoustic Riemann "
+                        "solver's dissipation z (u_L - u_R) / 2 grows with c0 (Taylor-Green, dx = 0.05, t = 0.01: "
+                        "kinetic energy -2.3% at c0/U = 10, -10% at 50, -89% at 1000); "
+                        "physics.riemann_dissipation = \"low\" keeps it (-0.13%)")
+    if phys.scheme == "riemann_ale" and scene.time.cfl > STABLE_CFL["riemann_ale"]:
+        warnings.append(f"time.cfl = {scene.time.cfl:g} with physics.scheme = \"riemann_ale\": the scheme "
+                        f"runs stably up to about {STABLE_CFL['riemann_ale']:g} (an acoustic wave and Taylor-Green "
+                        "blew up from 1.0 in 2-D and 1.2 in 1-D; the thesis uses 0.2, eq. 5.52)")
+    return warnings
 
 
 def _warn_unused_options(comm) -> None:

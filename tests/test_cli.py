@@ -186,6 +186,23 @@ def test_info_estimates_the_time_step():
     assert "estimated time step: 6.663e-06 (viscous limit 0.0666 h^2 / nu on the lattice" in res.stdout, res.stdout
 
 
+def test_info_prints_the_warnings_run_would_give(tmp_path):
+    """psph info shows what psph run warns of before it starts (a CLI audit: a bare face and a low sound speed
+    were told only once the run began); a scene without such settings gets no warning line."""
+    sets = ["--set", "physics.sound_speed=5", "--set", "bodies=[]", "--set", "domain.dx=0.1"]
+    info = run_psph("info", CASES / "dam_break.toml", *sets)
+    assert info.returncode == 0, info.stderr
+    warned = [line for line in info.stdout.splitlines() if line.startswith("# warning: ")]
+    assert len(warned) == 2 and "physics.sound_speed = 5 is 5 times" in warned[1], info.stdout
+    assert "the fluid reaches the bounded face(s) x-, y-" in warned[0], info.stdout
+    run = run_psph("run", CASES / "dam_break.toml", *sets, "--set", "time.t_end=1e-9", "--set",
+                   "diagnostics.dam_break=false", "--out", tmp_path, "--quiet")
+    assert [line.removeprefix("psph: warning: ") for line in run.stderr.splitlines()
+            if line.startswith("psph: warning: ")] == [w.removeprefix("# warning: ") for w in warned], run.stderr
+    quiet = run_psph("info", CASES / "taylor_green.toml", "--set", "domain.dx=0.1")
+    assert quiet.returncode == 0 and "# warning" not in quiet.stdout, quiet.stdout
+
+
 @pytest.mark.parametrize("ranks,words", [("-1", "must be >= 1, got -1"), ("0", "must be >= 1, got 0"),
                                          ("two", "expected an integer, got 'two'")])
 def test_info_refuses_a_rank_count_below_one(ranks, words):

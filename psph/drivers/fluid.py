@@ -517,7 +517,9 @@ class FluidDriver(Driver):
                      "for the flow's largest speed (its strength and cap scale with it): set it to about the "
                      "largest speed the flow reaches")
 
-    def time_step(self, t) -> float:
+    def time_step(self, t) -> tuple:
+        """(dt, the largest particle speed) at time t: the CFL step (time.cfl h / the largest signal speed,
+        thesis eq. 5.52), capped by the viscous limit. Collective."""
         s, scheme = self.scene, self.scheme
         h = self.system.kernel.h
         vmax, signal = allreduce_max(self.sim.comm, scheme.max_speeds(self.system))

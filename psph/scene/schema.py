@@ -987,6 +987,19 @@ class Scene:
         """The first of free_surface_axes, or None."""
         return next(iter(self.free_surface_axes()), None)
 
+    def _check_fill_wraps(self):
+        """A fill region reaching past the domain along a periodic axis: the lattice covers the domain only, so
+        the part beyond would be dropped, not wrapped round (it was, silently: an audit). Along a bounded axis
+        the face cuts the fluid, which is a container's design or a bare face (refused or warned)."""
+        d = self.domain
+        for key, bound, sign in (("fill_lower", d.lower, -1.0), ("fill_upper", d.upper, 1.0)):
+            given = getattr(self.initial, key)
+            for a in range(d.dimension):
+                if given and d.periodic[a] and sign * (given[a] - bound[a]) > 0.5 * d.dx:
+                    raise SceneError(f"initial.{key}", f"{given[a]:g} along axis {a} lies beyond the domain "
+                                     f"({bound[a]:g}) on a periodic axis: the fill region does not wrap round; "
+                                     f"give it within domain.lower .. upper")
+
     def _check_hydrostatic_surface(self):
         """A hydrostatic start whose free surface (initial.fill_upper, or the domain's top) lies above the
         fluid's top: the fluid is cut below it, by the domain or by a container, and its pressure was taken
@@ -1100,6 +1113,7 @@ class Scene:
             if hi[a] <= lo[a]:
                 key = "initial.fill_upper" if self.initial.fill_upper else "initial.fill_lower"
                 raise SceneError(key, f"the fill region is empty along axis {a}: upper {hi[a]:g} <= lower {lo[a]:g}")
+        self._check_fill_wraps()
         method = self.shifting.method
         self._check_drop(fluid)
         self._check_packing(fluid)

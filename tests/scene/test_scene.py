@@ -425,6 +425,10 @@ def test_packing_is_accepted_with_clone_walls_and_a_free_surface():
     ("taylor_green", ["initial.fill_lower=[0.8, 0.8]", "initial.fill_upper=[0.2, 0.2]"], "initial.fill_upper",
      "empty along axis 0: upper 0.2 <= lower 0.8"),
     ("taylor_green", ["initial.fill_lower=[1.0, 0.0]"], "initial.fill_lower", "empty along axis 0"),
+    # a fill past a periodic axis' end was dropped, not wrapped round (a fill of [-0.5, 0.5] kept half its fluid)
+    ("taylor_green", ["initial.fill_lower=[-0.5, 0.0]", "initial.fill_upper=[0.5, 1.0]"], "initial.fill_lower",
+     "-0.5 along axis 0 lies beyond the domain (0) on a periodic axis"),
+    ("taylor_green", ["initial.fill_upper=[1.0, 1.5]"], "initial.fill_upper", "1.5 along axis 1 lies beyond"),
     # a rotated container's plates would not meet themselves across the periodic axis
     ("couette", ["bodies.0.angle=5.0"], "bodies[0].angle", "only unrotated"),
     ("couette", ["domain.periodic=[true, true]", "bodies.0.lid_velocity=[]"], "bodies[0].shape", "keep no wall"),
