@@ -81,6 +81,11 @@ def _parser() -> argparse.ArgumentParser:
     plot = sub.add_parser("plot", help="PNG figures of a run (fields, history) or of a study directory of runs")
     plot.add_argument("out_dir", help="a run's output directory, or a directory of runs")
     plot.add_argument("--figures", help="where to write the PNGs (default: OUT_DIR/figures)")
+    plot.add_argument("--line", type=float, nargs="+", metavar="X",
+                      help="instead: the last snapshot's pressure, density and velocity along the segment from "
+                      "(x0, y0[, z0]) to (x1, y1[, z1]), given as x0 y0 [z0] x1 y1 [z1], in line.png and line.csv")
+    plot.add_argument("--points", type=positive_int, default=LINE_POINTS, metavar="N",
+                      help=f"points along --line (default {LINE_POINTS})")
     return parser
 
 
@@ -457,6 +462,7 @@ def _prepare_output(args, out, log_path, first, continuing, later):
 STABLE_CFL = {"riemann_ale": 0.8}
 # the largest Mach number U / c0 of a weakly compressible flow (psph run warns above it)
 MAX_MACH = 0.1
+LINE_POINTS = 200  # psph plot --line's default number of points
 # PETSc options read only when PETSc finalises, after psph's check
 AT_FINALIZE = ("-options_left", "-options_view", "-malloc_dump", "-memory_view", "-objects_dump")
 
@@ -569,7 +575,7 @@ def cmd_plot(args, petsc_options, comm) -> int:
         def warn(line):
             print(f"psph: warning: {line}", file=sys.stderr, flush=True)
 
-        for path in plot(args.out_dir, args.figures, warn):
+        for path in plot(args.out_dir, args.figures, warn, args.line, args.points):
             print(f"psph: wrote {path}")
     return 0
 

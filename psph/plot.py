@@ -60,16 +60,19 @@ def _history(path: Path) -> list:
         raise UsageError(f"{str(path)!r} is not a psph history: {exc}") from None
 
 
-def plot(out_dir, fig_dir=None, warn=print) -> list:
+def plot(out_dir, fig_dir=None, warn=print, line=None, points=None) -> list:
     """Write the figures for a run or a study directory; returns the PNG paths. A file that cannot be read
     (a truncated snapshot, a damaged summary or history) or written (a full disk, --figures naming a file) is
     a UsageError naming it; a run's figure that has nothing to show is left out with a line to `warn`, and a
-    run with no figure at all is a UsageError."""
+    run with no figure at all is a UsageError. `line`: a run's segment to cut at `points` points (plot_line),
+    which is then the only figure."""
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
         raise UsageError(f"{str(out_dir)!r} is not a directory")
     fig_dir = Path(fig_dir) if fig_dir else out_dir / "figures"
     try:
+        if line is not None:
+            return [plot_line(out_dir, fig_dir, line, points)]
         return _plot(out_dir, fig_dir, warn)
     except OSError as exc:
         where = f" ({exc.filename})" if exc.filename and str(exc.filename) not in str(exc) else ""
@@ -243,6 +246,79 @@ def plot_fields(run_dir: Path, fig_dir: Path):
             ax.set_aspect("equal")
         ax.set_title(name + (f" ({left_out} non-finite left out)" if left_out else ""), fontsize=10)
     return _save(plt, fig, fig_dir / "fields.png", f"{run_dir.name}: last snapshot, t = {t:.4g}")
+
+
+LINE_FIELDS = ("pressure", "density", "velocity")  # what a line cut samples, where a snapshot holds them
+
+
+def plot_line(run_dir: Path, fig_dir: Path, ends, points: int) -> Path:
+    """line.png and line.csv: the pressure, density and velocity of the last snapshot along the segment
+    `ends` = (x0, y0[, z0], x1, y1[, z1]) at `points` evenly spaced points, each the Shepard interpolation
+    of the fluid particles within a kernel support, sum_j f_j W_j V_j / sum_j W_j V_j, with the run's kernel
+    and periodic images (diagnostics.shepard_sums, as the probes are sampled); nan where no fluid reaches.
+    The csv's columns: s (the distance from the first end), the point, then the fields."""
+    from psph.compute.smoothing import make_kernel
+    from psph.diagnostics import shepard_sums
+    from psph.io.snapshots import snapshot_files
+    from psph.particles import Kind
+    from psph.scene.load import scene_from_table
+    from psph.simulation import make_domain
+    from psph.studies import last_snapshot
+
+    table = _run_scene_table(run_dir)
+    if table is None or not snapshot_files(run_dir):
+        raise UsageError(f"--line: {str(run_dir)!r} holds no snapshot of a run to cut")
+    scene = scene_from_table(table)
+    d = scene.domain
+    if len(ends) != 2 * d.dimension:
+        raise UsageError(f"--line: a {d.dimension}-D run's segment takes {2 * d.dimension} numbers (its two ends' "
+                         f"coordinates), got {len(ends)}")
+    ends = np.asarray(ends, dtype=np.float64).reshape(2, d.dimension)
+    for a in range(d.dimension):
+        outside = (ends[:, a] < d.lower[a] - 1e-12) | (ends[:, a] > d.upper[a] + 1e-12)
+        if outside.any():
+            raise UsageError(f"--line: the end {list(ends[int(np.argmax(outside))])} lies outside the domain along "
+                             f"axis {a} ({d.lower[a]:g} .. {d.upper[a]:g})")
+    try:
+        data, t = last_snapshot(run_dir)
+    except OSError as exc:
+        raise OSError(f"cannot read the last snapshot {snapshot_files(run_dir)[-1].name}: {exc}") from None
+    names = [f for f in LINE_FIELDS if f in data]
+    if not names:
+        raise UsageError(f"--line: the last snapshot of {str(run_dir)!r} holds none of {', '.join(LINE_FIELDS)} "
+                         "(a static or kinematic run has no flow to cut)")
+    columns = {"pressure": ["p"], "density": ["rho"], "velocity": list("uvw"[: d.dimension])}
+    labels = [c for f in names for c in columns[f]]
+    values = np.column_stack([data[f].reshape(len(data["gid"]), -1) for f in names])
+    pos = data["position"]
+    volume = data.get("volume", np.full(len(pos), d.dx ** d.dimension))
+    fluid = (data["kind"] == Kind.FLUID) & np.isfinite(pos).all(axis=1) & np.isfinite(values).all(axis=1)
+    s = np.linspace(0.0, 1.0, points)
+    at = ends[0] + s[:, None] * (ends[1] - ends[0])
+    num, den = shepard_sums(make_kernel(d.kernel, d.dimension, d.h), pos[fluid], values[fluid], volume[fluid], at,
+                            make_domain(scene))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cut = num / den[:, None]
+    if not np.isfinite(cut).any():
+        raise UsageError(f"--line: no fluid particle lies within a kernel support ({d.support:g}) of the segment "
+                         f"{ends.ravel().tolist()} at t = {t:.6g}")
+    distance = s * np.linalg.norm(ends[1] - ends[0])
+    header = ["s", *("xyz"[: d.dimension]), *labels]
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    np.savetxt(fig_dir / "line.csv", np.column_stack([distance, at, cut]), delimiter=",", header=",".join(header),
+               comments="", fmt="%.10g")
+    plt = _pyplot()
+    panels = [(f, [labels.index(c) for c in columns[f]]) for f in names]
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.4), squeeze=False)
+    for ax, (name, cols) in zip(axes.flat, panels):
+        for c in cols:
+            ax.plot(distance, cut[:, c], label=labels[c])
+        if len(cols) > 1:
+            ax.legend(fontsize=7)
+        ax.set_title(name, fontsize=9)
+        ax.set_xlabel("distance along the line", fontsize=8)
+    first, last = (", ".join(f"{v:.4g}" for v in e) for e in ends)
+    return _save(plt, fig, fig_dir / "line.png", f"{run_dir.name}: t = {t:.4g}, from ({first}) to ({last})")
 
 
 def study_error(final: dict):
