@@ -28,6 +28,16 @@ MOTION_SAMPLES = 5000  # check_placement: most times at which a prescribed motio
 PERIOD_STEPS = 20  # check_placement: fewest time steps an oscillation's period may span
 
 
+def smooth_ramp(t, ramp):
+    """(displacement, velocity, acceleration) at time t of a unit velocity reached smoothly over `ramp`,
+    tau^2 (3 - 2 tau) with tau = t / ramp (a body's "ramp" law, an inflow's ramp_time); ramp = 0: the unit
+    velocity from t = 0."""
+    tau = t / ramp if ramp > 0.0 else math.inf
+    if tau >= 1.0:
+        return ramp * 0.5 + (t - ramp), 1.0, 0.0
+    return ramp * (tau**3 - 0.5 * tau**4), tau * tau * (3.0 - 2.0 * tau), 6.0 * tau * (1.0 - tau) / ramp
+
+
 class MotionLaw:
     """Scalar law s(t), s'(t), s''(t) scaled so that s'(t) reaches 1 (times the body's velocity vector, or
     its angular velocity). law: another law than spec.law with spec's parameters (the rotation's)."""
@@ -57,11 +67,7 @@ class MotionLaw:
             k = 2.0 * math.pi / self.period
             return math.sin(k * t) / k, math.cos(k * t), -k * math.sin(k * t)
         if self.law == "ramp":
-            tau = t / self.ramp
-            if tau >= 1.0:
-                return self.ramp * 0.5 + (t - self.ramp), 1.0, 0.0
-            return (self.ramp * (tau**3 - 0.5 * tau**4), tau * tau * (3.0 - 2.0 * tau),
-                    6.0 * tau * (1.0 - tau) / self.ramp)
+            return smooth_ramp(t, self.ramp)
         # spheric6
         if t >= 1.0:
             return float(self._d[-1]) + (t - 1.0), 1.0, 0.0

@@ -28,6 +28,7 @@ import math
 
 import numpy as np
 
+from psph.boundaries.bodies import smooth_ramp
 from psph.parallel.comm import allreduce_max, allreduce_sum
 from psph.particles import Kind
 
@@ -47,6 +48,7 @@ class Inflow:
         self.axis = spec.axis
         self.velocity = np.asarray(spec.velocity, dtype=np.float64)
         self.speed = abs(self.velocity[self.axis])
+        self.ramp = spec.ramp_time
         lower, upper = np.asarray(spec.lower, dtype=np.float64), np.asarray(spec.upper, dtype=np.float64)
         self.lower, self.upper = lower, upper
         # the upstream face: the lower one for a positive velocity
@@ -79,14 +81,27 @@ class Inflow:
     def initial_positions(self) -> np.ndarray:
         return self._place((np.arange(self.rows) + 0.5) * self.dx)
 
+    def travelled(self, t) -> float:
+        """How far a buffer particle has gone along the axis since t = 0: |U| t, or with ramp_time T,
+        |U| S(t) of the smooth ramp (boundaries.bodies.smooth_ramp)."""
+        return self.speed * smooth_ramp(t, self.ramp)[0]
+
+    def velocity_at(self, t) -> np.ndarray:
+        """The buffer's velocity at time t (U, or U tau^2 (3 - 2 tau) during the ramp)."""
+        return self.velocity * smooth_ramp(t, self.ramp)[1]
+
+    def acceleration_at(self, t) -> np.ndarray:
+        """d/dt of velocity_at (zero without a ramp, and after it)."""
+        return self.velocity * smooth_ramp(t, self.ramp)[2]
+
     def emitted(self, t) -> int:
         """Rows emitted since t = 0."""
-        return int(math.floor(self.speed * t / self.dx + EMIT_TOL))
+        return int(math.floor(self.travelled(t) / self.dx + EMIT_TOL))
 
     def rows_at(self, first, last, t) -> np.ndarray:
         """Positions at time t of emitted rows first..last (1-based, inclusive)."""
         m = np.arange(first, last + 1, dtype=np.float64)
-        return self._place((0.5 - m) * self.dx + self.speed * t)
+        return self._place((0.5 - m) * self.dx + self.travelled(t))
 
     def in_section(self, pos) -> np.ndarray:
         """Mask of positions within the buffer's cross-section (any distance along its axis)."""
@@ -134,7 +149,7 @@ def initial_inflow_particles(scene, comm, first_gid):
         return None
     inflows = make_inflows(scene)
     pos = [f.initial_positions() if comm.rank == 0 else np.zeros((0, scene.domain.dimension)) for f in inflows]
-    fields = [prescribed_fields(scene, len(x), f.velocity) for f, x in zip(inflows, pos)]
+    fields = [prescribed_fields(scene, len(x), f.velocity_at(0.0)) for f, x in zip(inflows, pos)]
     n = sum(len(x) for x in pos)
     out = {k: np.concatenate([f[k] for f in fields]) for k in fields[0]}
     out["position"] = np.concatenate(pos)
@@ -148,7 +163,8 @@ def describe_open(scene) -> list:
     for k, f in enumerate(make_inflows(scene)):
         lines.append(f"inflow[{k}]: buffer {tuple(f.lower)} - {tuple(f.upper)}, {f.rows} rows of "
                      f"{len(f.section)} particles at velocity {tuple(f.velocity)}, a row every "
-                     f"{f.dx / f.speed:.4g} time units")
+                     f"{f.dx / f.speed:.4g} time units"
+                     + (f" once reached, smoothly over ramp_time = {f.ramp:g}" if f.ramp else ""))
     if scene.domain.outflow and scene.domain.outflow_buffer:
         lines.append(f"outflow faces {', '.join(scene.domain.outflow)}: fluid past them becomes a buffer one kernel "
                      "support deep, its density and velocity extrapolated from the fluid (Shepard average), "
@@ -256,6 +272,9 @@ class OpenBoundaries:
         p = system.particles
         pos, kind = p.owned("position"), p.owned("kind")
         self._check_backflow(system, pos, kind, t)
+        for f in self.inflows:  # a rising velocity (ramp_time) is set, not left to the time integrator
+            if f.ramp > 0.0:
+                p.owned("velocity")[(kind == Kind.INLET) & f.holds(pos)] = f.velocity_at(t)
         # a buffer particle that no buffer holds has passed its downstream face, however far: one moving more
         # than 2 dx a step once skipped the window (2 dx past the face) it had to be in to join, crossed the
         # domain as a buffer particle and left it unremoved (an audit: U dt = 3.2 dx, 64% of the mass flux)
@@ -283,7 +302,7 @@ class OpenBoundaries:
             due = f.emitted(t)
             if due > self.emitted[k]:
                 x = f.rows_at(self.emitted[k] + 1, due, t)
-                new.append((x, f.velocity))
+                new.append((x, f.velocity_at(t)))
                 self.emitted[k] = due
         n_new = sum(len(x) for x, _ in new)
         counts = allreduce_sum(system.comm, np.array([joined.sum(), removed.sum(), mass[entered].sum(),

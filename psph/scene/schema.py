@@ -112,6 +112,9 @@ class InflowSpec:
                           "whose pressure follows the fluid) or prescribed (rho0, the pressure of rho0, which a flow "
                           "that needs a pressure at the inlet overfills; README, \"Open boundaries\")",
                           choices=("extrapolated", "prescribed"))
+    ramp_time: float = option(0.0, doc="time over which the velocity rises from rest, smoothly (tau^2 (3 - 2 "
+                              "tau), tau = t / ramp_time, a body's ramp law), so that the flow does not start with "
+                              "a pressure shock of rho0 c0 U; 0: the full velocity from t = 0", ge=0.0)
 
     def check(self, path):
         lengths = {"lower": len(self.lower), "upper": len(self.upper), "velocity": len(self.velocity)}
@@ -711,6 +714,9 @@ class Scene:
         if self.initial.velocity == "inflow" and not self.inflow:
             raise SceneError("initial.velocity", "inflow sets the fluid moving with the first [[inflow]]: the "
                              "scene has none")
+        if self.initial.velocity == "inflow" and self.inflow[0].ramp_time > 0.0:
+            raise SceneError("inflow[0].ramp_time", "initial.velocity = \"inflow\" starts the fluid at the inflow's "
+                             "full velocity, its ramp from rest: give one or the other")
         if d.outflow and not fluid:
             raise SceneError("domain.outflow", f"outflow faces belong to a flow, not physics.scheme = "
                              f"{self.physics.scheme!r}")

@@ -18,6 +18,7 @@ The kernels are in psph.compute.fluid.
 import numpy as np
 
 from psph.boundaries.free_surface import FreeSurface, make_free_surface
+from psph.boundaries.open import make_inflows
 from psph.compute.fluid import (
     PairCache,
     add_uniform_acceleration,
@@ -73,6 +74,7 @@ class DeltaALE:
         self.pairs = PairCache()  # the support's pairs, from renormalised_gradient to delta_ale_rhs
         # rows of Kind.INLET and OUTLET keep the fields psph.boundaries.open prescribes
         self.prescribed = bool(scene.inflow) or scene.domain.outflow_buffer
+        self.ramps = [f for f in make_inflows(scene) if f.ramp > 0.0]  # buffers whose velocity rises (ramp_time)
         self.walls = None
         if scene.bodies:
             from psph.boundaries.clone import WallTerms
@@ -278,6 +280,7 @@ class DeltaALE:
             fixed = (kind == Kind.INLET) | (kind == Kind.OUTLET)
             d_rho[fixed], d_mass[fixed], d_mom[fixed] = 0.0, 0.0, 0.0
             self._fall_with_gravity(p, kind == Kind.OUTLET, d_mom)
+            self._ramp_inflows(p, kind, t, d_mom)
         transport = p.owned("velocity") + (p.owned("shift_velocity") if self.shift.active else 0.0)
         out = {"position": transport, "density": d_rho}
         if self.variant == 0:
@@ -286,6 +289,14 @@ class DeltaALE:
         else:
             out["velocity"] = d_mom
         return out
+
+    def _ramp_inflows(self, p, kind, t, d_mom) -> None:
+        """An inflow buffer with a ramp_time accelerates as its prescribed velocity rises (Inflow.acceleration_at,
+        at the stage's time t), so that within a step its particles follow the ramp (psph.boundaries.open sets
+        the velocity itself after every step)."""
+        for f in self.ramps:
+            rows = (kind == Kind.INLET) & f.holds(p.owned("position"))
+            d_mom[rows] = f.acceleration_at(t) * (p.owned("mass")[rows, None] if self.variant == 0 else 1.0)
 
     def _fall_with_gravity(self, p, outlet, d_mom) -> None:
         """An outflow buffer's rows (`outlet`, owned) accelerate with gravity within a step: their state is the

@@ -71,6 +71,48 @@ def test_inflow_rows_continue_the_buffer_lattice():
     assert f.holds(probe).tolist() == [False, True, True, False, False]
 
 
+def ramped_jet(ramp, t_end):
+    """free_jet starting from rest, its buffer's velocity reached over `ramp` (inflow.ramp_time)."""
+    inflow = [{"lower": [-0.3, 1.6], "upper": [0.3, 2.0], "velocity": [0.0, -1.0], "ramp_time": ramp}]
+    return free_jet(2, t_end=t_end, initial={"velocity": "zero"}, inflow=inflow, output={"history_every": 1})
+
+
+def test_a_ramped_inflow_emits_its_rows_on_the_lattice_as_its_velocity_rises():
+    """With ramp_time T the buffer has travelled |U| S(t), S = T (tau^3 - tau^4 / 2) up to T and T / 2 + t - T
+    after (the integral of tau^2 (3 - 2 tau)): row m is emitted once S(t) >= m dx, on the lattice."""
+    f = Inflow(ramped_jet(0.3, 0.6).inflow[0], 0.1)
+    assert np.allclose(f.velocity_at(0.0), 0.0) and np.allclose(f.velocity_at(0.15), [0.0, -0.5])
+    assert np.allclose(f.velocity_at(0.3), [0.0, -1.0]) and np.allclose(f.acceleration_at(0.15), [0.0, -5.0])
+    for t in (0.1, 0.2, 0.3, 0.5):
+        exact = 0.3 * ((t / 0.3) ** 3 - 0.5 * (t / 0.3) ** 4) if t < 0.3 else 0.15 + t - 0.3
+        assert f.travelled(t) == pytest.approx(exact, rel=1e-12)
+        assert f.emitted(t) == int(np.floor(exact / 0.1 + 1e-9))
+    assert [f.emitted(t) for t in (0.2, 0.25, 0.5, 0.6)] == [0, 1, 3, 4]
+    # row 4, emitted at S = 0.4 half a row inside the buffer's face (y = 2), has gone 0.05 further by S = 0.45
+    assert np.allclose(f.rows_at(4, 4, 0.6)[:, 1], 2.0 - 0.05 - 0.05)
+
+
+def test_a_ramped_inflow_starts_a_jet_from_rest_without_the_impulsive_start_s_shock(tmp_path):
+    """From rest, an impulsive buffer at U = 1 (c0 = 10) compresses the fluid below it by 8.8% and throws its
+    sides out of the domain by t = 0.44 (free_jet's box); ramped over T = 0.3 it compresses it by 2.6% and the
+    jet runs. Its particles stay on the lattice the emitted rows continue (to the time integrator's error),
+    at the prescribed velocity."""
+    impulsive = FluidDriver(ramped_jet(0.0, 0.2), MPI.COMM_SELF, tmp_path / "impulsive")
+    impulsive.run()
+    shock = max(r["max_density_variation"] for r in read_history(tmp_path / "impulsive" / "history.csv"))
+    driver = FluidDriver(ramped_jet(0.3, 0.6), MPI.COMM_SELF, tmp_path / "ramped")
+    driver.run()
+    ramped = max(r["max_density_variation"] for r in read_history(tmp_path / "ramped" / "history.csv"))
+    assert shock > 0.08 and ramped < 0.03, (shock, ramped)
+    assert driver.open.totals["emitted"] == 4 * 6  # S(0.6) = 0.45: four rows of six
+    p = driver.system.particles
+    inlet = p.owned("kind") == Kind.INLET
+    y, travelled = p.owned("position")[inlet, 1], driver.open.inflows[0].travelled(0.6)
+    row = np.round(0.5 + (travelled - (2.0 - y)) / 0.1)
+    assert np.abs(y - (2.0 - (0.5 - row) * 0.1 - travelled)).max() < 1e-6
+    assert np.array_equal(p.owned("velocity")[inlet], np.tile([0.0, -1.0], (int(inlet.sum()), 1)))
+
+
 @pytest.mark.parametrize("dim,density", [(1, "prescribed"), (2, "prescribed"), (3, "prescribed"), (2, "extrapolated")])
 def test_uniform_jet_through_inflow_and_outflow_stays_exact(tmp_path, dim, density):
     """Six rows enter and six leave in t = 0.6: the fluid keeps its count, velocity U and rho0 to round-off,
@@ -158,6 +200,8 @@ def test_a_retried_step_emits_joins_and_removes_its_rows_once(tmp_path):
     (["domain.outflow_buffer=true", "physics.scheme=riemann_ale"], "domain.outflow_buffer"),
     (["packing.iterations=10"], "packing.iterations"),
     (["inflow=[]"], "initial.velocity"),
+    (["inflow.0.ramp_time=0.2"], "inflow[0].ramp_time"),  # the fluid at full speed beside a buffer at rest
+    (["inflow.0.ramp_time=-0.2", "initial.velocity=zero"], "inflow[0].ramp_time"),
     (["diagnostics.impinging_jet=true"], "diagnostics.impinging_jet"),
 ])
 def test_open_boundary_scenes_are_refused_by_key(sets, key):
