@@ -79,6 +79,40 @@ def test_a_missing_petsc_options_file_ends_every_rank_with_exit_2(tmp_path):
 
 
 @pytest.mark.parametrize("ranks", [1, 2])
+@pytest.mark.parametrize("where", ["options_file", "PETSC_OPTIONS"])
+def test_a_log_view_file_that_cannot_be_written_set_outside_the_command_line_is_refused_at_the_start(
+        tmp_path, ranks, where):
+    """A review: `-log_view :/no/dir/x` from an options file (or PETSC_OPTIONS) failed in PetscFinalize, after
+    the run: on 2 ranks the job then hung, on 1 it exited 0 with the profile lost. Now every rank refuses it
+    before the run, in one line, and nothing is written."""
+    import os
+    import subprocess
+    import sys
+
+    from tests.helpers import ROOT, mpi_environment
+
+    option = f"-log_view :{tmp_path}/nodir/log.txt"
+    env = mpi_environment()
+    cmd = [sys.executable, "-m", "psph", "run", str(CASES / "kinematic_tgv.toml"), "--out", str(tmp_path / "out"),
+           "--quiet", "--set", "domain.dx=0.1", "--set", "time.t_end=0.02"]
+    if where == "options_file":
+        (tmp_path / "view.opts").write_text(option + "\n")
+        cmd += ["-options_file", str(tmp_path / "view.opts")]
+    else:
+        env = {**env, "PETSC_OPTIONS": option}
+    if ranks > 1:
+        cmd = ["mpiexec", "-n", str(ranks), "--oversubscribe", "-x", "PETSC_OPTIONS"] + cmd \
+            if where == "PETSC_OPTIONS" else ["mpiexec", "-n", str(ranks), "--oversubscribe"] + cmd
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=ROOT, env=env)
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("psph:")]
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr and "PETSC ERROR" not in proc.stderr, proc.stderr
+    assert set(lines) == {f"psph: error: -log_view :{tmp_path}/nodir/log.txt: cannot write "
+                          f"'{tmp_path}/nodir/log.txt' (no directory '{tmp_path}/nodir') (an option PETSc read from "
+                          "an options file, PETSC_OPTIONS or ~/.petscrc)"}, proc.stderr
+    assert not (tmp_path / "out").exists() and not os.path.exists(tmp_path / "nodir")
+
+
+@pytest.mark.parametrize("ranks", [1, 2])
 def test_escaped_particles_are_counted_over_every_rank_with_step_and_time(tmp_path, ranks):
     """The cavity without its walls: its corner particles leave the box in the first step. The report
     names the step and time and counts the escaped particles of every rank (one rank's count before)."""

@@ -63,6 +63,7 @@ def initialize(options=(), comm=None) -> None:
             refusal.collective = False
             raise refusal from None
         _state["argv"] = argv
+        check_started_viewer_files(comm)
         _ignore_sigpipe()
         release_freed_memory()
         atexit.register(_destroy_live)
@@ -79,8 +80,7 @@ FILE_VIEWERS = ("", "ascii", "binary", "hdf5", "vtk")
 def check_viewer_files(options, comm=None) -> None:
     """Refuse an options file (`-options_file path`) that rank 0 cannot read, on every rank (PETSc's rank 0
     reads it alone: a missing one stopped rank 0 and left the others waiting for ever, a PETSc-options audit),
-    and
-    a viewer option (`-log_view :path`, `-iips_ksp_view ascii:path:ascii_info`,
+    and a viewer option (`-log_view :path`, `-iips_ksp_view ascii:path:ascii_info`,
     `-iips_ksp_converged_reason ascii:path`: any option whose value names a file viewer) whose file cannot be
     written, before the run: PETSc opens `-log_view`'s file only in PetscFinalize, after the run, where its
     error cannot change the exit status any more (a fuzzing audit: `-log_view :/bad/x` exited 0 with the
@@ -93,16 +93,44 @@ def check_viewer_files(options, comm=None) -> None:
         if name in OPTIONS_FILES and "${" not in value and not _rank_0_reads(value, comm):
             raise UsageError(f"{name} {value}: no file {value!r} to read" if value and not value.startswith("-")
                              else f"{name}: needs a file name")
-        if not name.startswith("-") or value.startswith("-"):
-            continue
-        fields = viewer_file(value)
+    refusal = _unwritable_viewer(options)
+    if refusal:
+        raise UsageError(refusal[1])
+
+
+def _unwritable_viewer(options):
+    """(name, message) of the first option among `options` (names and values in turn) whose value names a
+    file viewer (viewer_file) that cannot be written, or None."""
+    for name, value in zip(options, options[1:] + [""]):
+        fields = viewer_file(value) if name.startswith("-") and not value.startswith("-") else None
         if fields is None:
             continue
         path = fields[1]
         folder = os.path.dirname(os.path.abspath(path))
         if not os.path.isdir(folder) or not os.access(folder, os.W_OK | os.X_OK) or os.path.isdir(path):
-            raise UsageError(f"{name} {value}: cannot write {path!r}"
-                             + ("" if os.path.isdir(folder) else f" (no directory {folder!r})"))
+            return name, (f"{name} {value}: cannot write {path!r}"
+                          + ("" if os.path.isdir(folder) else f" (no directory {folder!r})"))
+    return None
+
+
+def check_started_viewer_files(comm=None) -> None:
+    """check_viewer_files' viewer check over every option PETSc started with, those of an options file,
+    PETSC_OPTIONS or ~/.petscrc too (a review: `-log_view :/no/dir/x` in an options file failed in
+    PetscFinalize after the run, which then hung on 2 ranks and exited 0 on one), judged on rank 0 of comm,
+    which writes -log_view's file. A refused option is removed, so that PetscFinalize does not try it again,
+    and every rank raises the same UsageError. Collective over comm."""
+    from petsc4py import PETSc
+
+    from psph.errors import UsageError
+
+    database = PETSc.Options()
+    flat = [item for name, value in database.getAll().items() for item in (f"-{name}", value or "")]
+    refusal = _unwritable_viewer(flat) if comm is None or comm.rank == 0 else None
+    if comm is not None and comm.size > 1:
+        refusal = comm.bcast(refusal, root=0)
+    if refusal:
+        database.delValue(refusal[0][1:])
+        raise UsageError(refusal[1] + " (an option PETSc read from an options file, PETSC_OPTIONS or ~/.petscrc)")
 
 
 def viewer_file(value):
