@@ -299,14 +299,17 @@ def initial_particles_bound(scene) -> int:
     """An upper bound on a scene's particles at the start, without building them (a new user's audit: a 3-D
     column filling an eighth of its box was counted as the whole box, 6400 for 800): the lattice nodes, both
     faces of a box counted, of the fill box within the domain; of an outflow buffer across it, a support and
-    a node deep, at each buffered outflow face; of each body's box within the domain widened by a support and
-    a node (solid particles lie past the domain's faces: a container's walls, a plate going on past an
-    outflow face); and of a container's band that wide on either side of the domain's faces."""
+    a node deep, at each buffered outflow face; of each immersed body's box within the domain widened by a
+    support and a node (solid particles lie past the domain's faces: a plate going on past an outflow face);
+    and of the box around the strip that wide on the solid side of each side of a container, from a support
+    and a node before its start to as far past its end (a review: a band along the domain's faces missed the
+    walls of a tank's baffles inside it, 6326 for 9836). Not the inflow buffers' particles
+    (estimate_resources counts the whole domain where there are any)."""
     import math
 
     import numpy as np
 
-    from psph.boundaries.bodies import bounds
+    from psph.boundaries.bodies import bounds, container_sides
 
     d = scene.domain
     band = d.support + d.dx
@@ -325,10 +328,15 @@ def initial_particles_bound(scene) -> int:
         n += nodes(lo, hi)
     wide = (lower - band, upper + band)
     for b in scene.bodies:
-        if b.container:
-            n += nodes(*wide, within=wide) - nodes(lower + band, upper - band)
-        else:
+        if not b.container:  # its solid particles are inside it
             n += nodes(*bounds(b), within=wide)
+            continue
+        for a, e in container_sides(b):  # the strip on the solid side, past both ends (the corners)
+            along = (e - a) / np.linalg.norm(e - a)
+            out = np.array([along[1], -along[0]])
+            corners = np.array([a - band * along, e + band * along])
+            corners = np.concatenate([corners - d.dx * out, corners + band * out])
+            n += nodes(corners.min(axis=0), corners.max(axis=0), within=wide)
     return n
 
 

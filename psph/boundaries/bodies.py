@@ -13,6 +13,7 @@ import numpy as np
 
 from psph.boundaries.geometry import (
     Profile,
+    counterclockwise,
     distance_to_polygon,
     ellipse_profile,
     inside,
@@ -373,6 +374,18 @@ def bounds(spec) -> tuple:
         return v.min(axis=0), v.max(axis=0)
     center = np.asarray(spec.center, dtype=float)
     return center - half_extent(spec), center + half_extent(spec)
+
+
+def container_sides(spec) -> list:
+    """The straight sides (a, b) of a container at t = 0 (box: its four, rotated; polygon: its edges), going
+    counter-clockwise round the fluid, so that the solid lies to the right of each (along (b - a) rotated by
+    -90 degrees): within a support of the sides."""
+    if spec.shape == "polygon":
+        corners = counterclockwise(spec.vertices)
+    else:
+        w, h = np.asarray(spec.size, dtype=float) / 2.0
+        corners = np.asarray(spec.center) + np.array([[-w, -h], [w, -h], [w, h], [-w, h]]) @ _rot(spec.angle).T
+    return [(corners[k], corners[(k + 1) % len(corners)]) for k in range(len(corners))]
 
 
 def half_extent(spec):
