@@ -244,11 +244,11 @@ class WallTerms:
                   scheme.mu, scheme.morris, self.gravity, self.ds, scheme.variant, scheme.shift.active,
                   switch, no_pull, self.centers, d_rho, d_mom, self.force, self.torque, self.particle_force)
 
-    def viscous_weight(self, system, rows, t) -> np.ndarray:
-        """The no-slip clone walls' extra diagonal weight in the viscous operators for the owned fluid `rows`
-        at time t, (len(rows), 2, 2) (compute.walls.clone_viscous_weight), for the viscous step limit: with
-        Morris' operator a Poiseuille flow between no-slip plates at the lattice's limit blew up (a new user's
-        audit). Not collective."""
+    def viscous_weight(self, system, rows, t, directional) -> np.ndarray:
+        """The no-slip clone walls' extra weight in the viscous operators for the owned fluid `rows` at time t,
+        (len(rows), 2, 2) (compute.walls.clone_viscous_weight; `directional`: pi_ij's), for the viscous step
+        limit: with Morris' operator a Poiseuille flow between no-slip plates at the lattice's limit blew up (a
+        new user's audit). Not collective."""
         p = system.particles
         out = np.zeros((len(rows), 2, 2))
         if not self.clones or not self.no_slip.any():
@@ -259,7 +259,7 @@ class WallTerms:
         part = np.zeros((len(near), 2, 2))
         clone_viscous_weight(p["position"], p["volume"], p["kind"], p["body"], p["normal"], p["wall_distance"],
                              near, s_i, self.no_slip, system.nbr_ptr, system.nbr_idx, system.kernel.params, self.ds,
-                             part)
+                             directional, part)
         out[at] = part
         return out
 

@@ -138,7 +138,7 @@ def warm_up(dim: int, kernel_name: str, parts=PARTS) -> None:
         walls.off_walls(np.zeros((1, 2, 2)), np.zeros(1, dtype=np.int64), vector.copy())
         walls.clone_viscous_weight(pos, vol, kind, np.zeros(n, dtype=np.int64), vector, scalar, rows,
                                    np.zeros((0, bodies)), np.zeros(bodies, dtype=np.bool_), ptr, idx, kp, 0.1,
-                                   np.zeros((0, 2, 2)))
+                                   True, np.zeros((0, 2, 2)))
 
 
 def warm_up_more(dim: int) -> None:

@@ -100,14 +100,15 @@ class ViscousLimit:
         return cls(kernel, scene.domain.dimension, scene.domain.dx, scheme.nu, scheme.morris, scene.time.integrator,
                    getattr(scheme, "walls", None))
 
-    def __call__(self, system, dt_cfl: float, t: float = 0.0) -> float:
+    def __call__(self, system, dt_cfl: float, t: float) -> float:
         """The viscous limit on the step of `system` at time t now, or inf where it cannot bind. Collective."""
         if self.step >= self.BOTHER * dt_cfl:
             return np.inf
         p = system.particles
         rows = np.flatnonzero(fluid_mask(system))
         d = p.dim
-        extra = np.zeros((0, d, d)) if self.walls is None else self.walls.viscous_weight(system, rows, t)
+        extra = np.zeros((0, d, d)) if self.walls is None else self.walls.viscous_weight(system, rows, t,
+                                                                                        not self.morris)
         local = largest_kernel_factor_sum(p["position"], p["volume"], system.nbr_ptr, system.nbr_idx,
                                           system.kernel.params, rows, not self.morris, extra)
         spread = max(1.0, allreduce_max(system.comm, local) / self.diagonal)

@@ -77,12 +77,17 @@ def test_a_viscous_taylor_green_runs_stably_at_the_limit(tmp_path):
     assert summary["final"]["L2_vx_error"] < 0.02
 
 
-def test_no_slip_clone_walls_shorten_the_viscous_step_and_a_poiseuille_flow_stays_stable(tmp_path):
+@pytest.mark.parametrize("viscosity, steps, error", [("morris", (600, 800), 0.015), ("monaghan", (1600, 1900), 0.075)])
+def test_no_slip_clone_walls_shorten_the_viscous_step_and_a_poiseuille_flow_stays_stable(tmp_path, viscosity, steps,
+                                                                                          error):
     """A new user's audit: Poiseuille flow between no-slip clone plates (Re = 1, Morris' operator, the default
     cfl 0.2) ran at the lattice's viscous limit and blew up at t = 0.48 ("a particle moved ... more than half
     the skin"): eq. 7 mirrors a wall row's tangential velocity with the weight 1 + s_j / s_i, up to 9 times a
     fluid neighbour's. The limit counts it now (compute.walls.clone_viscous_weight): the steps are shorter
-    than the lattice's limit, the run reaches the steady profile u = 4 y (1 - y) within 1.5%."""
+    than the lattice's limit (556 steps to t = 1 for Morris', 1501 for pi_ij), the run reaches the steady
+    profile u = 4 y (1 - y) within 1.5% (779 steps). With pi_ij (Monaghan's viscosity) the clone pair's
+    block is (1 + rho) (e.t) F V e t^T: counted as F V e e^T + rho F V t t^T it took 2782 steps (a review),
+    with its symmetric part 1831; the error, 6.7%, is pi_ij's anisotropy (README, "Viscous operators")."""
     import h5py
 
     from tests.scene.test_fuzz import toml_document
@@ -90,7 +95,7 @@ def test_no_slip_clone_walls_shorten_the_viscous_step_and_a_poiseuille_flow_stay
     table = {"name": "poiseuille", "domain": {"dimension": 2, "lower": [0.0, 0.0], "upper": [1.0, 1.0],
                                               "periodic": [True, False], "dx": 0.05},
              "physics": {"scheme": "delta_ale", "reynolds": 1.0, "sound_speed": 10.0, "gravity": [8.0, 0.0],
-                         "viscosity": "morris"},
+                         "viscosity": viscosity},
              "time": {"t_end": 1.0}, "output": {"every": 1.0, "history_every": 1000},
              "bodies": [{"name": "plates", "shape": "box", "center": [0.5, 0.5], "size": [1.0, 1.0],
                          "wall": "no_slip"}]}
@@ -100,11 +105,12 @@ def test_no_slip_clone_walls_shorten_the_viscous_step_and_a_poiseuille_flow_stay
     assert res.returncode == 0, res.stderr
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     h, nu = 0.1, 1.0
-    lattice, _ = lattice_symbol(make_kernel("wendland_c6", 2, h), 2, 0.05, True)
-    # the lattice's limit, 0.0018, would take 556 steps to t = 1
-    assert summary["steps"] > 1.0 / (0.8 * SAFETY * REAL_AXIS_REACH["rk3"] / (nu * lattice)), summary["steps"]
+    lattice, _ = lattice_symbol(make_kernel("wendland_c6", 2, h), 2, 0.05, viscosity == "morris")
+    # the lattice's limit, 0.0018 with Morris' operator, would take 556 steps to t = 1 (pi_ij: 1501)
+    assert summary["steps"] > 1.1 / (SAFETY * REAL_AXIS_REACH["rk3"] / (nu * lattice)), summary["steps"]
+    assert steps[0] < summary["steps"] < steps[1], summary["steps"]
     with h5py.File(tmp_path / "out" / "snapshot_000001.h5", "r") as f:
         kind, pos, vel = f["particles/kind"][()], f["particles/position"][()], f["particles/velocity"][()]
     fluid = kind == 0
     exact = 4.0 * pos[fluid, 1] * (1.0 - pos[fluid, 1])
-    assert np.abs(vel[fluid, 0] - exact).max() < 0.015, np.abs(vel[fluid, 0] - exact).max()
+    assert np.abs(vel[fluid, 0] - exact).max() < error, np.abs(vel[fluid, 0] - exact).max()
