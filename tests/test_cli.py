@@ -433,8 +433,8 @@ def test_bad_input_found_while_the_run_sets_up_keeps_what_overwrite_would_replac
     assert run_psph(*base, ranks=ranks).returncode == 0
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     assert any(name.startswith("checkpoint_") for name in before)
-    res = run_psph(*base, "--overwrite", "--set", "initial.fill_lower=[5, 5]", "--set", "initial.fill_upper=[6, 6]",
-                   ranks=ranks)
+    res = run_psph(*base, "--overwrite", "--set", "initial.fill_lower=[0.31, 0.31]", "--set",
+                   "initial.fill_upper=[0.32, 0.32]", ranks=ranks)
     assert res.returncode == 2 and "no lattice node" in res.stderr and "Traceback" not in res.stderr, res.stderr
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     kinematic = ["run", CASES / "kinematic_tgv.toml", "--quiet", "--set", "domain.dx=0.1", "--set",
