@@ -188,23 +188,28 @@ def start_from_snapshot(scene, system, path) -> dict:
     (packing.start), give them V0 (set_packed_volume) and rebuild: a packing done once serves later runs
     of the scene. The file must hold this scene's fluid, gid for gid, and its other particles where the
     scene has them (the same walls and bodies): anything else is a SceneError naming packing.start and
-    what differs. Returns {start, start_time, start_step}. Collective (every rank reads the file)."""
+    what differs. Returns {start, start_time, start_step}. Collective (rank 0 reads the file for all)."""
     from psph.errors import SceneError
     from psph.io.snapshots import h5py
+    from psph.parallel.comm import on_root
 
     comm, p, d = system.comm, system.particles, scene.domain
     key, dim = "packing.start", d.dimension
-    if not Path(path).is_file():
-        raise SceneError(key, f"no file {path}")
-    try:
-        with h5py.File(path, "r") as f:
-            group = f["particles"]
-            gid, kind, pos = (np.asarray(group[name][()]) for name in ("gid", "kind", "position"))
-            attrs = {name: f.attrs[name].item() for name in ("time", "step")}
-    except KeyError as err:
-        raise SceneError(key, f"{path} is not a psph snapshot ({err})") from None
-    except OSError as err:
-        raise SceneError(key, f"cannot read {path}: {' '.join(str(err).split())}") from None
+
+    def read():
+        if not Path(path).is_file():
+            raise SceneError(key, f"no file {path}")
+        try:
+            with h5py.File(path, "r") as f:
+                group = f["particles"]
+                arrays = tuple(np.asarray(group[name][()]) for name in ("gid", "kind", "position"))
+                return arrays, {name: f.attrs[name].item() for name in ("time", "step")}
+        except KeyError as err:
+            raise SceneError(key, f"{path} is not a psph snapshot ({err})") from None
+        except OSError as err:
+            raise SceneError(key, f"cannot read {path}: {' '.join(str(err).split())}") from None
+
+    (gid, kind, pos), attrs = on_root(comm, read)  # (a style audit: a file one rank could not read stopped it alone)
     if pos.ndim != 2 or pos.shape[1] != dim or len(gid) != len(pos) or len(kind) != len(pos):
         raise SceneError(key, f"{path} holds positions of shape {pos.shape}, not n x {dim} beside its gids")
     fluid = fluid_mask(system)

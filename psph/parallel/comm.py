@@ -70,6 +70,21 @@ def alltoallv(comm, data: np.ndarray, send_counts: np.ndarray, recv_counts: np.n
     return out
 
 
+def on_root(comm, fn):
+    """fn() on rank 0 alone, its result broadcast to every rank, or its error (a PsphError, or any other
+    exception as a PsphError naming its type) raised on every rank (raise_if_any): a file only rank 0 reads
+    (the scene file) stops every rank when it cannot, not rank 0 alone while the others wait in the next
+    collective (a style audit: a scene file on one node's disk). Collective."""
+    result = error = None
+    if comm.rank == 0:
+        try:
+            result = fn()
+        except Exception as exc:  # any failure: the other ranks must learn of it
+            error = exc
+    raise_if_any(comm, error)
+    return comm.bcast(result, root=0) if comm.size > 1 else result
+
+
 def raise_if_any(comm, error) -> None:
     """If any rank holds an error, raise the lowest such rank's error on every rank. Collective.
 

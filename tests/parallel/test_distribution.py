@@ -296,3 +296,24 @@ def test_gid_blocks_are_contiguous_and_sorted_with_sparse_gids(comm, empty_rank)
     assert [b[0] for b in blocks] == list(np.cumsum([0] + [len(b[1]) for b in blocks])[:-1])
     assert np.array_equal(np.concatenate([b[1] for b in blocks]), every)
     assert np.array_equal(np.concatenate([b[2] for b in blocks]), np.stack([every, -every], axis=1))
+
+
+def test_a_file_rank_0_reads_for_all_gives_every_rank_its_content_or_its_error(tmp_path):
+    """parallel.comm.on_root (a style audit: the scene file was read by every rank, and one that could not
+    read it stopped alone, exit 2, while the others waited in the next collective): rank 0 reads, every rank
+    gets the result, and rank 0's failure is every rank's, with its type and words."""
+    from psph.errors import SceneError
+    from psph.parallel.comm import on_root
+
+    comm = MPI.COMM_WORLD
+    assert on_root(comm, lambda: {"rank": comm.rank}) == {"rank": 0}
+
+    def fails_on_rank_0():
+        if comm.rank == 0:
+            raise SceneError("packing.start", "no file nothing.h5")
+        return "never asked"
+
+    with pytest.raises(SceneError, match="packing.start: no file nothing.h5"):
+        on_root(comm, fails_on_rank_0)
+    with pytest.raises(Exception, match="No such file or directory"):  # (elsewhere a PsphError naming its type)
+        on_root(comm, lambda: open(tmp_path / "no-such-file").read())
