@@ -268,11 +268,6 @@ def _scene_and_restart(args, comm, petsc_options=()):
         raise UsageError("run needs a scene file (or --restart CHECKPOINT)"
                          + (f": PETSc options go after it ({taken[0]!r} took the scene as the option's value)"
                             if taken else ""))
-    out = scene.output
-    if (out.checkpoint_every or out.checkpoint_minutes) and driver_for(scene) is StaticDriver:
-        key = "output.checkpoint_every" if out.checkpoint_every else "output.checkpoint_minutes"
-        raise SceneError(key, "checkpoints are written by time-dependent runs (flow, kinematic), not static "
-                              "ones (physics.scheme = 'none')")
     if restart is not None:
         state = restart[0]
         if state["time"] >= scene.time.t_end * (1.0 - 1e-12):  # the drivers' end test: nothing would be run

@@ -423,7 +423,7 @@ def time_step_estimate(scene) -> tuple:
                 dt = limit.step
                 how = (f"viscous limit {limit.step * scheme.nu / d.h**2:.3g} h^2 / nu on the lattice, h = {d.h:g}, "
                        f"nu = {scheme.nu:g}")
-    steps = t.t_end / dt
+    steps = t.t_end / dt if dt > 0.0 else math.inf  # (a fuzzing test: U = 2e305 made the viscous limit 0)
     return dt, how, math.ceil(steps) if steps < 1e15 else steps
 
 

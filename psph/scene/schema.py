@@ -1158,9 +1158,18 @@ class Scene:
                              "it would be Neuhauser with P_S = 1 (set shifting.neuhauser_ps = 1 for that)")
         if fluid and self.time.t_end <= 0.0:
             raise SceneError("time.t_end", "a fluid run needs t_end > 0")
-        if self.iips.update != "none" and not (fluid and method == "iips"):
+        if self.iips.update != "none" and not (fluid and method == "iips"):  # (a style audit: a kinematic run
+            # with iips was told its method was wrong)
+            wrong = (f"shifting.method = {method!r}" if fluid else
+                     f"physics.scheme = {self.physics.scheme!r}, not a fluid scheme")
             raise SceneError("iips.update", f"{self.iips.update!r}: field updates apply to fluid runs with "
-                             f"shifting.method = iips, not {method!r} (set iips.update = \"none\")")
+                             f"shifting.method = iips, and this scene has {wrong} (set iips.update = \"none\")")
+        out = self.output
+        if (out.checkpoint_every or out.checkpoint_minutes) and self.physics.scheme == "none":  # (psph info
+            # passed it: only psph run refused it, a style audit)
+            key = "output.checkpoint_every" if out.checkpoint_every else "output.checkpoint_minutes"
+            raise SceneError(key, "checkpoints are written by time-dependent runs (flow, kinematic), not static "
+                                  "ones (physics.scheme = 'none')")
         if self.iips.update == "nfts" and self.physics.scheme not in ("delta_ale", "riemann_ale"):
             raise SceneError("iips.update", "nfts updates masses and volumes: it needs physics.scheme = delta_ale "
                              "or riemann_ale")

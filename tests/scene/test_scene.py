@@ -67,7 +67,7 @@ def test_minimal_scene_gets_defaults():
     ("physics.muscl_limiter", "none", "physics.muscl_limiter", "belong to physics.scheme = riemann_ale"),
     ("physics.riemann_dissipation", "low", "physics.riemann_dissipation", "belong to physics.scheme = riemann_ale"),
     ("physics.muscl_limiter", "superbee", "physics.muscl_limiter", "not one of"),
-    ("iips.update", "nfts", "iips.update", 'not \'none\' (set iips.update = "none")'),
+    ("iips.update", "nfts", "iips.update", 'physics.scheme = \'none\', not a fluid scheme (set iips.update = "none")'),
     ("iips.pre_newton", 5, "iips.pre_newton", "a static run is itself the pre-procedure"),
     # rho0 c0^2 overflowed in the equation of state (OverflowError: a traceback called a bug)
     ("physics.sound_speed", 1e160, "physics.sound_speed", "rho0 c0^2 = 10^320 is beyond floating point"),
@@ -429,6 +429,10 @@ def test_packing_is_accepted_with_clone_walls_and_a_free_surface():
     ("taylor_green", ["initial.fill_lower=[-0.5, 0.0]", "initial.fill_upper=[0.5, 1.0]"], "initial.fill_lower",
      "-0.5 along axis 0 lies beyond the domain (0) on a periodic axis"),
     ("taylor_green", ["initial.fill_upper=[1.0, 1.5]"], "initial.fill_upper", "1.5 along axis 1 lies beyond"),
+    # (a style audit: the kinematic run was told "not 'iips'", its method; psph info passed the checkpoints)
+    ("kinematic_tgv", ["iips.update=mls2"], "iips.update", "this scene has physics.scheme = 'kinematic', not a "
+     "fluid scheme"),
+    ("static_perturbed", ["output.checkpoint_every=5"], "output.checkpoint_every", "not static ones"),
     # a rotated container's plates would not meet themselves across the periodic axis
     ("couette", ["bodies.0.angle=5.0"], "bodies[0].angle", "only unrotated"),
     ("couette", ["domain.periodic=[true, true]", "bodies.0.lid_velocity=[]"], "bodies[0].shape", "keep no wall"),
