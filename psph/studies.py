@@ -408,22 +408,29 @@ def _tiled_unit_box(pos, vol, h_over_dx):
 
 
 def _lu_solve(matrix, rhs):
-    """Solve a scipy CSR system on one process with PETSc's LU (scipy's SuperLU is minutes slower here)."""
-    from petsc4py import PETSc
+    """Solve a scipy CSR system on one process with PETSc's LU (scipy's SuperLU is minutes slower here), a
+    LinearSolver of prefix `study_lu_` (its result checked; nested dissection unless -study_lu_ options say
+    otherwise)."""
+    from mpi4py import MPI
 
+    from psph.solvers.linear import LinearSolver
+    from psph.solvers.petsc import petsc
+
+    PETSc = petsc()
+    options = PETSc.Options()
+    if not options.hasName("study_lu_pc_factor_mat_ordering_type"):
+        options.setValue("study_lu_pc_factor_mat_ordering_type", "nd")
     a = PETSc.Mat().createAIJ(matrix.shape, csr=(matrix.indptr, matrix.indices, matrix.data), comm=PETSc.COMM_SELF)
-    ksp = PETSc.KSP().create(comm=PETSc.COMM_SELF)
-    ksp.setOperators(a)
-    ksp.setType("preonly")
-    ksp.getPC().setType("lu")
-    ksp.getPC().setFactorOrdering("nd")
+    solver = LinearSolver(MPI.COMM_SELF, "study_lu_", ksp_type="preonly", pc_type="lu")
     b, x = a.createVecs()
-    b.setArray(rhs)
-    ksp.solve(b, x)
-    out = x.getArray().copy()
-    for obj in (ksp, a, b, x):
-        obj.destroy()
-    return out
+    try:
+        solver.set_operator(a)
+        b.setArray(rhs)
+        solver.solve(b, x)
+        return x.getArray().copy()
+    finally:
+        for obj in (solver, a, b, x):
+            obj.destroy()
 
 
 def iips_pair_defects(pos, vol, h_over_dx, newton=3) -> dict:
