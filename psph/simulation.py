@@ -13,7 +13,7 @@ from psph.domain import Domain
 from psph.initial import create_particles
 from psph.io.history import History, write_summary
 from psph.io.snapshots import SnapshotWriter
-from psph.parallel.comm import allreduce_max, allreduce_sum
+from psph.parallel.comm import allreduce_max, allreduce_sum, on_root
 from psph.profiling import memory
 from psph.scene.validate import to_table
 from psph.system import BASE_HALO_FIELDS, ParticleSystem
@@ -61,9 +61,7 @@ class Simulation:
         self.on_settled = None  # what the caller does once the run has set up (settle)
         self.comm = comm.Dup()
         self.out_dir = Path(out_dir)
-        if self.comm.rank == 0:
-            self.out_dir.mkdir(parents=True, exist_ok=True)
-        self.comm.Barrier()
+        on_root(self.comm, lambda: self.out_dir.mkdir(parents=True, exist_ok=True))  # (every rank's failure)
         self.log = log or (lambda msg: None)
         self.show_progress = progress
         _warm_up(self.comm, scene)

@@ -30,7 +30,7 @@ import numpy as np
 from psph.errors import SceneError, UsageError, point
 from psph.io.files import jsonable, replace_atomically
 from psph.io.snapshots import SNAPSHOT_NAME, h5py, write_particle_file
-from psph.parallel.comm import allreduce_sum, exclusive_scan
+from psph.parallel.comm import allreduce_sum, exclusive_scan, on_root
 from psph.parallel.decomposition import Decomposition, Split
 from psph.parallel.ordering import block_range
 from psph.particles import SCRATCH_FIELDS, FieldSpec, Kind, ParticleSet
@@ -119,19 +119,18 @@ def write_checkpoint(comm, out_dir, system, step: int, time: float, state: dict,
                             {"format": FORMAT, "step": int(step), "time": float(time)}, extra={"state": blob},
                             libver="latest", userblock=SEAL_BYTES)
         comm.Barrier()  # (every rank's writes closed before rank 0 reads the file back for the seal)
-        if comm.rank == 0:
-            seal(tmp)
+        on_root(comm, lambda: seal(tmp))  # (its failure is every rank's, a style audit)
     except BaseException:  # (a full disk) no partial checkpoint is left; the previous one stays
         if comm.rank == 0:
             tmp.unlink(missing_ok=True)
         raise
-    comm.Barrier()
-    if comm.rank == 0:
+    def publish():
         replace_atomically(tmp, path)
         for old in replaces:
             if Path(old) != path:
                 Path(old).unlink(missing_ok=True)
-    comm.Barrier()
+
+    on_root(comm, publish)
     return path
 
 

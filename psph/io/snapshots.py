@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from psph.io.files import replace_atomically, write_text_atomic
+from psph.parallel.comm import on_root
 from psph.parallel.ordering import to_gid_blocks
 
 # Debian's h5py picks its MPI build only under mpiexec unless told otherwise; psph always wants it.
@@ -193,9 +194,8 @@ class SnapshotWriter:
         into another --out). Collective."""
         self.entries = [(name, t, step, total, {n: (tuple(tail), np.dtype(dt)) for n, (tail, dt) in meta.items()})
                         for name, t, step, total, meta in entries]
-        if self.comm.rank == 0 and (self._present() or (self.out_dir / XDMF_NAME).exists()):
-            self._write_index()
-        self.comm.Barrier()
+        on_root(self.comm, lambda: self._write_index() if self._present() or (self.out_dir / XDMF_NAME).exists()
+                else None)
 
     def _present(self) -> list:
         """The index's entries whose files are in the output directory."""
@@ -231,10 +231,12 @@ class SnapshotWriter:
         self.comm.Barrier()
         meta = {n: (a.shape[1:], a.dtype) for n, a in ordered.items()}
         self.entries.append((name, float(time), int(step), total, meta))
-        if self.comm.rank == 0:
+
+        def publish():
             replace_atomically(tmp, path)
             self._write_index()
-        self.comm.Barrier()
+
+        on_root(self.comm, publish)  # (its failure is every rank's: a style audit found the others in a Barrier)
         return path
 
 

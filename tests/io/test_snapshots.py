@@ -111,3 +111,20 @@ def test_snapshot_files_are_listed_in_the_order_written(tmp_path):
         (tmp_path / name).write_bytes(b"")
     assert [p.name for p in snapshot_files(tmp_path)] == ["snapshot_000003.h5", "snapshot_999999.h5",
                                                          "snapshot_1000000.h5"]
+
+
+def test_an_output_directory_rank_0_cannot_make_stops_every_rank(comm, mpi_tmp_path):
+    """Rank 0 makes the output directory, writes the XDMF index and publishes snapshots and checkpoints; a
+    failure there (a file where the directory should be) was rank 0's alone, and the others waited in the
+    Barrier after it for ever: a library user's driver hung (a style audit). Now every rank raises."""
+    from psph.drivers.fluid import FluidDriver
+    from psph.errors import PsphError
+
+    blocker = mpi_tmp_path / "a_file"
+    if comm.rank == 0:
+        blocker.write_text("not a directory")
+    comm.Barrier()
+    scene = periodic_scene(n=8, physics={"scheme": "delta_ale"}, time={"t_end": 0.01})
+    with pytest.raises((OSError, PsphError), match="a_file"):
+        FluidDriver(scene, comm, blocker / "out")
+    assert comm.allgather(comm.rank) == list(range(comm.size))  # every rank got here, none is still inside
