@@ -101,7 +101,7 @@ def hydrostatic_pressure(scene, pos) -> np.ndarray:
 def create_particles(scene, comm, specs=()) -> ParticleSet:
     """This rank's share of the initial particles (not yet spatially distributed): the fluid lattice
     (within the fill region and the walls, outside immersed bodies and inflow buffers), then the bodies'
-    solid particles, then the inflow buffers' particles (psph.boundaries.open)."""
+    solid particles, then the inflow buffers' particles (psph.boundaries.open). Collective."""
     from psph.boundaries import SOLID_FIELDS, fluid_mask, solid_arrays
 
     dspec = scene.domain

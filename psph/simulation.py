@@ -55,6 +55,7 @@ class Simulation:
 
     def __init__(self, scene, comm, out_dir, *, specs=(), halo_fields=BASE_HALO_FIELDS, log=None, restart=None,
                  progress=False):
+        """Set up the run's output directory, kernels and particles. Collective."""
         self.started = time.perf_counter()
         self.scene = scene
         self.summary_extra = {}  # what the caller adds to summary.json (the command line: the IIPS solver)
@@ -109,7 +110,7 @@ class Simulation:
         return False
 
     def wall_time(self) -> float:
-        """The run's wall time so far, the segments before its restarts included (rank 0's clock)."""
+        """The run's wall time so far, the segments before its restarts included (rank 0's clock). Collective."""
         return self.comm.bcast(time.perf_counter() - self.started + self.earlier_wall_time, root=0)
 
     def checkpoint(self, step, t, driver: dict) -> Path:

@@ -41,6 +41,7 @@ class ParticleSystem:
 
     def __init__(self, comm, domain, kernel, particles, *, skin=0.1, rebalance_threshold=1.1,
                  halo_fields=BASE_HALO_FIELDS, decomposition=None):
+        """Build the neighbour lists of `particles` distributed over comm (duplicated). Collective."""
         self.comm = comm.Dup()
         self.domain = domain
         self.kernel = kernel

@@ -199,6 +199,7 @@ class OpenBoundaries:
     active = True
 
     def __init__(self, scene, system):
+        """Count the fluid's initial mass for the budget and the next gid. Collective."""
         self.scene = scene
         self.inflows = make_inflows(scene)
         self.outflow = scene.domain.outflow
@@ -440,6 +441,7 @@ class OpenBoundaries:
 
 
 def make_open_boundaries(scene, system):
+    """The scene's open boundaries, or a no-op without inflow or outflow. Collective."""
     if scene.inflow or scene.domain.outflow:
         return OpenBoundaries(scene, system)
     return NoOpenBoundaries()

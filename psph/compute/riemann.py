@@ -71,7 +71,8 @@ def _sound_speed(rho, c0, rho0, tait):
 @njit(cache=True)
 def acoustic_riemann(rho_l, u_l, rho_r, u_r, c0, rho0, tait):
     """(rho^E, u^E, p^E) of the linearised Riemann problem between (rho_l, u_l) and (rho_r, u_r), u the
-    velocity component along the left-to-right axis."""
+    velocity component along the left-to-right axis: Toro's PVRS (ch. 9; the module's formulas), the
+    interface state of thesis eq. 5.48's fluxes."""
     p_l = _pressure(rho_l, c0, rho0, tait)
     p_r = _pressure(rho_r, c0, rho0, tait)
     rho_bar = 0.5 * (rho_l + rho_r)

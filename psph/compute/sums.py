@@ -130,7 +130,8 @@ def gradient(pos, vol, ptr, idx, kp, phi, out):
 
 @njit(cache=True)
 def gradient_difference(pos, vol, ptr, idx, kp, phi, out):
-    """Difference-form gradient of a scalar: sum_j (phi_j - phi_i) grad_i W_ij V_j."""
+    """Difference-form gradient of a scalar: sum_j (phi_j - phi_i) grad_i W_ij V_j (seed 001 eq. 15 before its
+    renormalisation; exact for a constant phi)."""
     d = pos.shape[1]
     for i in range(ptr.size - 1):
         g0 = 0.0

@@ -48,7 +48,8 @@ from psph.compute.sums import pair, solid
 
 @njit(cache=True)
 def _eos_density(p, rho0, c0, eos_b, eos_gamma):
-    """rho from p: Tait (p = eos_b ((rho/rho0)^gamma - 1)) where eos_b > 0, else linear."""
+    """rho from p: Tait (p = eos_b ((rho/rho0)^gamma - 1), thesis eq. 5.4) where eos_b > 0, else linear (seed
+    001 eq. 1); schemes.eos inverted: the clone's density from its pressure (seed 004 eq. 8-9)."""
     if eos_b > 0.0:
         base = 1.0 + p / eos_b
         return rho0 * (base if base > 0.0 else 0.0) ** (1.0 / eos_gamma)

@@ -60,6 +60,7 @@ class TaylorGreenReference:
         self.lower = d.lower
 
     def errors(self, system, t, kinetic):
+        """The L2 error of the velocity against the analytic vortex at t and the kinetic energy's. Collective."""
         p = system.particles
         mask = fluid_mask(system)
         vel, _ = taylor_green(p.owned("position"), t, lower=self.lower, **self.kw)
@@ -84,6 +85,7 @@ class EllipticalDropReference:
         self.p_scale = 0.5 * scene.physics.density * scene.physics.reference_velocity ** 2
 
     def errors(self, system, t, kinetic):
+        """The drop's semi-axis and pressure errors against the analytic ellipse at t. Collective."""
         p, comm = system.particles, system.comm
         mask = fluid_mask(system)
         pos, vol = p.owned("position")[mask], p.owned("volume")[mask]
@@ -149,6 +151,7 @@ class ImpingingJetReference:
         return load / scale, fluid / scale
 
     def errors(self, system, t, kinetic):
+        """The stagnation pressure against the analytic jet's. Collective."""
         from psph.analytic import impinging_jet_wall
 
         measured, fluid = self.wall_pressure(system)
@@ -179,6 +182,7 @@ class DamBreakReference:
         self.dx = scene.domain.dx
 
     def errors(self, system, t, kinetic):
+        """The surge front and the column height (the dam break's references). Collective."""
         pos = system.particles.owned("position")[fluid_mask(system)]
         back = pos[:, 0] < self.wall + self.dx
         front, height = allreduce_max(system.comm, np.array([
@@ -353,6 +357,7 @@ class FluidDriver(Driver):
         return pre
 
     def checkpoint(self, step, t, totals, next_output):
+        """Write a checkpoint of the run at step and t (Simulation.checkpoint). Collective."""
         return self.sim.checkpoint(step, t, {
             "step": step, "time": t, "totals": totals, "next_output": next_output, "first_dt": self.first_dt,
             "initial_volume": self.initial_volume,
@@ -535,6 +540,7 @@ class FluidDriver(Driver):
         return allreduce_min(self.sim.comm, float(nearest[mask].min()) if mask.any() else np.inf) / self.scene.domain.dx
 
     def diagnostics(self, t) -> dict:
+        """The history row's diagnostics at time t (totals over every rank). Collective."""
         p, comm = self.system.particles, self.sim.comm
         mask = fluid_mask(self.system)
         m, u, rho, vol = p.owned("mass"), p.owned("velocity"), p.owned("density"), p.owned("volume")
@@ -645,6 +651,7 @@ class FluidDriver(Driver):
 
     # ------------------------------------------------------------------ run
     def run(self) -> dict:
+        """Run to time.t_end (or a stop); returns the summary. Collective."""
         sim, scene, system = self.sim, self.scene, self.system
         t_end = scene.time.t_end
         every = scene.output.every

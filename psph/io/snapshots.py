@@ -206,7 +206,7 @@ class SnapshotWriter:
 
     def write(self, particles, step: int, time: float, extra=None, names=None, exclude=("row",)) -> Path:
         """Write owned particles' fields (all but `exclude` and the scratch fields, or `names`) plus `extra` owned
-        arrays."""
+        arrays. Collective."""
         if names is None:
             names = [n for n in particles.names if n not in exclude and not particles.specs[n].scratch]
         data = {n: particles.owned(n) for n in names}

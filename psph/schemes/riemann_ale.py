@@ -50,6 +50,7 @@ class RiemannALE(DeltaALE):
                 "mass": p.owned("mass").copy(), "momentum": p.owned("mass")[:, None] * p.owned("velocity")}
 
     def set_state(self, system, state, refresh_positions=True) -> None:
+        """Set the state (positions, volumes, masses, momenta) and refresh the halo. Collective."""
         p = system.particles
         p.owned("position")[:] = state["position"]
         p.owned("volume")[:] = state["volume"]

@@ -27,7 +27,7 @@ class ShiftReport:
 
 def measure(system, volume="volume", mask=None):
     """(grad C of the owned particles, L2(grad C), Linf(grad C)) over the free (fluid) particles, or the owned
-    rows of `mask`; C is weighted by the field `volume` (diagnostics.grad_c)."""
+    rows of `mask`; C is weighted by the field `volume` (diagnostics.grad_c). Collective."""
     with phase("grad_c"):
         grad = grad_c(system, volume)
         l2, linf = norms(system.comm, grad, fluid_mask(system) if mask is None else mask, system.kernel.h)
@@ -65,5 +65,6 @@ class NoShifting(Shifting):
     name = "none"
 
     def correct(self, system, on_iteration=None, iterations=None, **where) -> ShiftReport:
+        """No shifting: only measure the distribution. Collective."""
         _, l2, linf = measure(system)
         return ShiftReport(L2_grad_c=l2, Linf_grad_c=linf)

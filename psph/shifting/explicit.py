@@ -77,6 +77,7 @@ class ExplicitIterativeShifting(Shifting):
                 f"{stability_limit(d.kernel, d.dimension, d.h_over_dx):.3g} on the lattice")
 
     def correct(self, system, on_iteration=None, iterations=None, **where) -> ShiftReport:
+        """Iterations dx = -D grad C (thesis eq. 6.13), D = shifting.diffusion h^2. Collective."""
         n = self.spec.iterations_per_step if iterations is None else iterations
         coeff = self.spec.diffusion * system.kernel.h ** 2
         grad, l2, linf = measure(system)

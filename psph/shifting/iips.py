@@ -154,7 +154,7 @@ class ImplicitShifting(Shifting):
     # -------------------------------------------------------------- iterate
     def newton_iteration(self, system, grad, first=False) -> int:
         """One Newton iteration from the current grad C: assemble, solve, move. Returns KSP iterations.
-        first: the call's first iteration (starts from, and records, the guess of GUESS_FIELD)."""
+        first: the call's first iteration (starts from, and records, the guess of GUESS_FIELD). Collective."""
         self.assemble(system)
         d = system.particles.dim
         p = system.particles
@@ -193,7 +193,7 @@ class ImplicitShifting(Shifting):
         return True
 
     def prepare(self, system, on_iteration=None):
-        """Static pre-procedure (`iips.pre_newton` iterations) and the beta threshold (eq. 8.34)."""
+        """Static pre-procedure (`iips.pre_newton` iterations) and the beta threshold (eq. 8.34). Collective."""
         system.particles.add_field(SHIFT_FIELD)
         system.particles.add_field(GUESS_FIELD)
         if self.spec.pre_newton > 0:

@@ -120,6 +120,7 @@ class DeltaPlus(VelocityShift):
         self.u_max = scene.physics.reference_velocity
 
     def velocity(self, system, scheme, dt, grad=None):
+        """du* = -Ma (2h) c0 grad C^ (seed 001 eq. 16-17), |du| <= U_max / 2. Local."""
         grad = _grad_c_hat(self, system, scheme, grad)
         raw = -self.u_max * 2.0 * system.kernel.h * grad  # Ma (2h) c0 = U_max 2h
         out = system.particles.owned("shift_velocity")
@@ -142,6 +143,7 @@ class Lind(VelocityShift):
         self.u_max = scene.physics.reference_velocity
 
     def velocity(self, system, scheme, dt, grad=None):
+        """du = dx / dt, dx = -D grad C^ (thesis eq. 6.15-6.16), |du| <= U_max / 2. Local."""
         h = system.kernel.h
         grad = _grad_c_hat(self, system, scheme, grad)
         raw = -self.d * h * h * grad / dt
@@ -164,6 +166,7 @@ class Skillen(VelocityShift):
         self.a = scene.shifting.skillen_a
 
     def velocity(self, system, scheme, dt, grad=None):
+        """du = dx / dt, dx = -A h |u_i| dt grad C (thesis eq. 6.18). Local."""
         p = system.particles
         grad = _grad_c_hat(self, system, scheme, grad)
         speed = np.sqrt((p.owned("velocity") ** 2).sum(axis=1))[:, None]
@@ -183,6 +186,7 @@ class Oger(VelocityShift):
         self.u_char = scene.physics.reference_velocity
 
     def velocity(self, system, scheme, dt, grad=None):
+        """du = -U_char 2 dx grad C (thesis eq. 6.32), |du| <= 0.25 |u_i|. Local."""
         p = system.particles
         grad = _grad_c_hat(self, system, scheme, grad)
         raw = -self.u_char * 2.0 * self.dx * grad
@@ -211,6 +215,7 @@ class Neuhauser(VelocityShift):
         self.p_ref = physics.density * physics.sound_speed ** 2 / TAIT_GAMMA
 
     def velocity(self, system, scheme, dt, grad=None):
+        """Neuhauser's shifting velocity (thesis eq. 6.33-6.35 with P_S, eq. 7.1, or P^F, eq. 7.4). Collective."""
         p = system.particles
         if self.fictitious:  # P^F / rho0 = p_ref / rho0 (V0 / V)^gamma (eq. 7.3)
             pref = self.p_ref / self.rho0 * (scheme.initial_volume(system) / p["volume"]) ** TAIT_GAMMA

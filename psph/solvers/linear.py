@@ -98,6 +98,7 @@ class LinearSolver:
 
     def __init__(self, comm, prefix: str, *, ksp_type="bcgs", pc_type="jacobi", rtol=1e-2, atol=1e-50,
                  max_it=10000, initial_guess_nonzero=False):
+        """Create the KSP on comm. Collective."""
         self.comm = comm
         self.prefix = prefix
         self.defaults = dict(ksp_type=ksp_type, pc_type=pc_type, rtol=rtol, atol=atol, max_it=max_it,
