@@ -2,12 +2,14 @@
 
 import json
 import re
+import subprocess
+import sys
 
 import h5py
 import numpy as np
 import pytest
 
-from tests.helpers import CASES, run_psph
+from tests.helpers import CASES, ROOT, mpi_environment, run_psph
 
 SCENE = CASES / "static_perturbed.toml"
 
@@ -848,6 +850,16 @@ def test_petsc_options_petsc_cannot_start_with_are_one_line_of_psph(tmp_path):
     assert res.stderr.strip().splitlines()[-1] == ("psph: error: PETSc did not start with the options -options_file "
                                                    "${WORKINGDIRECTORY}/missing.txt: error code 83 (PETSc's report "
                                                    "above)")
+    # a directory, and a missing file named in PETSC_OPTIONS (a review: "no file ... to read", "the options (none)")
+    res = run_psph("run", SCENE, "--out", tmp_path / "out", "--quiet", "-options_file", str(tmp_path))
+    assert res.returncode == 2 and res.stderr.strip() == f"psph: error: -options_file {tmp_path}: '{tmp_path}' " \
+                                                         "is a directory", res.stderr
+    env = {**mpi_environment(), "PETSC_OPTIONS": f"-options_file {missing}"}
+    res = subprocess.run([sys.executable, "-m", "psph", "info", str(SCENE)], capture_output=True, text=True, cwd=ROOT,
+                         env=env, timeout=120)
+    assert res.returncode == 2 and res.stderr.strip().splitlines()[-1].startswith(
+        f"psph: error: PETSc did not start with the options of PETSC_OPTIONS='-options_file {missing}'"), res.stderr
+    assert not (tmp_path / "out").exists()
     assert not (tmp_path / "out").exists()
 
 

@@ -498,7 +498,7 @@ class IIPSSpec:
                              "(initial.sigma_over_dx) it gives a relaxed start", ge=0)
     divergence_factor: float = option(100.0, doc="a call whose Linf(grad C) grows by this factor, counted from "
                                       "1e-4 at least (a relaxed distribution's level: growth from round-off to "
-                                      "below 1e-2 is no divergence), has diverged",
+                                      "below this factor x 1e-4 is no divergence), has diverged",
                                       gt=1.0)
     backtrack: int = option(0, doc="a Newton step that raises L2(grad C) is halved, up to this many times, "
                             "and undone if that does not help, which ends the call (a stall if above the "

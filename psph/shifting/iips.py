@@ -25,9 +25,10 @@ Triggering and stopping (thesis Algorithms 1-3, eq. 8.34-8.35):
   `iips.stall_max_shift = c`, of those that move no particle farther than c h; the start qualifies) and
   the stall is reported and counted, as the thesis caps the iterations for cost (section 10.1.1). The
   printed operator is not the exact Jacobian (seeds/README.md), so near the threshold the iteration can
-  wander instead of converging. Growth of Linf(grad C) by `iips.divergence_factor` within a call is a
-  divergence; it and a diverged linear solve stop the run (`iips.on_failure = "stop"`), or undo the call's
-  displacements and carry on (`"reject"`), reported either way.
+  wander instead of converging. Growth of Linf(grad C) by `iips.divergence_factor` within a call, from
+  DIVERGENCE_FLOOR = 1e-4 at least (growth from round-off is none), is a divergence; it and a diverged
+  linear solve stop the run (`iips.on_failure = "stop"`), or undo the call's displacements and carry on
+  (`"reject"`), reported either way.
 - step control (`iips.backtrack = k`, default 0): a step that raises L2(grad C) is halved up to k times,
   and undone if L2 still rises, which ends the call: a stall (iips.on_stall) above the threshold. Accepted
   iterates then never raise L2, so the divergence check above seldom fires (Linf can still grow).

@@ -55,7 +55,9 @@ def initialize(options=(), comm=None) -> None:
             from psph.errors import UsageError  # -options_file /nonexistent gave a traceback)
 
             code = getattr(err, "ierr", None)
-            refusal = UsageError(f"PETSc did not start with the options {' '.join(options) or '(none)'}"
+            given = " ".join(options) or (f"of PETSC_OPTIONS={os.environ['PETSC_OPTIONS']!r}"
+                                          if os.environ.get("PETSC_OPTIONS") else "(none)")
+            refusal = UsageError(f"PETSc did not start with the options {given}"
                                  + (f": error code {code}" if code is not None else "")
                                  + " (PETSc's report above)")
             # one rank's, maybe: rank 0 alone reads an options file, and the others waited for it for ever (a
@@ -91,8 +93,10 @@ def check_viewer_files(options, comm=None) -> None:
     options = list(options)
     for name, value in zip(options, options[1:] + [""]):
         if name in OPTIONS_FILES and "${" not in value and not _rank_0_reads(value, comm):
-            raise UsageError(f"{name} {value}: no file {value!r} to read" if value and not value.startswith("-")
-                             else f"{name}: needs a file name")
+            if not value or value.startswith("-"):
+                raise UsageError(f"{name}: needs a file name")
+            raise UsageError(f"{name} {value}: {value!r} is a directory" if os.path.isdir(value) else
+                             f"{name} {value}: no file {value!r} to read")
     refusal = _unwritable_viewer(options)
     if refusal:
         raise UsageError(refusal[1])
