@@ -541,6 +541,10 @@ def scene_warnings(scene, restart=None) -> list:
                         "solver's dissipation z (u_L - u_R) / 2 grows with c0 (Taylor-Green, dx = 0.05, t = 0.01: "
                         "kinetic energy -2.3% at c0/U = 10, -10% at 50, -89% at 1000); "
                         "physics.riemann_dissipation = \"low\" keeps it (-0.13%)")
+    for k, inflow in enumerate(scene.inflow):
+        if inflow.ramp_time >= scene.time.t_end and not restart:  # (a review: 1e300 ran without a word)
+            warnings.append(f"inflow[{k}].ramp_time = {inflow.ramp_time:g} is not shorter than time.t_end = "
+                            f"{scene.time.t_end:g}: the buffer does not reach its velocity within the run")
     if phys.scheme == "riemann_ale" and scene.time.cfl > STABLE_CFL["riemann_ale"]:
         warnings.append(f"time.cfl = {scene.time.cfl:g} with physics.scheme = \"riemann_ale\": the scheme "
                         f"runs stably up to about {STABLE_CFL['riemann_ale']:g} (an acoustic wave and Taylor-Green "
@@ -638,23 +642,26 @@ def main(argv=None) -> int:
     except MemoryError as err:  # numpy's names the array: "Unable to allocate 74.5 GiB for an array ..."
         return _machine_error(comm, f"out of memory: {err}")
     except OSError as err:  # a read or write the system refused mid-run: a full disk, a file taken away
-        return _machine_error(comm, f"input/output failed: {err}")
+        return _machine_error(comm, f"input/output failed: {err}", getattr(err, "collective", False))
     except Exception:
         return _internal_error(comm)
 
 
-def _machine_error(comm, message: str) -> int:
+def _machine_error(comm, message: str, collective=False) -> int:
     """Not a bug: the machine refused (memory, disk). One line from each rank that met it, no traceback on the
     terminal (the log file gets it, should it have been a bug after all); with several ranks the job is
-    aborted, since the others may be waiting in a collective."""
+    aborted, since the others may be waiting in a collective; `collective`: every rank met the same error
+    at the same point (parallel.comm.on_root): rank 0's line, and every rank exits."""
     try:
         sys.stdout.flush()
     except OSError:  # standard output is what failed (psph keys > /dev/full): the exit's flush would fail again
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-    line = "psph: error" + (f" on rank {comm.rank}" if comm.size > 1 else "") + f": {' '.join(message.split())}"
-    print(line, file=sys.stderr, flush=True)
-    _append_log(traceback.format_exc().rstrip() + "\n" + line)  # where it happened, for a report if it was a bug
-    if comm.size > 1:
+    line = ("psph: error" + (f" on rank {comm.rank}" if comm.size > 1 and not collective else "")
+            + f": {' '.join(message.split())}")
+    if comm.rank == 0 or not collective:
+        print(line, file=sys.stderr, flush=True)
+        _append_log(traceback.format_exc().rstrip() + "\n" + line)  # where it happened, for a report if a bug
+    if comm.size > 1 and not collective:
         comm.Abort(1)
     return 1
 

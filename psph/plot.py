@@ -212,17 +212,37 @@ def shown_fields(run_dir: Path, data: dict) -> dict:
     return {k: v for k, v in fields.items() if v is not None}
 
 
-def plot_fields(run_dir: Path, fig_dir: Path):
+def _last_snapshot(run_dir: Path) -> tuple:
+    """(fields, time) of the run's last snapshot (studies.last_snapshot), checked: a file that cannot be read,
+    lacks gid, kind, position or its time, or holds fields of other lengths than its gids is an error naming
+    it (a review: a KeyError or a broadcast error, "internal error")."""
     from psph.io.snapshots import snapshot_files
     from psph.studies import last_snapshot
 
-    snaps = snapshot_files(run_dir)
-    if not snaps:
-        return None
+    name = snapshot_files(run_dir)[-1].name
     try:
         data, t = last_snapshot(run_dir)
     except OSError as exc:
-        raise OSError(f"cannot read the last snapshot {snaps[-1].name}: {exc}") from None
+        raise OSError(f"cannot read the last snapshot {name}: {exc}") from None
+    except KeyError as exc:
+        raise UsageError(f"the last snapshot {name} is not a psph snapshot: no {exc}") from None
+    missing = [key for key in ("gid", "kind", "position") if key not in data]
+    if missing:
+        raise UsageError(f"the last snapshot {name} is not a psph snapshot: no {', '.join(missing)}")
+    n = len(data["gid"])
+    short = next((key for key, values in data.items() if len(values) != n), None)
+    if short is not None:
+        raise UsageError(f"the last snapshot {name} is damaged: {short} holds {len(data[short])} rows for {n} "
+                         "particles")
+    return data, t
+
+
+def plot_fields(run_dir: Path, fig_dir: Path):
+    from psph.io.snapshots import snapshot_files
+
+    if not snapshot_files(run_dir):
+        return None
+    data, t = _last_snapshot(run_dir)
     pos = data["position"]
     if pos.shape[1] == 3:
         return None  # 3-D: ParaView (OUT/psph.xdmf)
@@ -263,7 +283,6 @@ def plot_line(run_dir: Path, fig_dir: Path, ends, points: int) -> Path:
     from psph.particles import Kind
     from psph.scene.load import scene_from_table
     from psph.simulation import make_domain
-    from psph.studies import last_snapshot
 
     table = _run_scene_table(run_dir)
     if table is None or not snapshot_files(run_dir):
@@ -274,15 +293,17 @@ def plot_line(run_dir: Path, fig_dir: Path, ends, points: int) -> Path:
         raise UsageError(f"--line: a {d.dimension}-D run's segment takes {2 * d.dimension} numbers (its two ends' "
                          f"coordinates), got {len(ends)}")
     ends = np.asarray(ends, dtype=np.float64).reshape(2, d.dimension)
+    if not np.isfinite(ends).all():
+        raise UsageError(f"--line: the ends' coordinates must be finite numbers, got {ends.ravel().tolist()}")
+    if np.array_equal(ends[0], ends[1]) or points < 2:
+        raise UsageError("--line: the two ends coincide" if points >= 2 else
+                         f"--points: a line needs at least 2 points, got {points}")
     for a in range(d.dimension):
         outside = (ends[:, a] < d.lower[a] - 1e-12) | (ends[:, a] > d.upper[a] + 1e-12)
         if outside.any():
             raise UsageError(f"--line: the end {list(ends[int(np.argmax(outside))])} lies outside the domain along "
                              f"axis {a} ({d.lower[a]:g} .. {d.upper[a]:g})")
-    try:
-        data, t = last_snapshot(run_dir)
-    except OSError as exc:
-        raise OSError(f"cannot read the last snapshot {snapshot_files(run_dir)[-1].name}: {exc}") from None
+    data, t = _last_snapshot(run_dir)
     names = [f for f in LINE_FIELDS if f in data]
     if not names:
         raise UsageError(f"--line: the last snapshot of {str(run_dir)!r} holds none of {', '.join(LINE_FIELDS)} "

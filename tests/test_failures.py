@@ -96,7 +96,9 @@ def test_a_log_view_file_that_cannot_be_written_set_outside_the_command_line_is_
     cmd = [sys.executable, "-m", "psph", "run", str(CASES / "kinematic_tgv.toml"), "--out", str(tmp_path / "out"),
            "--quiet", "--set", "domain.dx=0.1", "--set", "time.t_end=0.02"]
     if where == "options_file":
-        (tmp_path / "view.opts").write_text(option + "\n")
+        # a second one, a plain file PETSc writes when it finalises (a review: only the first was removed, and
+        # -malloc_view /no/dir/x failed in PetscFinalize, exit 0)
+        (tmp_path / "view.opts").write_text(option + f"\n-malloc_view {tmp_path}/nodir2/malloc.txt\n")
         cmd += ["-options_file", str(tmp_path / "view.opts")]
     else:
         env = {**env, "PETSC_OPTIONS": option}
@@ -106,9 +108,9 @@ def test_a_log_view_file_that_cannot_be_written_set_outside_the_command_line_is_
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=ROOT, env=env)
     lines = [line for line in proc.stderr.splitlines() if line.startswith("psph:")]
     assert proc.returncode == 2 and "Traceback" not in proc.stderr and "PETSC ERROR" not in proc.stderr, proc.stderr
-    assert set(lines) == {f"psph: error: -log_view :{tmp_path}/nodir/log.txt: cannot write "
-                          f"'{tmp_path}/nodir/log.txt' (no directory '{tmp_path}/nodir') (an option PETSc read from "
-                          "an options file, PETSC_OPTIONS or ~/.petscrc)"}, proc.stderr
+    assert lines == [f"psph: error: -log_view :{tmp_path}/nodir/log.txt: cannot write "
+                     f"'{tmp_path}/nodir/log.txt' (no directory '{tmp_path}/nodir') (an option PETSc read from "
+                     "an options file, PETSC_OPTIONS or ~/.petscrc)"], proc.stderr
     assert not (tmp_path / "out").exists() and not os.path.exists(tmp_path / "nodir")
 
 

@@ -65,6 +65,10 @@ def test_a_line_cut_in_3d_and_through_the_air(tmp_path):
     (["0", "0.5", "1"], "--line: a 2-D run's segment takes 4 numbers (its two ends' coordinates), got 3"),
     (["-0.5", "0.5", "1", "0.5"], "--line: the end [-0.5, 0.5] lies outside the domain along axis 0 (0 .. 1)"),
     (["0", "0.5", "1", "x"], "argument --line: invalid float value: 'x'"),
+    # (a review: nan passed and was told "no fluid"; a point or a single point drew nothing)
+    (["0", "nan", "1", "0.5"], "--line: the ends' coordinates must be finite numbers, got [0.0, nan, 1.0, 0.5]"),
+    (["0.5", "0.5", "0.5", "0.5"], "--line: the two ends coincide"),
+    (["0", "0.5", "1", "0.5", "--points", "1"], "--points: a line needs at least 2 points, got 1"),
 ])
 def test_a_bad_line_is_one_line_naming_it(tmp_path, args, words):
     out = taylor_green_run(tmp_path / "tg", 0.1)
@@ -80,3 +84,23 @@ def test_a_static_run_has_no_flow_to_cut(tmp_path):
     assert res.returncode == 0, res.stderr
     res = run_psph("plot", out, "--line", "0", "0.5", "1", "0.5")
     assert res.returncode == 2 and "holds none of pressure, density, velocity" in res.stderr, res.stderr
+
+
+@pytest.mark.parametrize("damage, words", [("kind", "is not a psph snapshot: no kind"),
+                                           ("position", "is damaged: position holds 5 rows for 100 particles")])
+def test_a_damaged_last_snapshot_is_one_line_naming_it(tmp_path, damage, words):
+    """A review: a snapshot without its kinds, or with positions cut short, ended in a KeyError or a numpy
+    broadcast error, "internal error (a bug)", for the cut and for fields.png alike."""
+    import h5py
+
+    out = taylor_green_run(tmp_path / "tg", 0.1)
+    last = sorted(out.glob("snapshot_*.h5"))[-1]
+    with h5py.File(last, "a") as f:
+        values = f["particles"][damage][()]
+        del f["particles"][damage]
+        if damage == "position":
+            f["particles/position"] = values[:5]
+    for args in (["--line", "0", "0.5", "1", "0.5"], []):
+        res = run_psph("plot", out, *args)
+        assert res.returncode == 2 and res.stderr.strip() == f"psph: error: the last snapshot {last.name} {words}", \
+            res.stderr

@@ -233,7 +233,11 @@ class SnapshotWriter:
         self.entries.append((name, float(time), int(step), total, meta))
 
         def publish():
-            replace_atomically(tmp, path)
+            try:
+                replace_atomically(tmp, path)
+            except BaseException:  # (a review: a failed publish left snapshot_NNNNNN.h5.tmp in OUT)
+                tmp.unlink(missing_ok=True)
+                raise
             self._write_index()
 
         on_root(self.comm, publish)  # (its failure is every rank's: a style audit found the others in a Barrier)

@@ -71,18 +71,63 @@ def alltoallv(comm, data: np.ndarray, send_counts: np.ndarray, recv_counts: np.n
 
 
 def on_root(comm, fn):
-    """fn() on rank 0 alone, its result broadcast to every rank, or its error (a PsphError, or any other
-    exception as a PsphError naming its type) raised on every rank (raise_if_any): a file only rank 0 reads
-    (the scene file) stops every rank when it cannot, not rank 0 alone while the others wait in the next
-    collective (a style audit: a scene file on one node's disk). Collective."""
-    result = error = None
+    """fn() on rank 0 alone, its result given to every rank, or its error raised on every rank, of the same
+    type everywhere (a PsphError through raise_if_any; another exception, an OSError, as rank 0's, marked
+    `collective`): a file only rank 0 reads (the scene file) or writes (the XDMF index) stops every rank when
+    it cannot, not rank 0 alone while the others wait in the next collective (a style audit: a scene file on
+    one node's disk). The result is pickled on rank 0 before any rank learns of success, and broadcast as
+    bytes in chunks (broadcast_bytes): an unpicklable or huge result (a snapshot of 65 M particles for
+    packing.start: mpi4py's pickled bcast stops at 2 GiB) is rank 0's error too, every rank's (a review).
+    Collective."""
+    import pickle
+
+    if comm.size == 1:
+        return fn()
+    payload = error = None
     if comm.rank == 0:
         try:
-            result = fn()
+            payload = pickle.dumps(fn(), protocol=pickle.HIGHEST_PROTOCOL)
         except Exception as exc:  # any failure: the other ranks must learn of it
             error = exc
+    _raise_root_error(comm, error)
+    return pickle.loads(broadcast_bytes(comm, payload))
+
+
+def _raise_root_error(comm, error) -> None:
+    """Raise rank 0's `error` (None: none) on every rank, of its type: a PsphError through raise_if_any, any
+    other exception pickled (a PsphError naming it where it cannot be). Collective."""
+    import pickle
+
+    from psph.errors import PsphError
+
+    blob = None
+    if comm.rank == 0 and error is not None and not isinstance(error, PsphError):
+        try:
+            blob = pickle.dumps(error)
+            pickle.loads(blob)  # (an exception whose class cannot be rebuilt from its args)
+        except Exception:
+            error = PsphError(f"{type(error).__name__}: {error}")
+            blob = None
+    blob = comm.bcast(blob, root=0)
+    if blob is not None:
+        err = error if comm.rank == 0 else pickle.loads(blob)
+        err.collective = True  # every rank raises it (the CLI: one line, no abort)
+        raise err
     raise_if_any(comm, error)
-    return comm.bcast(result, root=0) if comm.size > 1 else result
+
+
+# bytes per Bcast of broadcast_bytes (MPI counts are C ints)
+BROADCAST_CHUNK = 2**30
+
+
+def broadcast_bytes(comm, data) -> bytes:
+    """Rank 0's `data` (bytes) on every rank, in Bcast chunks of BROADCAST_CHUNK bytes (no 2 GiB limit).
+    Collective."""
+    size = comm.bcast(len(data) if comm.rank == 0 else None, root=0)
+    buffer = np.frombuffer(data, dtype=np.uint8) if comm.rank == 0 else np.empty(size, dtype=np.uint8)
+    for first in range(0, size, BROADCAST_CHUNK):
+        comm.Bcast(buffer[first:first + BROADCAST_CHUNK], root=0)
+    return data if comm.rank == 0 else buffer.tobytes()
 
 
 def raise_if_any(comm, error) -> None:

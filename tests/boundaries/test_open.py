@@ -90,6 +90,12 @@ def test_a_ramped_inflow_emits_its_rows_on_the_lattice_as_its_velocity_rises():
     assert [f.emitted(t) for t in (0.2, 0.25, 0.5, 0.6)] == [0, 1, 3, 4]
     # row 4, emitted at S = 0.4 half a row inside the buffer's face (y = 2), has gone 0.05 further by S = 0.45
     assert np.allclose(f.rows_at(4, 4, 0.6)[:, 1], 2.0 - 0.05 - 0.05)
+    from psph.cli import scene_warnings  # a ramp the run does not finish is warned of (a review: 1e300 was not)
+
+    assert not [w for w in scene_warnings(ramped_jet(0.3, 0.6)) if "ramp_time" in w]
+    assert [w for w in scene_warnings(ramped_jet(0.6, 0.6)) if "ramp_time" in w] == [
+        "inflow[0].ramp_time = 0.6 is not shorter than time.t_end = 0.6: the buffer does not reach its velocity "
+        "within the run"]
 
 
 def test_a_ramped_inflow_starts_a_jet_from_rest_without_the_impulsive_start_s_shock(tmp_path):
@@ -111,6 +117,13 @@ def test_a_ramped_inflow_starts_a_jet_from_rest_without_the_impulsive_start_s_sh
     row = np.round(0.5 + (travelled - (2.0 - y)) / 0.1)
     assert np.abs(y - (2.0 - (0.5 - row) * 0.1 - travelled)).max() < 1e-6
     assert np.array_equal(p.owned("velocity")[inlet], np.tile([0.0, -1.0], (int(inlet.sum()), 1)))
+    # mid-ramp (t = 0.15: half the velocity), the buffer moves at the ramp's velocity of its time
+    mid = FluidDriver(ramped_jet(0.3, 0.15), MPI.COMM_SELF, tmp_path / "mid")
+    mid.run()
+    p = mid.system.particles
+    inlet = p.owned("kind") == Kind.INLET
+    assert np.allclose(p.owned("velocity")[inlet], mid.open.inflows[0].velocity_at(0.15), rtol=0, atol=1e-12)
+    assert abs(mid.open.inflows[0].velocity_at(0.15)[1] + 0.5) < 1e-12
 
 
 @pytest.mark.parametrize("dim,density", [(1, "prescribed"), (2, "prescribed"), (3, "prescribed"), (2, "extrapolated")])

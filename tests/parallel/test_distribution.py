@@ -315,5 +315,19 @@ def test_a_file_rank_0_reads_for_all_gives_every_rank_its_content_or_its_error(t
 
     with pytest.raises(SceneError, match="packing.start: no file nothing.h5"):
         on_root(comm, fails_on_rank_0)
-    with pytest.raises(Exception, match="No such file or directory"):  # (elsewhere a PsphError naming its type)
+    # another exception is raised as rank 0's, of its type, on every rank (a review: rank 0 raised the
+    # FileNotFoundError, the others a PsphError naming it, and a library catching OSError stranded them)
+    with pytest.raises(FileNotFoundError, match="No such file or directory") as info:
         on_root(comm, lambda: open(tmp_path / "no-such-file").read())
+    assert info.value.collective
+    # an unpicklable result is rank 0's error, every rank's (the others waited in the broadcast for ever)
+    with pytest.raises(Exception, match="pickle"):
+        on_root(comm, lambda: (lambda: None))
+    big = np.arange(3 * 2**20, dtype=np.float64)  # 24 MiB in chunks of 8 MiB
+    import psph.parallel.comm as comm_module
+
+    chunk, comm_module.BROADCAST_CHUNK = comm_module.BROADCAST_CHUNK, 2**23
+    try:
+        assert np.array_equal(on_root(comm, lambda: big if comm.rank == 0 else None), big)
+    finally:
+        comm_module.BROADCAST_CHUNK = chunk
