@@ -40,7 +40,7 @@ from psph.boundaries.bodies import bounds
 from psph.compute.neighbours import closest_pair
 from psph.diagnostics import fluid_mask, grad_c, norms
 from psph.errors import NumericalError
-from psph.parallel.comm import allreduce_max, allreduce_sum, raise_if_any
+from psph.parallel.comm import allreduce_max, allreduce_sum, global_first, raise_if_any
 from psph.particles import FieldSpec, Kind
 
 VELOCITY = FieldSpec("packing_velocity", ("d",))
@@ -354,8 +354,8 @@ def _check_no_pairs(scene, system, spacing, iteration, converged) -> None:
     Collective."""
     p = system.particles
     r, k = closest_pair(p["position"], p["kind"] == Kind.FLUID, system.nbr_ptr, system.nbr_idx)
-    local = (float(r), int(p["gid"][k]), p["position"][k].copy()) if k >= 0 else (np.inf, 0, None)
-    close, gid_min, where = min(system.comm.allgather(local), key=lambda item: (item[0], item[1]))
+    nearest = global_first(system.comm, (-float(r), int(p["gid"][k]), p["position"][k].copy()) if k >= 0 else None)
+    close, gid_min, where = (np.inf, 0, None) if nearest is None else (-nearest[0], nearest[1], nearest[2])
     if close < PAIRED * spacing:
         why = ("the packing had not converged (its kinetic energy above packing.tolerance): raise "
                "packing.iterations" if not converged else

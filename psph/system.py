@@ -12,7 +12,7 @@ from psph.compute import neighbours
 from psph.compute.neighbours import build_neighbour_lists, coincident_rows, max_displacement, spatial_order
 from psph.compute.random import gaussian_by_gid
 from psph.errors import NumericalError, UsageError
-from psph.parallel.comm import allreduce_max, allreduce_sum, exclusive_scan, raise_if_any
+from psph.parallel.comm import allreduce_max, allreduce_sum, exclusive_scan, global_first
 from psph.parallel.decomposition import recursive_bisection
 from psph.parallel.halo import attach_halo, build_halo_pattern, halo_exchange, migrate
 from psph.profiling import phase
@@ -176,21 +176,28 @@ class ParticleSystem:
 
     def check_escaped(self) -> None:
         """Stop all ranks if an owned particle left the box along a non-periodic axis or has a non-finite
-        position (which no neighbour search can place), naming the count over all ranks, the first such
-        particle and the driver's step and time (self.where). Collective."""
-        pos = self.particles.owned("position")
+        position (which no neighbour search can place), naming the counts over all ranks, the particle of
+        lowest gid among those with a non-finite position, else among those that left (whatever the number of
+        ranks: a style audit found the lowest rank's first named), and the driver's step and time
+        (self.where). Collective."""
+        pos, gids = self.particles.owned("position"), self.particles.owned("gid")
         broken = ~np.isfinite(pos).all(axis=1)
-        out = np.flatnonzero(self.domain.outside(pos) | broken)
-        counts = allreduce_sum(self.comm, np.array([len(out), np.count_nonzero(broken)]))
-        error = None
-        if len(out):
-            k = out[0]
-            what = (f"{counts[1]} particle(s) with a non-finite position" if broken[k] else
-                    f"{counts[0] - counts[1]} particle(s) left the domain"
-                    + (f" and {counts[1]} have a non-finite position" if counts[1] else ""))
-            place = None if broken[k] else pos[k]  # a non-finite position is no place
-            error = NumericalError(what, gid=int(self.particles.owned("gid")[k]), position=place, **self.where)
-        raise_if_any(self.comm, error)
+        outside = self.domain.outside(pos) & ~broken
+        counts = allreduce_sum(self.comm, np.array([np.count_nonzero(outside), np.count_nonzero(broken)]))
+        if not counts.any():
+            return
+        rows = np.flatnonzero(broken if counts[1] else outside)
+        k = rows[np.argmin(gids[rows])] if len(rows) else None
+        first = global_first(self.comm, (0, int(gids[k]), None if counts[1] else pos[k].copy())
+                             if k is not None else None)  # (a non-finite position is no place)
+        if counts[1]:
+            what = (f"{counts[1]} particle(s) with a non-finite position"
+                    + (f" and {counts[0]} left the domain" if counts[0] else ""))
+        else:
+            what = f"{counts[0]} particle(s) left the domain"
+        error = NumericalError(what, gid=first[1], position=first[2], **self.where)
+        error.collective = True  # (every rank raises it)
+        raise error
 
     def separate_coincident(self, tolerance: float, offset: float) -> int:
         """Nudge one particle of every pair closer than `tolerance` by `offset` (a direction drawn from its

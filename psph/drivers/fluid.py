@@ -28,7 +28,7 @@ from psph.drivers.base import Driver, resumed_state
 from psph.errors import NumericalError
 from psph.initial import reset_initial_fields
 from psph.io.history import start_series
-from psph.parallel.comm import allreduce_max, allreduce_min, allreduce_sum, raise_if_any
+from psph.parallel.comm import allreduce_max, allreduce_min, allreduce_sum, global_first, raise_if_any
 from psph.particles import Kind
 from psph.probes import NAME as PROBES_NAME
 from psph.probes import Probes
@@ -450,9 +450,10 @@ class FluidDriver(Driver):
         if not count:
             return
         k = int(np.argmax(depth)) if len(depth) else 0  # (a rank may own no fluid: a review)
-        mine = (float(depth[k]), int(p.owned("gid")[fluid[k]]), tuple(before[k]), body[k]) \
+        mine = (float(depth[k]), int(p.owned("gid")[fluid[k]]), (tuple(before[k]), body[k])) \
             if len(depth) and depth[k] > 0.0 else None
-        deepest = max((d for d in self.sim.comm.allgather(mine) if d is not None), key=lambda d: (d[0], -d[1]))
+        deepest = global_first(self.sim.comm, mine)
+        deepest = (deepest[0], deepest[1], *deepest[2])
         p.owned("position")[fluid], p.owned("velocity")[fluid] = pos, vel
         self.sim.log(f"psph: step {step}, t = {t:.6g}: {count} fluid particle(s) crossed a wall of a box container "
                      f"and were mirrored back, the deepest {deepest[0] / self.scene.domain.dx:.2g} dx past the wall "
@@ -602,52 +603,73 @@ class FluidDriver(Driver):
 
     def check(self, step, t, dt) -> None:
         """Stop all ranks, naming step, time, particle and position, on a broken state (step 0: the initial
-        state, before any step). The density comes before a wall crossing: a blow-up crosses walls too.
-        Collective."""
+        state, before any step). The density comes before a wall crossing: a blow-up crosses walls too. Of
+        the first kind of problem any rank has, the particle named is the worst (the largest density or
+        volume deviation), ties and the other kinds to the lowest gid, whatever the number of ranks (a style
+        audit: the lowest rank's was named). Collective."""
         p = self.system.particles
-        problem, k = None, None  # what is wrong, and at which owned particle
+        gids = p.owned("gid")
         bad = ~np.isfinite(p.owned("velocity")).all(axis=1) | ~np.isfinite(p.owned("density")) \
             | ~np.isfinite(p.owned("position")).all(axis=1)
         dev = np.abs(p.owned("density") / self.scheme.rho0 - 1.0)
         limit = self.scene.physics.max_density_variation
         empty = (p.owned("density") <= 0.0) | (p.owned("volume") <= 0.0)
+
+        def lowest(mask):
+            rows = np.flatnonzero(mask)
+            return int(rows[np.argmin(gids[rows])])
+
+        def worst(values):
+            return lowest(values == values.max())
+
+        local = None  # ((-priority, key), gid, (problem, position)) of this rank's first kind of problem
         if bad.any():
-            problem, k = "non-finite field (NaN/Inf)", int(np.flatnonzero(bad)[0])
+            k = lowest(bad)
+            local = ((0, 0.0), "non-finite field (NaN/Inf)")
         elif dev.size and dev.max() > limit:
-            k = int(np.argmax(dev))
-            problem = (f"density left the weakly compressible range: |rho/rho0 - 1| = {dev[k]:.3g} > {limit:g} "
-                       "(physics.max_density_variation)")
+            k = worst(dev)
+            local = ((-1, float(dev[k])), f"density left the weakly compressible range: |rho/rho0 - 1| = "
+                     f"{dev[k]:.3g} > {limit:g} (physics.max_density_variation)")
         elif empty.any():  # (with physics.max_density_variation from 1 up, rho <= 0 passed: a failure audit)
-            k = int(np.flatnonzero(empty)[0])
-            problem = (f"a particle's density or volume fell to {min(p.owned('density')[k], p.owned('volume')[k]):.3g}"
-                       " (at or below zero)")
+            k = lowest(empty)
+            local = ((-2, 0.0), f"a particle's density or volume fell to "
+                     f"{min(p.owned('density')[k], p.owned('volume')[k]):.3g} (at or below zero)")
         elif self.scheme.walls is not None and (hit := self.scheme.walls.trespassers(
                 p.owned("position")[fluid_mask(self.system)], t, 0.5 * self.scene.domain.dx)) is not None:
-            problem, k = f"a fluid particle crossed the wall of body {hit[1]!r}", \
-                int(np.flatnonzero(fluid_mask(self.system))[hit[0]])
+            k = int(np.flatnonzero(fluid_mask(self.system))[hit[0]])
+            local = ((-3, 0.0), f"a fluid particle crossed the wall of body {hit[1]!r}")
         elif self.scheme.variant == 0 and p.n_owned:
             drift = np.abs(p.owned("volume") / p.owned("volume0") - 1.0)
             if drift.max() > (most := self.scene.physics.max_volume_variation):
-                k = int(np.argmax(drift))
-                problem = f"particle volume drifted by {drift[k]:.3g} (> {most:g}, physics.max_volume_variation)"
+                k = worst(drift)
+                local = ((-4, float(drift[k])), f"particle volume drifted by {drift[k]:.3g} (> {most:g}, "
+                         "physics.max_volume_variation)")
+        if local is not None:
+            local = (local[0], int(gids[k]), (local[1], p.owned("position")[k].copy()))
+        first = global_first(self.sim.comm, local)
+        problem, where = None, {}
+        if first is not None:
+            problem, where = first[2][0], {"gid": first[1], "position": first[2][1]}
         if problem is None and not dt > 0.0:  # a speed whose square overflows: every step, 0 (ran on at t = 0)
             problem = f"time step collapsed to {dt:.3g}"
         elif problem is None and self.first_dt and dt < DT_COLLAPSE * self.first_dt:
             problem = f"time step collapsed to {dt:.3g} (first step {self.first_dt:.3g})"
-        if problem is not None and self.kept_stall > 0.0:  # (an audit of IIPS in free-surface
-            # flows: the dam break at h/dx = 1.4 stopped on a volume drift, the stall only in the line before)
+        if problem is None:
+            return
+        if self.kept_stall > 0.0:  # (an audit of IIPS in free-surface flows: the dam break at h/dx = 1.4
+            # stopped on a volume drift, the stall only in the line before)
             problem += (f" (this step's IIPS call had failed and kept an iterate that moved a particle "
                         f"{self.kept_stall:.2g} dx, which iips.update = {self.scene.iips.update!r} took in: "
                         "iips.on_stall / iips.on_failure = \"reject\" undo such calls)")
-        if problem is not None and step == 0:
+        if step == 0:
             problem = f"the initial state: {problem}"
-            if bad.any() or (dev.size and dev.max() > 0.1):  # the initial fields' density, not a tight limit's
+            if first is not None and (first[0][0] == 0 or (first[0][0] == -1 and first[0][1] > 0.1)):
+                # the initial fields' density, not a tight limit's
                 problem += (" (the initial density follows the initial pressure and gravity through the equation "
                             "of state, which needs |p| << rho0 c0^2: physics.sound_speed)")
-        error = None if problem is None else NumericalError(
-            problem, step=step, time=t, **({} if k is None else {"gid": int(p.owned("gid")[k]),
-                                                                  "position": p.owned("position")[k]}))
-        raise_if_any(self.sim.comm, error)
+        error = NumericalError(problem, step=step, time=t, **where)
+        error.collective = True  # (every rank raises it)
+        raise error
 
     # ------------------------------------------------------------------ run
     def run(self) -> dict:

@@ -30,7 +30,7 @@ import numpy as np
 from psph.errors import SceneError, UsageError, point
 from psph.io.files import jsonable, replace_atomically
 from psph.io.snapshots import SNAPSHOT_NAME, h5py, write_particle_file
-from psph.parallel.comm import allreduce_sum, exclusive_scan, on_root
+from psph.parallel.comm import allreduce_sum, exclusive_scan, global_first, on_root
 from psph.parallel.decomposition import Decomposition, Split
 from psph.parallel.ordering import block_range
 from psph.particles import SCRATCH_FIELDS, FieldSpec, Kind, ParticleSet
@@ -336,13 +336,13 @@ def check_positions(comm, path, particles, domain) -> None:
     """Refuse a checkpoint whose particles lie outside its scene's `domain` along a closed axis (a damaged
     or edited file: a run writes its checkpoints after the escape check), naming the count and the first such
     particle, as a UsageError on every rank. Collective."""
-    pos = particles.owned("position")
+    pos, gids = particles.owned("position"), particles.owned("gid")
     out = np.flatnonzero(domain.outside(pos))
-    first = (int(particles.owned("gid")[out[0]]), point(pos[out[0]])) if len(out) else None
-    found = comm.allgather((len(out), first))
-    count = sum(n for n, _ in found)
+    k = out[np.argmin(gids[out])] if len(out) else None
+    first = global_first(comm, (0, int(gids[k]), point(pos[k])) if k is not None else None)  # the lowest gid
+    count = int(allreduce_sum(comm, len(out)))
     if count:
-        gid, at = next(f for _, f in found if f is not None)
+        _, gid, at = first
         raise UsageError(f"cannot restart from {str(path)!r}: {count} particle(s) outside the scene's domain "
                          f"(gid {gid} at {at})")
 

@@ -130,6 +130,15 @@ def broadcast_bytes(comm, data) -> bytes:
     return data if comm.rank == 0 else buffer.tobytes()
 
 
+def global_first(comm, local):
+    """Of every rank's `local` (None, or (key, gid, payload)), the one of largest key (any comparable value),
+    ties to the lowest gid, on every rank; None where no rank has one: the particle a message names is the
+    same on any number of ranks (STYLE 4; a style audit found five hand-written copies and two checks that
+    named the lowest rank's). Collective."""
+    found = [item for item in comm.allgather(local) if item is not None]
+    return max(found, key=lambda item: (item[0], -item[1])) if found else None
+
+
 def raise_if_any(comm, error) -> None:
     """If any rank holds an error, raise the lowest such rank's error on every rank. Collective.
 

@@ -5,6 +5,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from psph.diagnostics import fluid_mask, grad_c, norms
+from psph.parallel.comm import global_first
 from psph.profiling import phase
 
 
@@ -39,13 +40,14 @@ def steepest(system, vectors, rows) -> dict:
     gid of equals; a non-finite value counts as the largest), as a failure's place: {"gid", "position"}, or
     {} where no rank has a row. Collective."""
     p = system.particles
-    local = (-1.0, 0, None)
+    local = None
     if rows.size:
         size = np.nan_to_num(np.linalg.norm(vectors[rows], axis=1), nan=np.inf)
-        k = rows[int(np.argmax(size))]
+        top = np.flatnonzero(size == size.max())
+        k = rows[top[np.argmin(p.owned("gid")[rows[top]])]]  # (the lowest gid of this rank's equals)
         local = (float(size.max()), int(p.owned("gid")[k]), p.owned("position")[k].copy())
-    _, gid, position = max(system.comm.allgather(local), key=lambda item: (item[0], -item[1]))
-    return {} if position is None else {"gid": gid, "position": position}
+    first = global_first(system.comm, local)
+    return {} if first is None else {"gid": first[1], "position": first[2]}
 
 
 class Shifting:

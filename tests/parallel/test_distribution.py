@@ -331,3 +331,17 @@ def test_a_file_rank_0_reads_for_all_gives_every_rank_its_content_or_its_error(t
         assert np.array_equal(on_root(comm, lambda: big if comm.rank == 0 else None), big)
     finally:
         comm_module.BROADCAST_CHUNK = chunk
+
+
+def test_the_particle_a_message_names_is_the_largest_key_then_the_lowest_gid_on_every_rank(comm):
+    """parallel.comm.global_first: the largest key over the ranks, ties to the lowest gid, whatever rank
+    holds it (a style audit: check_escaped and the fluid driver's check named the lowest rank's first)."""
+    from psph.parallel.comm import global_first
+
+    size = comm.size
+    # keys 0, 1, 0, ...: the odd ranks' largest; gids fall with the rank
+    assert global_first(comm, (comm.rank % 2, 100 - comm.rank, comm.rank))[2] == (0 if size == 1 else
+                                                                                 max(range(1, size, 2)))
+    assert global_first(comm, (0.0, 100 - comm.rank, comm.rank))[2] == size - 1  # all equal: the lowest gid
+    assert global_first(comm, (0.0, 7, comm.rank) if comm.rank == size - 1 else None)[2] == size - 1
+    assert global_first(comm, None) is None
