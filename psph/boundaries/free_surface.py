@@ -37,6 +37,7 @@ from psph.compute.free_surface import (
     restrict_shift,
     scan_surface,
 )
+from psph.diagnostics import fluid_mask
 from psph.parallel.comm import allreduce_sum
 from psph.particles import FieldSpec, Kind
 from psph.profiling import phase
@@ -46,10 +47,6 @@ FIELDS = (FieldSpec("free_surface", (), np.int8), FieldSpec("surface_lambda"), F
 BAND = FieldSpec("outflow_band", (), np.int8)
 # with inflow buffers: 1 for the fluid within a kernel support of a buffer particle at detection (the same)
 INFLOW_BAND = FieldSpec("inflow_band", (), np.int8)
-
-
-def _fluid(system):
-    return system.particles.owned("kind") == Kind.FLUID
 
 
 class NoFreeSurface:
@@ -66,11 +63,11 @@ class NoFreeSurface:
 
     def interior(self, system) -> np.ndarray:
         """Owned fluid particles away from any free surface (those the history's grad C is measured on)."""
-        return _fluid(system)
+        return fluid_mask(system)
 
     def unknowns(self, system) -> np.ndarray:
         """Owned particles that IIPS moves."""
-        return _fluid(system)
+        return fluid_mask(system)
 
     def count(self, system) -> int:
         return 0
@@ -138,7 +135,7 @@ class FreeSurface(NoFreeSurface):
             walls.keep_shift_off(system, t, p.owned("free_surface") > 0, du)
 
     def interior(self, system) -> np.ndarray:
-        return _fluid(system) & (system.particles.owned("free_surface") == 0)
+        return fluid_mask(system) & (system.particles.owned("free_surface") == 0)
 
     def unknowns(self, system) -> np.ndarray:
         """The interior fluid, but for the fluid within a kernel support of an outflow face, which IIPS keeps

@@ -30,7 +30,7 @@ from numba import njit
 from psph.compute.jit import per_dimension
 from psph.compute.sums import pair2, solve_symmetric
 
-TAIT_GAMMA = 7.0
+TAIT_GAMMA = 7.0  # Tait's exponent (thesis eq. 5.4), for every module (schemes.eos.GAMMA is this)
 
 
 @njit(cache=True, inline="always")

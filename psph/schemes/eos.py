@@ -11,7 +11,9 @@ import functools
 
 import numpy as np
 
-GAMMA = 7.0
+from psph.compute.riemann import TAIT_GAMMA
+
+GAMMA = TAIT_GAMMA
 
 
 def quiet(method):

@@ -32,7 +32,9 @@ du = dx / dt.
 import numpy as np
 
 from psph.compute.shift_velocity import corrected_grad_c, limit_magnitude, neuhauser_acceleration
-from psph.particles import FieldSpec, Kind
+from psph.diagnostics import fluid_mask
+from psph.particles import FieldSpec
+from psph.schemes.eos import GAMMA as TAIT_GAMMA
 
 # the key that scales an uncapped explicit shifting law's velocity (delta+ and Lind's are capped at U/2, and
 # Neuhauser's P^F reads no P_S)
@@ -52,9 +54,6 @@ def strength_advice(spec) -> str:
     neuhauser_ps = 1000 stopped in a few steps naming no shifting key, the second advising a larger skin)."""
     key = strength_key(spec)
     return f" (shifting.method = {spec.method}: a law too strong, {key}, does that too)" if key else ""
-
-TAIT_GAMMA = 7.0
-
 
 class VelocityShift:
     """Base: `velocity(system, scheme, dt, grad)` fills the owned rows of field 'shift_velocity'.
@@ -105,10 +104,6 @@ def _grad_c_hat(law, system, scheme, grad):
     return out
 
 
-def _free(system):
-    return (system.particles.owned("kind") == Kind.FLUID)[:, None]
-
-
 class DeltaPlus(VelocityShift):
     name = "delta_plus"
     active = True
@@ -125,7 +120,7 @@ class DeltaPlus(VelocityShift):
         raw = -self.u_max * 2.0 * system.kernel.h * grad  # Ma (2h) c0 = U_max 2h
         out = system.particles.owned("shift_velocity")
         limit_magnitude(raw, np.full(len(raw), 0.5 * self.u_max), out)
-        out *= _free(system)
+        out *= fluid_mask(system)[:, None]
 
     def describe(self):
         return (f"shifting: delta-plus velocity du = -Ma 2h c0 grad C^ (R = {self.coeff:g}, n = {self.power:g}), "
@@ -149,7 +144,7 @@ class Lind(VelocityShift):
         raw = -self.d * h * h * grad / dt
         out = system.particles.owned("shift_velocity")
         limit_magnitude(raw, np.full(len(raw), 0.5 * self.u_max), out)
-        out *= _free(system)
+        out *= fluid_mask(system)[:, None]
 
     def describe(self):
         return (f"shifting: Lind (Fickian) dx = -{self.d:g} h^2 grad C^ per step, |du| <= U_max/2 (thesis eq. "
@@ -170,7 +165,7 @@ class Skillen(VelocityShift):
         p = system.particles
         grad = _grad_c_hat(self, system, scheme, grad)
         speed = np.sqrt((p.owned("velocity") ** 2).sum(axis=1))[:, None]
-        p.owned("shift_velocity")[:] = -self.a * system.kernel.h * speed * grad * _free(system)
+        p.owned("shift_velocity")[:] = -self.a * system.kernel.h * speed * grad * fluid_mask(system)[:, None]
 
     def describe(self):
         return f"shifting: Skillen dx = -A h |u| dt grad C, A = {self.a:g} (thesis eq. 6.18)"
@@ -193,7 +188,7 @@ class Oger(VelocityShift):
         limit = 0.25 * np.sqrt((p.owned("velocity") ** 2).sum(axis=1))
         out = p.owned("shift_velocity")
         limit_magnitude(raw, limit, out)
-        out *= _free(system)
+        out *= fluid_mask(system)[:, None]
 
     def describe(self):
         return "shifting: Oger du = -Ma c0 2 dx grad C, |du| <= 0.25 |u| (thesis eq. 6.32)"
@@ -225,7 +220,7 @@ class Neuhauser(VelocityShift):
         acc = np.zeros((p.n_owned, p.dim))
         neuhauser_acceleration(p["position"], p["volume"], p["transport_velocity"], pref, system.nbr_ptr,
                                system.nbr_idx, system.kernel.params, self.c0, self.alpha, acc)
-        p.owned("shift_velocity")[:] = dt * acc * _free(system)
+        p.owned("shift_velocity")[:] = dt * acc * fluid_mask(system)[:, None]
 
     def end_step(self, system, scheme, dt):
         p = system.particles
