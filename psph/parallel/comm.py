@@ -82,7 +82,11 @@ def on_root(comm, fn):
     import pickle
 
     if comm.size == 1:
-        return fn()
+        try:
+            return fn()
+        except Exception as exc:
+            exc.collective = True  # (as on several ranks: every rank, this one, raises it)
+            raise
     payload = error = None
     if comm.rank == 0:
         try:
