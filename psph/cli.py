@@ -640,7 +640,7 @@ def main(argv=None) -> int:
             comm.Abort(128 + signum)
         return 128 + signum
     except MemoryError as err:  # numpy's names the array: "Unable to allocate 74.5 GiB for an array ..."
-        return _machine_error(comm, f"out of memory: {err}")
+        return _machine_error(comm, f"out of memory: {err}", getattr(err, "collective", False))
     except OSError as err:  # a read or write the system refused mid-run: a full disk, a file taken away
         return _machine_error(comm, f"input/output failed: {err}", getattr(err, "collective", False))
     except Exception:

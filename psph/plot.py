@@ -224,16 +224,22 @@ def _last_snapshot(run_dir: Path) -> tuple:
         data, t = last_snapshot(run_dir)
     except OSError as exc:
         raise OSError(f"cannot read the last snapshot {name}: {exc}") from None
-    except KeyError as exc:
-        raise UsageError(f"the last snapshot {name} is not a psph snapshot: no {exc}") from None
+    except (KeyError, ValueError, TypeError, AttributeError) as exc:  # (no particles group or time; a
+        # scalar or a group where a field should be; a time that is no number: a review)
+        raise UsageError(f"the last snapshot {name} is not a psph snapshot: {' '.join(str(exc).split())}") \
+            from None
     missing = [key for key in ("gid", "kind", "position") if key not in data]
     if missing:
         raise UsageError(f"the last snapshot {name} is not a psph snapshot: no {', '.join(missing)}")
     n = len(data["gid"])
-    short = next((key for key, values in data.items() if len(values) != n), None)
-    if short is not None:
-        raise UsageError(f"the last snapshot {name} is damaged: {short} holds {len(data[short])} rows for {n} "
-                         "particles")
+    for key, values in data.items():
+        values = np.asarray(values)
+        if values.ndim == 0 or len(values) != n or values.dtype.kind not in "biuf":
+            raise UsageError(f"the last snapshot {name} is damaged: {key} holds "
+                             + (f"{len(values)} rows for {n} particles" if values.ndim and len(values) != n else
+                                f"{values.dtype} values of shape {values.shape}"))
+    if data["position"].ndim != 2 or not 1 <= data["position"].shape[1] <= 3:
+        raise UsageError(f"the last snapshot {name} is damaged: position of shape {data['position'].shape}")
     return data, t
 
 
@@ -269,6 +275,7 @@ def plot_fields(run_dir: Path, fig_dir: Path):
 
 
 LINE_FIELDS = ("pressure", "density", "velocity")  # what a line cut samples, where a snapshot holds them
+MAX_LINE_POINTS = 100_000  # (a review: 1e8 points ran for minutes)
 
 
 def plot_line(run_dir: Path, fig_dir: Path, ends, points: int) -> Path:
@@ -295,15 +302,21 @@ def plot_line(run_dir: Path, fig_dir: Path, ends, points: int) -> Path:
     ends = np.asarray(ends, dtype=np.float64).reshape(2, d.dimension)
     if not np.isfinite(ends).all():
         raise UsageError(f"--line: the ends' coordinates must be finite numbers, got {ends.ravel().tolist()}")
-    if np.array_equal(ends[0], ends[1]) or points < 2:
-        raise UsageError("--line: the two ends coincide" if points >= 2 else
-                         f"--points: a line needs at least 2 points, got {points}")
+    if np.array_equal(ends[0], ends[1]) or not 2 <= points <= MAX_LINE_POINTS:
+        raise UsageError("--line: the two ends coincide" if 2 <= points <= MAX_LINE_POINTS else
+                         f"--points: a line takes 2 to {MAX_LINE_POINTS} points, got {points}")
     for a in range(d.dimension):
         outside = (ends[:, a] < d.lower[a] - 1e-12) | (ends[:, a] > d.upper[a] + 1e-12)
         if outside.any():
             raise UsageError(f"--line: the end {list(ends[int(np.argmax(outside))])} lies outside the domain along "
                              f"axis {a} ({d.lower[a]:g} .. {d.upper[a]:g})")
     data, t = _last_snapshot(run_dir)
+    shapes = {key: data[key].shape for key in ("position", "velocity") if key in data}
+    if any(shape[1:] != (d.dimension,) for shape in shapes.values()):
+        raise UsageError(f"the last snapshot of {str(run_dir)!r} does not match its {d.dimension}-D scene: "
+                         + ", ".join(f"{key} of shape {shape}" for key, shape in shapes.items()))
+    if not len(data["gid"]):
+        raise UsageError(f"--line: the last snapshot of {str(run_dir)!r} holds no particle")
     names = [f for f in LINE_FIELDS if f in data]
     if not names:
         raise UsageError(f"--line: the last snapshot of {str(run_dir)!r} holds none of {', '.join(LINE_FIELDS)} "

@@ -316,3 +316,19 @@ def test_a_perturbation_that_puts_particles_outside_the_domain_is_refused_naming
         proc = run_psph("run", CASES / "taylor_green.toml", "--out", tmp_path / "out", "--quiet",
                         *(arg for item in sets for arg in ("--set", item)))
         assert proc.returncode == 2 and "psph: error: initial.sigma_over_dx: 1 (seed " in proc.stderr, proc.stderr
+
+
+def test_an_initial_density_at_or_below_zero_is_told_of_the_sound_speed(tmp_path):
+    """A review: the hint on the initial density's equation of state was lost when the density fell to zero
+    or below (with physics.max_density_variation from 1 up) once the check named the same particle on any
+    number of ranks."""
+    from tests.helpers import run_psph
+
+    res = run_psph("run", CASES / "taylor_green.toml", "--out", tmp_path, "--quiet", "--set", "physics.eos=linear",
+                   "--set", "physics.sound_speed=0.5", "--set", "physics.max_density_variation=5", "--set",
+                   "domain.dx=0.1")
+    assert res.returncode == 3, res.stderr
+    line = [entry for entry in res.stderr.splitlines() if entry.startswith("psph: error")][0]
+    assert line.startswith("psph: error: the initial state: a particle's density or volume fell to -0.618 (at or "
+                           "below zero) (the initial density follows the initial pressure"), line
+    assert "physics.sound_speed) [step 0, t = 0, particle gid 0" in line, line

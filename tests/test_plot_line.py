@@ -68,7 +68,8 @@ def test_a_line_cut_in_3d_and_through_the_air(tmp_path):
     # (a review: nan passed and was told "no fluid"; a point or a single point drew nothing)
     (["0", "nan", "1", "0.5"], "--line: the ends' coordinates must be finite numbers, got [0.0, nan, 1.0, 0.5]"),
     (["0.5", "0.5", "0.5", "0.5"], "--line: the two ends coincide"),
-    (["0", "0.5", "1", "0.5", "--points", "1"], "--points: a line needs at least 2 points, got 1"),
+    (["0", "0.5", "1", "0.5", "--points", "1"], "--points: a line takes 2 to 100000 points, got 1"),
+    (["0", "0.5", "1", "0.5", "--points", "100000000"], "--points: a line takes 2 to 100000 points, got 100000000"),
 ])
 def test_a_bad_line_is_one_line_naming_it(tmp_path, args, words):
     out = taylor_green_run(tmp_path / "tg", 0.1)
@@ -87,7 +88,8 @@ def test_a_static_run_has_no_flow_to_cut(tmp_path):
 
 
 @pytest.mark.parametrize("damage, words", [("kind", "is not a psph snapshot: no kind"),
-                                           ("position", "is damaged: position holds 5 rows for 100 particles")])
+                                           ("position", "is damaged: position holds 5 rows for 100 particles"),
+                                           ("pressure", "is damaged: pressure holds |S3 values of shape (100,)")])
 def test_a_damaged_last_snapshot_is_one_line_naming_it(tmp_path, damage, words):
     """A review: a snapshot without its kinds, or with positions cut short, ended in a KeyError or a numpy
     broadcast error, "internal error (a bug)", for the cut and for fields.png alike."""
@@ -100,6 +102,8 @@ def test_a_damaged_last_snapshot_is_one_line_naming_it(tmp_path, damage, words):
         del f["particles"][damage]
         if damage == "position":
             f["particles/position"] = values[:5]
+        if damage == "pressure":  # (a review: a field of strings, "internal error")
+            f["particles/pressure"] = np.array([b"abc"] * len(values))
     for args in (["--line", "0", "0.5", "1", "0.5"], []):
         res = run_psph("plot", out, *args)
         assert res.returncode == 2 and res.stderr.strip() == f"psph: error: the last snapshot {last.name} {words}", \

@@ -606,11 +606,13 @@ class FluidDriver(Driver):
         state, before any step). The density comes before a wall crossing: a blow-up crosses walls too. Of
         the first kind of problem any rank has, the particle named is the worst (the largest density or
         volume deviation), ties and the other kinds to the lowest gid, whatever the number of ranks (a style
-        audit: the lowest rank's was named). Collective."""
+        audit: the lowest rank's was named); a wall crossing, each rank's first (WallTerms.trespassers), the
+        lowest gid of those. Collective."""
         p = self.system.particles
         gids = p.owned("gid")
         bad = ~np.isfinite(p.owned("velocity")).all(axis=1) | ~np.isfinite(p.owned("density")) \
-            | ~np.isfinite(p.owned("position")).all(axis=1)
+            | ~np.isfinite(p.owned("position")).all(axis=1) | ~np.isfinite(p.owned("volume")) \
+            | ~np.isfinite(p.owned("mass"))  # (a review: a NaN volume passed, and hid the drift of its rank)
         dev = np.abs(p.owned("density") / self.scheme.rho0 - 1.0)
         limit = self.scene.physics.max_density_variation
         empty = (p.owned("density") <= 0.0) | (p.owned("volume") <= 0.0)
@@ -622,30 +624,32 @@ class FluidDriver(Driver):
         def worst(values):
             return lowest(values == values.max())
 
-        local = None  # ((-priority, key), gid, (problem, position)) of this rank's first kind of problem
+        # ((-priority, key), gid, (problem, position, the initial density's hint)) of this rank's first kind
+        local = None
         if bad.any():
             k = lowest(bad)
-            local = ((0, 0.0), "non-finite field (NaN/Inf)")
+            local = ((0, 0.0), "non-finite field (NaN/Inf)", True)
         elif dev.size and dev.max() > limit:
             k = worst(dev)
             local = ((-1, float(dev[k])), f"density left the weakly compressible range: |rho/rho0 - 1| = "
-                     f"{dev[k]:.3g} > {limit:g} (physics.max_density_variation)")
+                     f"{dev[k]:.3g} > {limit:g} (physics.max_density_variation)", dev[k] > 0.1)
         elif empty.any():  # (with physics.max_density_variation from 1 up, rho <= 0 passed: a failure audit)
             k = lowest(empty)
             local = ((-2, 0.0), f"a particle's density or volume fell to "
-                     f"{min(p.owned('density')[k], p.owned('volume')[k]):.3g} (at or below zero)")
+                     f"{min(p.owned('density')[k], p.owned('volume')[k]):.3g} (at or below zero)",
+                     p.owned("density")[k] <= 0.0)
         elif self.scheme.walls is not None and (hit := self.scheme.walls.trespassers(
                 p.owned("position")[fluid_mask(self.system)], t, 0.5 * self.scene.domain.dx)) is not None:
             k = int(np.flatnonzero(fluid_mask(self.system))[hit[0]])
-            local = ((-3, 0.0), f"a fluid particle crossed the wall of body {hit[1]!r}")
+            local = ((-3, 0.0), f"a fluid particle crossed the wall of body {hit[1]!r}", False)
         elif self.scheme.variant == 0 and p.n_owned:
-            drift = np.abs(p.owned("volume") / p.owned("volume0") - 1.0)
+            drift = np.nan_to_num(np.abs(p.owned("volume") / p.owned("volume0") - 1.0), nan=np.inf)
             if drift.max() > (most := self.scene.physics.max_volume_variation):
                 k = worst(drift)
                 local = ((-4, float(drift[k])), f"particle volume drifted by {drift[k]:.3g} (> {most:g}, "
-                         "physics.max_volume_variation)")
+                         "physics.max_volume_variation)", False)
         if local is not None:
-            local = (local[0], int(gids[k]), (local[1], p.owned("position")[k].copy()))
+            local = (local[0], int(gids[k]), (local[1], p.owned("position")[k].copy(), bool(local[2])))
         first = global_first(self.sim.comm, local)
         problem, where = None, {}
         if first is not None:
@@ -663,8 +667,8 @@ class FluidDriver(Driver):
                         "iips.on_stall / iips.on_failure = \"reject\" undo such calls)")
         if step == 0:
             problem = f"the initial state: {problem}"
-            if first is not None and (first[0][0] == 0 or (first[0][0] == -1 and first[0][1] > 0.1)):
-                # the initial fields' density, not a tight limit's
+            if first is not None and first[2][2]:  # the initial fields' density (NaN, beyond 10% or <= 0), not a
+                # tight limit's (a review: the <= 0 case had lost the hint)
                 problem += (" (the initial density follows the initial pressure and gravity through the equation "
                             "of state, which needs |p| << rho0 c0^2: physics.sound_speed)")
         error = NumericalError(problem, step=step, time=t, **where)

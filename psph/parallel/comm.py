@@ -84,15 +84,15 @@ def on_root(comm, fn):
     if comm.size == 1:
         try:
             return fn()
-        except Exception as exc:
+        except BaseException as exc:
             exc.collective = True  # (as on several ranks: every rank, this one, raises it)
             raise
     payload = error = None
     if comm.rank == 0:
         try:
             payload = pickle.dumps(fn(), protocol=pickle.HIGHEST_PROTOCOL)
-        except Exception as exc:  # any failure: the other ranks must learn of it
-            error = exc
+        except BaseException as exc:  # any failure, a SystemExit too: the other ranks must learn of it (a review:
+            error = exc  # they waited in the broadcast for ever)
     _raise_root_error(comm, error)
     return pickle.loads(broadcast_bytes(comm, payload))
 

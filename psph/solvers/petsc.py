@@ -142,7 +142,8 @@ def check_started_viewer_files(comm=None) -> None:
                          "~/.petscrc)")
 
 
-# options whose value is a plain file name that PETSc writes when it finalises, after the run
+# options whose value is a plain file name that PETSc writes: -malloc_view's when it finalises, after the run;
+# -log_trace's (FILE.<rank>) at its start
 PLAIN_FILE_OPTIONS = ("-malloc_view", "-log_trace")
 
 

@@ -320,6 +320,8 @@ def test_a_file_rank_0_reads_for_all_gives_every_rank_its_content_or_its_error(t
     with pytest.raises(FileNotFoundError, match="No such file or directory") as info:
         on_root(comm, lambda: open(tmp_path / "no-such-file").read())
     assert info.value.collective
+    with pytest.raises(SystemExit):  # not an Exception: the others waited in the broadcast for ever (a review)
+        on_root(comm, lambda: exit(3))
     # an unpicklable result is rank 0's error, every rank's (the others waited in the broadcast for ever); one
     # rank passes it on as it is
     if comm.size > 1:
