@@ -860,7 +860,6 @@ def test_petsc_options_petsc_cannot_start_with_are_one_line_of_psph(tmp_path):
     assert res.returncode == 2 and res.stderr.strip().splitlines()[-1].startswith(
         f"psph: error: PETSc did not start with the options of PETSC_OPTIONS='-options_file {missing}'"), res.stderr
     assert not (tmp_path / "out").exists()
-    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.parametrize("option,value", [("-log_view", ":{bad}"), ("-iips_ksp_view", "ascii:{bad}:ascii_info"),
@@ -876,3 +875,12 @@ def test_viewer_files_that_cannot_be_written_are_refused_before_the_run(tmp_path
     assert res.stderr.strip().splitlines()[-1] == (f"psph: error: {option} {value}: cannot write '{bad}' "
                                                    f"(no directory '{bad.parent}')")
     assert not (tmp_path / "out").exists()
+
+
+def test_petsc_s_stream_viewers_are_no_files():
+    """ascii:stdout and ascii:stderr name PETSc's streams, not files in the working directory (a review: in a
+    directory psph cannot write they would have been refused)."""
+    from psph.solvers.petsc import viewer_file
+
+    assert viewer_file("ascii:stdout") is None and viewer_file("ascii:stderr:ascii_info") is None
+    assert viewer_file("ascii:out.txt") == ["ascii", "out.txt", "", ""]

@@ -108,9 +108,11 @@ def test_a_log_view_file_that_cannot_be_written_set_outside_the_command_line_is_
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=ROOT, env=env)
     lines = [line for line in proc.stderr.splitlines() if line.startswith("psph:")]
     assert proc.returncode == 2 and "Traceback" not in proc.stderr and "PETSC ERROR" not in proc.stderr, proc.stderr
+    malloc = (f"; -malloc_view {tmp_path}/nodir2/malloc.txt: cannot write '{tmp_path}/nodir2/malloc.txt' (no "
+              f"directory '{tmp_path}/nodir2')" if where == "options_file" else "")
     assert lines == [f"psph: error: -log_view :{tmp_path}/nodir/log.txt: cannot write "
-                     f"'{tmp_path}/nodir/log.txt' (no directory '{tmp_path}/nodir') (an option PETSc read from "
-                     "an options file, PETSC_OPTIONS or ~/.petscrc)"], proc.stderr
+                     f"'{tmp_path}/nodir/log.txt' (no directory '{tmp_path}/nodir'){malloc} (option(s) PETSc read "
+                     "from an options file, PETSC_OPTIONS or ~/.petscrc)"], proc.stderr
     assert not (tmp_path / "out").exists() and not os.path.exists(tmp_path / "nodir")
 
 

@@ -69,9 +69,11 @@ class WallTerms:
             out.append(f"body {b.name!r}: {b.spec.shape}, {b.spec.wall.replace('_', '-')}, {how}{lid}; {model}")
         return out
 
-    def trespassers(self, pos, t, margin):
-        """(row, body name) of the first of `pos` (fluid positions) that lies more than `margin` inside an
-        immersed body or outside a container (box, polygon) at time t, or None."""
+    def trespassers(self, pos, t, margin, gid):
+        """(row, body name) of the one of lowest `gid` among `pos` (fluid positions, `gid` theirs) that lie more
+        than `margin` inside an immersed body or outside a container (box, polygon) at time t, or None (the
+        lowest gid, not the first row: the particle named does not depend on the rank count, a review)."""
+        found = None
         from psph.boundaries.bodies import within_walls
         from psph.boundaries.geometry import inside, shape_spec
 
@@ -87,8 +89,11 @@ class WallTerms:
                 size = [max(s - (margin if shape == "ellipse" else 2.0 * margin), 0.0) for s in b.spec.size]
                 bad = inside((shape, center, size, angle), pos)
             if bad.any():
-                return int(np.flatnonzero(bad)[0]), b.name
-        return None
+                rows = np.flatnonzero(bad)
+                k = int(rows[np.argmin(gid[rows])])
+                if found is None or gid[k] < gid[found[0]]:
+                    found = (k, b.name)
+        return found
 
     def reflect(self, pos, vel):
         """Fluid positions `pos` (owned fluid rows) that crossed a side of a fixed, unrotated box container,

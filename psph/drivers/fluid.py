@@ -606,8 +606,7 @@ class FluidDriver(Driver):
         state, before any step). The density comes before a wall crossing: a blow-up crosses walls too. Of
         the first kind of problem any rank has, the particle named is the worst (the largest density or
         volume deviation), ties and the other kinds to the lowest gid, whatever the number of ranks (a style
-        audit: the lowest rank's was named); a wall crossing, each rank's first (WallTerms.trespassers), the
-        lowest gid of those. Collective."""
+        audit: the lowest rank's was named). Collective."""
         p = self.system.particles
         gids = p.owned("gid")
         bad = ~np.isfinite(p.owned("velocity")).all(axis=1) | ~np.isfinite(p.owned("density")) \
@@ -639,7 +638,8 @@ class FluidDriver(Driver):
                      f"{min(p.owned('density')[k], p.owned('volume')[k]):.3g} (at or below zero)",
                      p.owned("density")[k] <= 0.0)
         elif self.scheme.walls is not None and (hit := self.scheme.walls.trespassers(
-                p.owned("position")[fluid_mask(self.system)], t, 0.5 * self.scene.domain.dx)) is not None:
+                p.owned("position")[fluid_mask(self.system)], t, 0.5 * self.scene.domain.dx,
+                gids[fluid_mask(self.system)])) is not None:
             k = int(np.flatnonzero(fluid_mask(self.system))[hit[0]])
             local = ((-3, 0.0), f"a fluid particle crossed the wall of body {hit[1]!r}", False)
         elif self.scheme.variant == 0 and p.n_owned:

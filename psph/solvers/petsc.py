@@ -137,9 +137,9 @@ def check_started_viewer_files(comm=None) -> None:
         refused = comm.bcast(refused, root=0)
     for name, _ in refused:  # (a review: the second of two still failed in PetscFinalize)
         database.delValue(name[1:])
-    if refused:
-        raise UsageError(refused[0][1] + " (an option PETSc read from an options file, PETSC_OPTIONS or "
-                         "~/.petscrc)")
+    if refused:  # (a review: only the first was named, though all were removed)
+        raise UsageError("; ".join(message for _, message in refused) + " (option(s) PETSc read from an options "
+                         "file, PETSC_OPTIONS or ~/.petscrc)")
 
 
 # options whose value is a plain file name that PETSc writes: -malloc_view's when it finalises, after the run;
@@ -151,7 +151,8 @@ def viewer_file(value):
     """PETSc's viewer syntax `[type]:[file][:format][:mode]`: its fields, four strings, where `value` names a
     file of a type FILE_VIEWERS lists, plainly (not through PETSc's variables, `${...}`); else None."""
     fields = (value.split(":") + ["", "", ""])[:4] if ":" in value else None
-    if fields is None or fields[0] not in FILE_VIEWERS or not fields[1] or "${" in fields[1]:
+    if fields is None or fields[0] not in FILE_VIEWERS or not fields[1] or "${" in fields[1] \
+            or fields[1] in ("stdout", "stderr"):  # (PETSc's names for the streams, not files: a review)
         return None
     return fields
 

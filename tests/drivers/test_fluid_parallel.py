@@ -217,3 +217,23 @@ def test_a_3d_slab_with_free_surfaces_and_iips_matches_serial(comm, mpi_tmp_path
              "time": {"t_end": 0.02}, "output": {"every": 0.0, "history_every": 1}}
     serial = assert_matches_serial(scene_from_table(table), comm, mpi_tmp_path, 1e-7)
     assert serial["Linf_grad_c"][-1] < serial["Linf_grad_c"][0]  # the calls levelled grad C
+
+
+def test_a_wall_crossing_names_the_lowest_gid_on_every_rank_count(comm, mpi_tmp_path):
+    """A review: FluidDriver.check named each rank's first trespasser of the first body that had one (on 1
+    rank the tank's, gid 757; on 2 and 3 the square's, gid 21). The lowest gid over every body and rank."""
+    from psph.diagnostics import fluid_mask
+    from psph.errors import NumericalError
+    from psph.scene.load import load_scene
+    from tests.helpers import CASES
+
+    scene = load_scene(CASES / "moving_square.toml", ["domain.dx=0.25"])
+    with FluidDriver(scene, comm, mpi_tmp_path / "square", log=lambda message: None) as driver:
+        p = driver.system.particles
+        gid, pos, fluid = p.owned("gid"), p.owned("position"), fluid_mask(driver.system)
+        square, tank = 21, 757  # fluid particles at (0.5, 0.5) and (9.5, 4.5)
+        pos[(gid == square) & fluid] = (1.5, 2.5)  # inside the square
+        pos[(gid == tank) & fluid] = (10.4, 4.5)  # past the tank's right wall
+        with pytest.raises(NumericalError, match=r"crossed the wall of body 'square' \[step 5, t = 0.1, particle "
+                                                 r"gid 21, at \(1.5, 2.5\)\]"):
+            driver.check(5, 0.1, 1e-3)
