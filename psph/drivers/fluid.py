@@ -386,9 +386,9 @@ class FluidDriver(Driver):
             self.scheme.detect_surface(system)  # the step's flags, for the shifting law and the tensile switch
             totals["steps_redone"] += self._integrate(t, dt, state["step"] + 1)
             self.scheme.end_step(system, dt)
-            if self.scheme.walls is not None:  # solids exactly where their bodies are at t + dt
-                with phase("walls"):  # (a benchmark audit: 2 points of the walls' share fell outside it)
-                    self.scheme.walls.place(system, t + dt)
+            self.scheme.walls.place(system, t + dt)  # solids exactly where their bodies are at t + dt
+            if self.scheme.walls.active:  # (its count is a collective)
+                with phase("walls"):
                     self._reflect(step=state["step"] + 1, t=t + dt, totals=totals)
             # V = m / rho changed: IIPS and diagnostics read halo volumes and positions (an end of step
             # past half the skin rebuilds the lists, which carries every halo field)
@@ -567,7 +567,7 @@ class FluidDriver(Driver):
         out = {"kinetic_energy": sums[0], "total_mass": sums[1], "volume_error": sums[2] / self.initial_volume - 1.0,
                "max_speed": vmax, "min_spacing": self._min_spacing(mask, p["kind"], p["kind"]),
                "max_density_variation": drho, "max_volume_variation": dvol, "L2_grad_c": l2, "Linf_grad_c": linf}
-        if self.scheme.walls is not None and self.scheme.walls.clones:  # solid particles: how near the fluid comes
+        if self.scheme.walls.clones:  # solid particles: how near the fluid comes
             solid = (p["kind"] == Kind.WALL) | (p["kind"] == Kind.BODY)
             out["min_wall_spacing"] = self._min_spacing(mask, np.zeros(p.n_local, np.int8),
                                                         (~solid).astype(np.int8))
@@ -584,8 +584,7 @@ class FluidDriver(Driver):
             out.update(self.open.budget(sums[1]))
         if self.reference is not None:
             out.update(self.reference.errors(self.system, t, sums[0]))
-        if self.scheme.walls is not None:
-            out.update(self.scheme.walls.body_forces(comm))
+        out.update(self.scheme.walls.body_forces(comm))
         if self.probes is not None:
             self.probes.record(self.system, t)
         return out
@@ -597,8 +596,7 @@ class FluidDriver(Driver):
         audit: 4.9 times lower in L2 than the particles' in the thesis' Taylor-Green), now L2/Linf_grad_c0.
         Collective."""
         grad = grad_c(self.system, volume)
-        if self.scheme.walls is not None:
-            self.scheme.walls.add_ghost_grad_c(self.system, 0.0, 1.0, 1.0, grad)
+        self.scheme.walls.add_ghost_grad_c(self.system, 0.0, 1.0, 1.0, grad)
         return norms(self.sim.comm, grad, rows, self.system.kernel.h)
 
     def check(self, step, t, dt) -> None:
@@ -637,7 +635,7 @@ class FluidDriver(Driver):
             local = ((-2, 0.0), f"a particle's density or volume fell to "
                      f"{min(p.owned('density')[k], p.owned('volume')[k]):.3g} (at or below zero)",
                      p.owned("density")[k] <= 0.0)
-        elif self.scheme.walls is not None and (hit := self.scheme.walls.trespassers(
+        elif (hit := self.scheme.walls.trespassers(
                 p.owned("position")[fluid_mask(self.system)], t, 0.5 * self.scene.domain.dx,
                 gids[fluid_mask(self.system)])) is not None:
             k = int(np.flatnonzero(fluid_mask(self.system))[hit[0]])

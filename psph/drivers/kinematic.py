@@ -22,6 +22,7 @@ import time
 import numpy as np
 
 from psph.analytic import taylor_green
+from psph.boundaries.clone import NO_WALLS
 from psph.diagnostics import distribution_report, grad_c
 from psph.drivers.base import Driver, resumed_state
 from psph.errors import NumericalError
@@ -42,7 +43,7 @@ def step_count(t_end, dt) -> int:
 
 
 class KinematicDriver(Driver):
-    walls = None  # what an explicit law reads of the scheme it shifts in (shift_by_law): a bi-periodic box
+    walls = NO_WALLS  # what an explicit law reads of the scheme it shifts in (shift_by_law): a bi-periodic box
 
     @staticmethod
     def describe(scene) -> list:

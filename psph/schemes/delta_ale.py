@@ -17,6 +17,7 @@ The kernels are in psph.compute.fluid.
 
 import numpy as np
 
+from psph.boundaries.clone import make_walls
 from psph.boundaries.free_surface import FreeSurface, make_free_surface
 from psph.boundaries.open import make_inflows
 from psph.compute.fluid import (
@@ -75,15 +76,11 @@ class DeltaALE:
         # rows of Kind.INLET and OUTLET keep the fields psph.boundaries.open prescribes
         self.prescribed = bool(scene.inflow) or scene.domain.outflow_buffer
         self.ramps = [f for f in make_inflows(scene) if f.ramp > 0.0]  # buffers whose velocity rises (ramp_time)
-        self.walls = None
-        if scene.bodies:
-            from psph.boundaries.clone import WallTerms
-
-            self.walls = WallTerms(scene)
-            # with ghost walls the scene has no shifting near a free surface (schema): only the switches'
-            # detection runs, and it sees the fluid along them with their images
-            if self.walls.ghost is not None and self.step_surface is not None:
-                self.step_surface.ghost_walls = self.walls
+        self.walls = make_walls(scene)
+        # with ghost walls the scene has no shifting near a free surface (schema): only the switches' detection
+        # runs, and it sees the fluid along them with their images
+        if self.walls.ghost is not None and self.step_surface is not None:
+            self.step_surface.ghost_walls = self.walls
 
     # ------------------------------------------------------------ description
     def describe(self) -> list:
@@ -114,9 +111,7 @@ class DeltaALE:
             lines.append(f"diffusive terms only between fluid particles with lambda > {self.lambda_diffusion:g} "
                          "(seed 001 section 6.3: none in thin jets and drops)")
         lines.append(self.shift.describe())
-        if self.walls is not None:
-            lines += self.walls.describe()
-        return lines
+        return lines + self.walls.describe()
 
     # ----------------------------------------------------------------- fields
     def field_specs(self):
@@ -125,23 +120,14 @@ class DeltaALE:
         if self.shift.active:
             specs.append(FieldSpec("shift_velocity", ("d",)))
         surface = self.step_surface if self.step_surface is not None else self.surface
-        specs += list(self.shift.fields) + list(surface.fields)
-        if self.walls is not None:
-            from psph.boundaries import SOLID_FIELDS
-
-            specs += list(SOLID_FIELDS)
-        return specs
+        return specs + list(self.shift.fields) + list(surface.fields) + list(self.walls.fields)
 
     def halo_fields(self):
         # volume0: read at neighbours by the fictitious pressure (eq. 7.3) and by IIPS + NFTS (copied at
         # rebuilds only: it never changes)
         names = ["position", "gid", "kind", "volume", "volume0", "density", "mass", "velocity", "pressure",
                  "grad_rho"]
-        if self.walls is not None:
-            from psph.boundaries import SOLID_HALO_FIELDS
-
-            names += list(SOLID_HALO_FIELDS)
-        return names + (["shift_velocity"] if self.shift.active else [])
+        return names + list(self.walls.halo_fields) + (["shift_velocity"] if self.shift.active else [])
 
     def initialize(self, system, t=0.0, fresh=True):
         """Density from the initial pressure (or rho0), masses from volumes, the volumes V0; solids placed
@@ -151,10 +137,9 @@ class DeltaALE:
             p.add_field(spec)
         if fresh:
             self._initial_fields(p)
-        if self.walls is not None:
-            if not fresh:
-                self.walls.link_nodes(system)
-            self.walls.place(system, t)
+        if not fresh:
+            self.walls.link_nodes(system)
+        self.walls.place(system, t)
         for name in self.halo_fields():
             system.add_halo_field(name)
         system.refresh(self.halo_fields())
@@ -169,7 +154,7 @@ class DeltaALE:
         p.owned("pressure")[:] = self.eos.pressure(p.owned("density"))
         if "transport_velocity" in p:
             p.owned("transport_velocity")[:] = p.owned("velocity")
-        if self.walls is not None:
+        if self.walls.active:
             solid = (p.owned("kind") == Kind.WALL) | (p.owned("kind") == Kind.BODY)
             p.owned("density")[solid] = self.rho0
             p.owned("mass")[solid] = self.rho0 * p.owned("volume")[solid]
@@ -251,10 +236,10 @@ class DeltaALE:
     def rhs(self, system, t, dt) -> dict:
         """d(state)/dt at the current state (owned rows). Collective (halo exchanges)."""
         p = system.particles
-        walls = self.walls is not None
-        if walls:  # solid velocities, normals and accelerations at the stage time
+        walls = self.walls.active  # (the kernel's dispatch: solid neighbours or none)
+        self.walls.place(system, t, positions=False)  # solid velocities, normals, accelerations at the stage time
+        if walls:  # (a halo exchange: none without solids)
             with phase("walls"):
-                self.walls.place(system, t, positions=False)
                 system.refresh(["normal", "wall_accel", "wall_velocity"])
         system.refresh(["density", "mass", "velocity", "volume", "pressure"])
         self.shift_and_density_gradient(system, t, dt, fluid_only=walls)
@@ -270,9 +255,7 @@ class DeltaALE:
                       p["grad_rho"], self.pairs, kp, self.c0, self.delta, self.delta_m,
                       self.mu, self.gravity, self.variant, self.shift.active, self.tensile_rows(system), p["kind"],
                       walls, d_rho, d_mass, d_mom, morris=self.morris, diffusive=self.diffusion_rows(system))
-        if walls:
-            with phase("walls"):
-                self.walls.add(system, self, t, d_rho, d_mom)
+        self.walls.add(system, self, t, d_rho, d_mom)
         if self.free_stream is not None:
             self._drive_free_stream(system, t, d_mom)
         if self.prescribed:  # open-boundary particles move at their prescribed velocity, fields unchanged

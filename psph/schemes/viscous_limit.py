@@ -22,6 +22,7 @@ run_scripts/viscous_limit_check.py; tests/schemes/test_viscous_limit.py checks a
 
 import numpy as np
 
+from psph.boundaries.clone import NO_WALLS
 from psph.compute.sums import largest_kernel_factor_sum
 from psph.diagnostics import fluid_mask
 from psph.parallel.comm import allreduce_max
@@ -90,7 +91,7 @@ class ViscousLimit:
     def __init__(self, kernel, dim: int, dx: float, nu: float, morris: bool, integrator: str, walls=None):
         """walls: the scheme's boundaries.clone.WallTerms, whose no-slip clones weigh a row's velocity more than
         a fluid neighbour does (WallTerms.viscous_weight), or None."""
-        self.nu, self.morris, self.walls = nu, morris, walls
+        self.nu, self.morris, self.walls = nu, morris, NO_WALLS if walls is None else walls
         self.lattice, self.diagonal = lattice_symbol(kernel, dim, dx, morris)
         self.step = SAFETY * REAL_AXIS_REACH[integrator] / (nu * self.lattice) if nu > 0.0 else np.inf
 
@@ -98,7 +99,7 @@ class ViscousLimit:
     def of_scene(cls, scene, scheme, kernel):
         """The limit of `scene` run with `scheme` (its nu, operator and walls) and `kernel`."""
         return cls(kernel, scene.domain.dimension, scene.domain.dx, scheme.nu, scheme.morris, scene.time.integrator,
-                   getattr(scheme, "walls", None))
+                   scheme.walls)
 
     def __call__(self, system, dt_cfl: float, t: float) -> float:
         """The viscous limit on the step of `system` at time t now, or inf where it cannot bind. Collective."""
@@ -106,9 +107,7 @@ class ViscousLimit:
             return np.inf
         p = system.particles
         rows = np.flatnonzero(fluid_mask(system))
-        d = p.dim
-        extra = np.zeros((0, d, d)) if self.walls is None else self.walls.viscous_weight(system, rows, t,
-                                                                                        not self.morris)
+        extra = self.walls.viscous_weight(system, rows, t, not self.morris)
         local = largest_kernel_factor_sum(p["position"], p["volume"], system.nbr_ptr, system.nbr_idx,
                                           system.kernel.params, rows, not self.morris, extra)
         spread = max(1.0, allreduce_max(system.comm, local) / self.diagonal)

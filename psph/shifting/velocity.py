@@ -99,8 +99,7 @@ def _grad_c_hat(law, system, scheme, grad):
         out = np.zeros((p.n_owned, p.dim))
         corrected_grad_c(p["position"], p["volume"], system.nbr_ptr, system.nbr_idx, k.params, coeff, power,
                          w_ref, out)
-    if scheme.walls is not None:
-        scheme.walls.add_ghost_grad_c(system, coeff, power, w_ref, out)
+    scheme.walls.add_ghost_grad_c(system, coeff, power, w_ref, out)
     return out
 
 
