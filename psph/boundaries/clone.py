@@ -123,10 +123,10 @@ class WallTerms:
         """(row, body name) of the one of lowest `gid` among `pos` (fluid positions, `gid` theirs) that lie more
         than `margin` inside an immersed body or outside a container (box, polygon) at time t, or None (the
         lowest gid, not the first row: the particle named does not depend on the rank count, a review)."""
-        found = None
         from psph.boundaries.bodies import within_walls
         from psph.boundaries.geometry import inside, shape_spec
 
+        found = None
         for b in self.bodies:
             center, rot = b.rigid(t)[:2]
             angle = b.spec.angle + np.degrees(np.arctan2(rot[1, 0], rot[0, 0]))
