@@ -705,6 +705,7 @@ def test_lind_laws_stability_limit_is_where_it_turns(h_over_dx):
     any D, by 1 + D |lambda_min| per iteration, at half the limit too."""
     from types import SimpleNamespace
 
+    from psph.boundaries.clone import NO_WALLS
     from psph.shifting.explicit import stability_limit
     from psph.shifting.velocity import Lind, _grad_c_hat
 
@@ -717,7 +718,7 @@ def test_lind_laws_stability_limit_is_where_it_turns(h_over_dx):
         scene = periodic_scene(dim=dim, n=n, h_over_dx=h_over_dx, sigma=1e-4, shifting={"method": "lind"},
                                physics={"scheme": "delta_ale"}, time={"t_end": 0.1})
         system = build_system(scene, MPI.COMM_SELF)
-        law, walls = Lind(scene), SimpleNamespace(walls=None)
+        law, walls = Lind(scene), SimpleNamespace(walls=NO_WALLS)
         ref = build_system(unperturbed(scene), MPI.COMM_SELF).particles
         lattice = np.empty((n ** dim, dim))
         lattice[ref.owned("gid")] = ref.owned("position")
@@ -941,6 +942,7 @@ def test_lind_laws_2d_limit_is_where_its_fastest_wave_turns():
     starts from round-off and stays below both."""
     from types import SimpleNamespace
 
+    from psph.boundaries.clone import NO_WALLS
     from psph.shifting.explicit import stability_limit
     from psph.shifting.velocity import Lind, _grad_c_hat
 
@@ -959,7 +961,7 @@ def test_lind_laws_2d_limit_is_where_its_fastest_wave_turns():
         law = Lind(scene)
         for _ in range(100):
             p.owned("position")[:] -= factor * limit * system.kernel.h ** 2 * _grad_c_hat(
-                law, system, SimpleNamespace(walls=None), None)
+                law, system, SimpleNamespace(walls=NO_WALLS), None)
             system.update()
         moved = system.domain.minimum_image(p.owned("position") - start[p.owned("gid")])
         amplitudes.append(2.0 * float((moved[:, 0] * lind_wave(start[p.owned("gid"), 0] / dx)).mean()) / dx)
