@@ -129,12 +129,11 @@ def check_started_viewer_files(comm=None) -> None:
     from petsc4py import PETSc
 
     from psph.errors import UsageError
+    from psph.parallel.comm import on_root
 
     database = PETSc.Options()
     flat = [item for name, value in database.getAll().items() for item in (f"-{name}", value or "")]
-    refused = _unwritable_viewers(flat) if comm is None or comm.rank == 0 else None
-    if comm is not None and comm.size > 1:
-        refused = comm.bcast(refused, root=0)
+    refused = _unwritable_viewers(flat) if comm is None else on_root(comm, lambda: _unwritable_viewers(flat))
     for name, _ in refused:  # (a review: the second of two still failed in PetscFinalize)
         database.delValue(name[1:])
     if refused:  # (a review: only the first was named, though all were removed)
@@ -162,8 +161,12 @@ def _rank_0_reads(path, comm=None) -> bool:
     reads an options file on, can read `path` (a readable file or pipe: not a directory). Collective over
     comm: a rank that does not see rank 0's file system would otherwise stop alone while rank 0 went on into
     PETSc's start."""
-    readable = os.access(path, os.R_OK) and not os.path.isdir(path)
-    return comm.bcast(readable, root=0) if comm is not None and comm.size > 1 else readable
+    from psph.parallel.comm import on_root
+
+    def readable():
+        return os.access(path, os.R_OK) and not os.path.isdir(path)
+
+    return readable() if comm is None else on_root(comm, readable)
 
 
 # glibc's mallopt parameters
