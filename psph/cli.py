@@ -7,6 +7,8 @@ untouched (`-iips_pc_type hypre -log_view`). Errors print one line `psph: error:
 """
 
 import argparse
+import decimal
+import math
 import os
 import re
 import signal
@@ -104,6 +106,15 @@ def split_petsc_options(argv):
             ours.append(tok)
         k += 1
     return ours, petsc
+
+
+ARGPARSE_NEGATIVE = re.compile(r"^-\d+$|^-\d*\.\d+$")  # what argparse itself reads as a negative number
+
+
+def plain_negative_numbers(argv):
+    """Write negative numbers in exponent form (-1e-3) positionally (-0.001): argparse would take them for options."""
+    return [format(decimal.Decimal(repr(float(tok))), "f") if tok.startswith("-") and _is_number(tok)
+            and math.isfinite(float(tok)) and not ARGPARSE_NEGATIVE.match(tok) else tok for tok in argv]
 
 
 def _is_number(tok: str) -> bool:
@@ -608,7 +619,7 @@ def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
         ours, petsc_options = split_petsc_options(argv)
-        args = _parser().parse_args(ours)
+        args = _parser().parse_args(plain_negative_numbers(ours))
         return COMMANDS[args.command](args, petsc_options, comm)
     except PsphError as err:
         if comm.size == 1 or is_collective(err):

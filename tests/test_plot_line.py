@@ -65,6 +65,8 @@ def test_a_line_cut_in_3d_and_through_the_air(tmp_path):
     (["0", "0.5", "1"], "--line: a 2-D run's segment takes 4 numbers (its two ends' coordinates), got 3"),
     (["-0.5", "0.5", "1", "0.5"], "--line: the end [-0.5, 0.5] lies outside the domain along axis 0 (0 .. 1)"),
     (["0", "0.5", "1", "x"], "argument --line: invalid float value: 'x'"),
+    # (argparse took a number in exponent form for an option: "unrecognized arguments")
+    (["-1e-3", "0.5", "1", "0.5"], "--line: the end [-0.001, 0.5] lies outside the domain along axis 0 (0 .. 1)"),
     # (a review: nan passed and was told "no fluid"; a point or a single point drew nothing)
     (["0", "nan", "1", "0.5"], "--line: the ends' coordinates must be finite numbers, got [0.0, nan, 1.0, 0.5]"),
     (["0.5", "0.5", "0.5", "0.5"], "--line: the two ends coincide"),
