@@ -26,7 +26,6 @@ from psph.compute.walls import (
 from psph.parallel.comm import allreduce_sum
 from psph.particles import Kind
 from psph.profiling import phase
-from psph.schemes.eos import GAMMA
 
 NEAR_NODES = 16  # WallTerms.keep_shift_off: the body nodes a row looks at (within dx/2: 5 on a side, ds = dx/4)
 MOTIONS = {"fixed": "fixed", "constant": "constant velocity", "ramp": "ramped velocity",
@@ -289,7 +288,6 @@ class WallTerms:
 
     def _add(self, system, scheme, t, d_rho, d_mom):
         p = system.particles
-        eos_b = getattr(scheme.eos, "b", 0.0)
         self.force[:] = 0.0
         self.measured = True
         self.particle_force = np.zeros((system.particles.n_owned, 2))
@@ -299,23 +297,23 @@ class WallTerms:
         switch = scheme.tensile_rows(system)
         no_pull = scheme.no_pull_rows(system)
         if self.clones:
-            self._add_clones(system, scheme, t, du, eos_b, switch, no_pull, d_rho, d_mom)
+            self._add_clones(system, scheme, t, du, switch, no_pull, d_rho, d_mom)
         if self.ghost is not None:
             rows, images = self._ghost_images(system)
             w = self.ghost
             ghost_rhs(p["position"], p["volume"], p["density"], p["velocity"], du, p["pressure"], rows, *images,
                       w["axis"], w["coord"], w["velocity"], w["no_slip"], system.kernel.params, scheme.c0,
-                      scheme.rho0, eos_b, GAMMA, scheme.mu, scheme.morris, self.gravity, scheme.variant,
+                      scheme.rho0, scheme.eos.tait, scheme.mu, scheme.morris, self.gravity, scheme.variant,
                       scheme.shift.active, switch, d_rho, d_mom)
 
-    def _add_clones(self, system, scheme, t, du, eos_b, switch, no_pull, d_rho, d_mom):
+    def _add_clones(self, system, scheme, t, du, switch, no_pull, d_rho, d_mom):
         p = system.particles
         rows = near_wall_rows(p["kind"], system.nbr_ptr, system.nbr_idx)
         n_i, s_i = self.nearest_node_data(system, rows, t)
         clone_rhs(p["position"], p["volume"], p["density"], p["velocity"], du, p["pressure"], p["kind"],
                   p["body"], p["normal"], p["wall_distance"], p["wall_accel"], p["wall_velocity"], rows, n_i, s_i,
                   self.no_slip,
-                  system.nbr_ptr, system.nbr_idx, system.kernel.params, scheme.c0, scheme.rho0, eos_b, GAMMA,
+                  system.nbr_ptr, system.nbr_idx, system.kernel.params, scheme.c0, scheme.rho0, scheme.eos.tait,
                   scheme.mu, scheme.morris, self.gravity, self.ds, scheme.variant, scheme.shift.active,
                   switch, no_pull, self.centers, d_rho, d_mom, self.force, self.torque, self.particle_force)
 

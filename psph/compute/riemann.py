@@ -27,10 +27,9 @@ fluxes are the centred SPH-ALE ones (eq. 5.45 with F_ij = (F_i + F_j) / 2).
 import numpy as np
 from numba import njit
 
+from psph.compute.eos import density, pressure, sound_speed
 from psph.compute.jit import per_dimension
 from psph.compute.sums import pair2, solve_symmetric
-
-TAIT_GAMMA = 7.0  # Tait's exponent (thesis eq. 5.4), for every module (schemes.eos.GAMMA is this)
 
 
 @njit(cache=True, inline="always")
@@ -47,41 +46,20 @@ def _slope(a, b, limited):
     return minmod(a, b) if limited else a
 
 
-@njit(cache=True, inline="always")
-def _pressure(rho, c0, rho0, tait):
-    if tait:
-        return c0 * c0 * rho0 / TAIT_GAMMA * ((rho / rho0) ** TAIT_GAMMA - 1.0)
-    return c0 * c0 * (rho - rho0)
-
-
-@njit(cache=True, inline="always")
-def _density(p, c0, rho0, tait):
-    if tait:
-        return rho0 * (1.0 + p * TAIT_GAMMA / (c0 * c0 * rho0)) ** (1.0 / TAIT_GAMMA)
-    return rho0 + p / (c0 * c0)
-
-
-@njit(cache=True, inline="always")
-def _sound_speed(rho, c0, rho0, tait):
-    if tait:  # c^2 = dp/drho = c0^2 (rho / rho0)^(gamma - 1)
-        return c0 * (rho / rho0) ** (0.5 * (TAIT_GAMMA - 1.0))
-    return c0
-
-
 @njit(cache=True)
 def acoustic_riemann(rho_l, u_l, rho_r, u_r, c0, rho0, tait):
     """(rho^E, u^E, p^E) of the linearised Riemann problem between (rho_l, u_l) and (rho_r, u_r), u the
     velocity component along the left-to-right axis: Toro's PVRS (ch. 9; the module's formulas), the
     interface state of thesis eq. 5.48's fluxes."""
-    p_l = _pressure(rho_l, c0, rho0, tait)
-    p_r = _pressure(rho_r, c0, rho0, tait)
+    p_l = pressure(rho_l, c0, rho0, tait)
+    p_r = pressure(rho_r, c0, rho0, tait)
     rho_bar = 0.5 * (rho_l + rho_r)
-    z = rho_bar * _sound_speed(rho_bar, c0, rho0, tait)
+    z = rho_bar * sound_speed(rho_bar, c0, rho0, tait)
     u_s = 0.5 * (u_l + u_r) + 0.5 * (p_l - p_r) / z
     # particles separating faster than the states' pressures allow open a vacuum between them (Toro 2009,
     # ch. 4): p^E no lower than the equation of state's p(0), where rho^E = 0 (no NaN from Tait's root)
-    p_s = max(0.5 * (p_l + p_r) + 0.5 * z * (u_l - u_r), _pressure(0.0, c0, rho0, tait))
-    return _density(p_s, c0, rho0, tait), u_s, p_s
+    p_s = max(0.5 * (p_l + p_r) + 0.5 * z * (u_l - u_r), pressure(0.0, c0, rho0, tait))
+    return density(p_s, c0, rho0, tait), u_s, p_s
 
 
 @njit(cache=True)
@@ -93,9 +71,9 @@ def low_dissipation_pressure(rho_l, u_l, rho_r, u_r, c0, rho0, tait):
     density jump.) Never below p(0): the states' mean is not, and the dissipation adds only where they
     approach."""
     rho_bar = 0.5 * (rho_l + rho_r)
-    c = _sound_speed(rho_bar, c0, rho0, tait)
+    c = sound_speed(rho_bar, c0, rho0, tait)
     beta = min(3.0 * max(u_l - u_r, 0.0), c)
-    return 0.5 * (_pressure(rho_l, c0, rho0, tait) + _pressure(rho_r, c0, rho0, tait)) + 0.5 * rho_bar * beta * (
+    return 0.5 * (pressure(rho_l, c0, rho0, tait) + pressure(rho_r, c0, rho0, tait)) + 0.5 * rho_bar * beta * (
         u_l - u_r)
 
 

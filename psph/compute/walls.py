@@ -41,19 +41,10 @@ body forces; the torque about the body centre too.
 import numpy as np
 from numba import njit
 
+from psph.compute import eos
 from psph.compute.shift_velocity import fast_power
 from psph.compute.smoothing import kernel_f, kernel_w
 from psph.compute.sums import pair, solid
-
-
-@njit(cache=True)
-def _eos_density(p, rho0, c0, eos_b, eos_gamma):
-    """rho from p: Tait (p = eos_b ((rho/rho0)^gamma - 1), thesis eq. 5.4) where eos_b > 0, else linear (seed
-    001 eq. 1); schemes.eos inverted: the clone's density from its pressure (seed 004 eq. 8-9)."""
-    if eos_b > 0.0:
-        base = 1.0 + p / eos_b
-        return rho0 * (base if base > 0.0 else 0.0) ** (1.0 / eos_gamma)
-    return rho0 + p / (c0 * c0)
 
 
 @njit(cache=True)
@@ -191,7 +182,7 @@ def clone_viscous_weight(pos, vol, kind, body, normal, wall_dist, rows, s_i_all,
 
 @njit(cache=True)
 def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel, wall_vel, rows, n_i_all, s_i_all,
-              no_slip, ptr, idx, kp, c0, rho0, eos_b, eos_gamma, mu, morris, gravity, ds_min, variant,
+              no_slip, ptr, idx, kp, c0, rho0, tait, mu, morris, gravity, ds_min, variant,
               with_shift, tensile_switch, no_pull, centers, d_rho, d_mom, force, torque, particle_force):
     """Add the solid neighbours' contributions to the owned fluid `rows` (2-D).
 
@@ -201,7 +192,7 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
     made per body; wall_vel: the velocity
     of each solid particle's own closest node (u_b of eq. 6-7; the same as the fluid particle's closest
     node's on a smooth rigid wall, and the consistent choice at the corners of a lid).
-    no_slip: per body; eos_b > 0 selects Tait (p = eos_b ((rho/rho0)^gamma - 1)), else linear.
+    no_slip: per body; tait: Tait's equation of state, else the linear (psph.compute.eos).
     tensile_switch: per particle, 1 where p_j - p_i replaces p_j + p_i in its pressure force when p_i < 0
     (eq. 3; 0 in the free-surface region and where the switch is off).
     no_pull: per particle, 1 where the wall may not pull the particle (the free-surface region without
@@ -277,7 +268,7 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
             dt = di0 * t0 + di1 * t1
             c, q0, q1, v0, v1, h0, h1, f0, f1 = _wall_pair(
                 x0, x1, rr, kernel_f(rr, kp) * vol[j], rho_i, p_i, ui0, ui1, di0, di1,
-                _eos_density(p_j, rho0, c0, eos_b, eos_gamma), p_j, ud0, ud1, ul0, ul1,
+                eos.density(p_j, c0, rho0, tait), p_j, ud0, ud1, ul0, ul1,
                 dt * t0 - dn * n0, dt * t1 - dn * n1, with_shift, switch, variant, morris)
             cont += c
             gp0 += q0
@@ -402,7 +393,7 @@ def _mirror(vel, du, j, walls, w_axis, w_vel, no_slip):
 
 @njit(cache=True)
 def ghost_rhs(pos, vol, rho, vel, du, prs, rows, img_ptr, img_j, img_w, w_axis, w_coord, w_vel, no_slip, kp, c0,
-              rho0, eos_b, eos_gamma, mu, morris, gravity, variant, with_shift, tensile_switch, d_rho, d_mom):
+              rho0, tait, mu, morris, gravity, variant, with_shift, tensile_switch, d_rho, d_mom):
     """Add the ghost images' contributions to the owned fluid `rows` (2-D; images from ghost_images)."""
     for r in range(rows.size):
         i = rows[r]
@@ -423,7 +414,7 @@ def ghost_rhs(pos, vol, rho, vel, du, prs, rows, img_ptr, img_j, img_w, w_axis, 
             p_g = prs[j] + rho[j] * (gravity[0] * (g0 - pos[j, 0]) + gravity[1] * (g1 - pos[j, 1]))
             c, q0, q1, v0, v1, h0, h1, _, _ = _wall_pair(
                 x0, x1, rr, kernel_f(rr, kp) * vol[j], rho_i, p_i, ui0, ui1, di0, di1,
-                _eos_density(p_g, rho0, c0, eos_b, eos_gamma), p_g, ud[0], ud[1], ul[0], ul[1],
+                eos.density(p_g, c0, rho0, tait), p_g, ud[0], ud[1], ul[0], ul[1],
                 dd[0] if with_shift else 0.0, dd[1] if with_shift else 0.0, with_shift, switch, variant, morris)
             cont += c
             gp0 += q0

@@ -122,7 +122,7 @@ def warm_up(dim: int, kernel_name: str, parts=PARTS) -> None:
         rows = gid.copy()
         images = walls.ghost_images(pos, kind, rows, ghosts, ptr, idx, kernel.support)
         walls.ghost_rhs(pos, vol, field, vector, vector, scalar, rows, *images, ghosts["axis"], ghosts["coord"],
-                        np.zeros((1, 2)), True, kp, 1.0, 1.0, 0.0, 7.0, 0.1, True, np.zeros(2), 0, True,
+                        np.zeros((1, 2)), True, kp, 1.0, 1.0, False, 0.1, True, np.zeros(2), 0, True,
                         np.zeros(n, dtype=np.int8), scalar.copy(), vector.copy())
         for mat in (walls.NO_MATRIX, tensor.copy()):
             walls.ghost_grad_c(pos, vol, rows, *images, ghosts["axis"], ghosts["coord"], kp, 0.0, 1.0, 1.0,
@@ -132,7 +132,7 @@ def warm_up(dim: int, kernel_name: str, parts=PARTS) -> None:
         bodies = 1
         walls.clone_rhs(pos, vol, field, vector, vector, scalar, kind, np.zeros(n, dtype=np.int64), vector, scalar,
                         vector, vector, rows, np.zeros((0, bodies, 2)), np.zeros((0, bodies)),
-                        np.zeros(bodies, dtype=np.bool_), ptr, idx, kp, 1.0, 1.0, 0.0, 7.0, 0.1, True, np.zeros(2),
+                        np.zeros(bodies, dtype=np.bool_), ptr, idx, kp, 1.0, 1.0, False, 0.1, True, np.zeros(2),
                         0.1, 0, True, np.zeros(n, dtype=np.int8), np.zeros(n, dtype=np.int8), np.zeros((bodies, 2)),
                         scalar.copy(), vector.copy(), np.zeros((bodies, 2, 2)), np.zeros((bodies, 2)), np.zeros((n, 2)))
         walls.off_walls(np.zeros((1, 2, 2)), np.zeros(1, dtype=np.int64), vector.copy())

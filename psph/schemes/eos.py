@@ -1,71 +1,32 @@
-"""Equations of state of the weakly compressible fluid.
-
-linear: p = c0^2 (rho - rho0)                                  (seed 001 eq. 1)
-tait:   p = c0^2 rho0 / gamma [(rho / rho0)^gamma - 1],  gamma = 7  (thesis eq. 5.4, p0 = 0)
-
-Out of range (Tait's density of p < -B, an overflow) they give NaN or inf without numpy's warning: the fluid
-driver's check names the particle and the step.
-"""
-
-import functools
+"""The scene's equation of state (physics.eos): psph.compute.eos's formulas with the scene's c0 and rho0."""
 
 import numpy as np
 
-from psph.compute.riemann import TAIT_GAMMA
-
-GAMMA = TAIT_GAMMA
+from psph.compute import eos as formulas
 
 
-def quiet(method):
-    """`method` without numpy's floating-point warnings (a fresh errstate per call: a shared one is not
-    re-entrant)."""
-    @functools.wraps(method)
-    def call(*args):
+class EquationOfState:
+    """p(rho), rho(p) and the sound speed of the linear law (seed 001 eq. 1) or Tait's (thesis eq. 5.4),
+    elementwise over arrays. Out of range (an overflow, a NaN) they give inf or NaN without numpy's warning:
+    the fluid driver's check names the particle and the step."""
+
+    def __init__(self, name, c0, rho0):  # name: "linear" or "tait" (the schema's choices)
+        self.name, self.c0, self.rho0 = name, c0, rho0
+        self.tait = name == "tait"
+
+    def _apply(self, formula, values):
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            return method(*args)
-    return call
+            return formula(np.asarray(values, dtype=np.float64), self.c0, self.rho0, self.tait)
 
-
-class LinearEOS:
-    name = "linear"
-
-    def __init__(self, c0, rho0):
-        self.c0, self.rho0 = c0, rho0
-
-    @quiet
     def pressure(self, rho):
-        return self.c0 ** 2 * (rho - self.rho0)
+        return self._apply(formulas.pressure, rho)
 
-    @quiet
     def density(self, p):
-        return self.rho0 + p / self.c0 ** 2
+        return self._apply(formulas.density, p)
 
     def sound_speed(self, rho):
-        """c = sqrt(dp/drho) = c0 at any density."""
-        return np.full_like(np.asarray(rho, dtype=np.float64), self.c0)
+        return self._apply(formulas.sound_speed, rho)
 
 
-class TaitEOS:
-    name = "tait"
-
-    def __init__(self, c0, rho0):
-        self.c0, self.rho0 = c0, rho0
-        self.b = c0 ** 2 * rho0 / GAMMA
-
-    @quiet
-    def pressure(self, rho):
-        return self.b * ((rho / self.rho0) ** GAMMA - 1.0)
-
-    @quiet
-    def density(self, p):
-        return self.rho0 * (1.0 + np.asarray(p) / self.b) ** (1.0 / GAMMA)
-
-    @quiet
-    def sound_speed(self, rho):
-        """c = sqrt(dp/drho) = c0 (rho / rho0)^((gamma - 1) / 2): 1.33 c0 at 10% compression."""
-        return self.c0 * (np.asarray(rho) / self.rho0) ** (0.5 * (GAMMA - 1.0))
-
-
-def make_eos(physics):
-    cls = {"linear": LinearEOS, "tait": TaitEOS}[physics.eos]
-    return cls(physics.sound_speed, physics.density)
+def make_eos(physics) -> EquationOfState:
+    return EquationOfState(physics.eos, physics.sound_speed, physics.density)

@@ -31,10 +31,10 @@ du = dx / dt.
 
 import numpy as np
 
+from psph.compute.eos import TAIT_GAMMA
 from psph.compute.shift_velocity import corrected_grad_c, limit_magnitude, neuhauser_acceleration
 from psph.diagnostics import fluid_mask
 from psph.particles import FieldSpec
-from psph.schemes.eos import GAMMA as TAIT_GAMMA
 
 # the key that scales an uncapped explicit shifting law's velocity (delta+ and Lind's are capped at U/2, and
 # Neuhauser's P^F reads no P_S)

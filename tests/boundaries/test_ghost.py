@@ -82,7 +82,7 @@ def ghost_rates(f, kern, variant, with_shift, no_slip, morris=False, gravity=(0.
     images = ghost_images(f["pos"], kind, rows, walls, ptr, idx, kern.support)
     d_rho, d_mom = fluid_rates(f, n, kern, variant, with_shift, morris)
     ghost_rhs(f["pos"], f["vol"], f["rho"], f["vel"], f["du"], f["prs"], rows, *images, walls["axis"],
-              walls["coord"], walls["velocity"], no_slip, kern.params, C0, RHO0, 0.0, 7.0, MU, morris,
+              walls["coord"], walls["velocity"], no_slip, kern.params, C0, RHO0, False, MU, morris,
               np.array(gravity), variant, with_shift, np.ones(n, dtype=np.int8), d_rho, d_mom)
     return d_rho, d_mom, images
 
