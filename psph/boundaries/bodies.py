@@ -117,7 +117,9 @@ class Body:
             self.lid = local[:, 1] > spec.size[1] / 2.0 - tol
             if not periodic[0]:
                 self.lid &= np.abs(local[:, 0]) < spec.size[0] / 2.0 - tol
-        self.lid_velocity = np.asarray(spec.lid_velocity or (0.0, 0.0), dtype=np.float64)
+        # given along the lid (the box's own frame): turned with the box (an audit: a box at 30 degrees moved
+        # its lid at -0.5 U through itself)
+        self.lid_velocity = np.asarray(spec.lid_velocity or (0.0, 0.0), dtype=np.float64) @ _rot(spec.angle).T
         self._fixed_nodes = None
         if spec.reference_length > 0:
             self.reference_length = spec.reference_length

@@ -253,3 +253,25 @@ def test_a_container_s_solid_rows_meet_at_its_corners_without_a_gap(case, sets):
     inner = (pos > np.asarray(lower)) & (pos < np.asarray(upper))
     expected = np.prod(np.where(inner, np.asarray(spacing), dx), axis=1)
     assert np.allclose(vol, expected, rtol=1e-12, atol=0.0)
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0, -120.0])
+def test_a_lid_moves_along_itself_however_the_box_is_turned(angle):
+    """bodies[].lid_velocity is tangential in the box's own frame: on a box turned by `angle` the lid nodes
+    move at |U| along the lid, none across it (an audit: at 30 degrees the lid moved at -0.5 U through itself,
+    and a cavity blew up at step 3)."""
+    from psph.boundaries.bodies import make_bodies
+    from psph.scene.load import load_scene
+    from tests.helpers import CASES
+
+    scene = load_scene(CASES / "lid_driven_cavity.toml", [f"bodies.0.angle={angle}", "domain.lower=[-0.5, -0.5]",
+                                                           "domain.upper=[1.5, 1.5]", "domain.periodic=[false, false]"])
+    body = make_bodies(scene)[0]
+    _, normals, vel = body.nodes(0.0)
+    lid = body.lid
+    assert lid.sum() > 10 and not np.any(vel[~lid])
+    turned = np.deg2rad(angle)
+    assert np.allclose(normals[lid], [-np.sin(turned), np.cos(turned)], atol=1e-12) or \
+        np.allclose(normals[lid], [np.sin(turned), -np.cos(turned)], atol=1e-12)
+    assert np.abs(np.sum(vel[lid] * normals[lid], axis=1)).max() < 1e-12
+    assert np.allclose(np.linalg.norm(vel[lid], axis=1), np.linalg.norm(scene.bodies[0].lid_velocity), rtol=1e-12)
