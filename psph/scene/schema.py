@@ -308,7 +308,8 @@ class InitialSpec:
                                            "the domain)")
     fill_upper: tuple[float, ...] = option((), doc="upper corner of the fluid region (a tank's free surface)")
     pressure: str = option("zero", doc="initial pressure without an analytic velocity field: zero, or "
-                           "hydrostatic (rho0 |g| (free surface - depth) with gravity along -y)",
+                           "hydrostatic (rho0 |g| (y_s - y), the depth below the free surface y_s = fill_upper's y "
+                           "or the domain's top, with gravity along -y)",
                            choices=("zero", "hydrostatic"))
 
 
@@ -1018,6 +1019,9 @@ class Scene:
         ini, d, g = self.initial, self.domain, self.physics.gravity
         if ini.pressure != "hydrostatic":
             return
+        if ini.velocity in ("taylor_green", "elliptical_drop"):  # (an audit: it replaced Taylor-Green's silently)
+            raise SceneError("initial.pressure", f"\"hydrostatic\" with initial.velocity = \"{ini.velocity}\": that "
+                             "field comes with its own analytic pressure; give initial.pressure = \"zero\"")
         if d.dimension < 2:  # (a dimensions audit: the message below offered a 2-D gravity to a 1-D scene)
             raise SceneError("initial.pressure", "\"hydrostatic\" (p = rho0 |g| (y_s - y)) needs a y axis: a 2-D or "
                              "3-D scene")

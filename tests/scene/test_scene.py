@@ -405,6 +405,9 @@ def test_packing_is_accepted_with_clone_walls_and_a_free_surface():
     ("dam_break", ["physics.gravity=[0, 1]", "initial.pressure=zero"], "diagnostics.dam_break", "gravity along -y"),
     # a hydrostatic start needs gravity along -y (a fuzzing audit: a zero pressure, or of the wrong sign, else)
     ("dam_break", ["physics.gravity=[0, 1]"], "initial.pressure", "needs gravity along -y"),
+    # (a keys audit: the hydrostatic pressure replaced Taylor-Green's analytic one silently)
+    ("taylor_green", ["initial.pressure=hydrostatic", "physics.gravity=[0, -1]"], "initial.pressure",
+     "comes with its own analytic pressure"),
     ("dam_break", ["physics.gravity=[-1, 0]"], "initial.pressure", "got [-1.0, 0.0] in 2-D"),
     ("hydrostatic_tank", ["domain.dimension=1", "domain.lower=[0.0]", "domain.upper=[1.0]",
                           "domain.periodic=[false]", "bodies=[]", "physics.gravity=[-1.0]", "initial.fill_lower=[0.0]",
