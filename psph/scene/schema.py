@@ -895,8 +895,9 @@ class Scene:
                 if _methods_named(f.metadata["doc"]) and method not in _methods_named(f.metadata["doc"])]
         if method != "iips":
             pre = self.iips.pre_newton > 0 and scheme != "none"
-            keys += [f"iips.{name}" for name in IIPSSpec.__dataclass_fields__
-                     if not pre or name in ("procedure", "threshold", "beta", "beta_from", "max_newton")]
+            keys += [f"iips.{name}" for name in IIPSSpec.__dataclass_fields__  # (the pre-procedure has no
+                     if not pre or name in ("procedure", "threshold", "beta", "beta_from", "max_newton",  # threshold
+                                            "on_failure", "on_stall", "stall_max_shift")]  # and stops on failure)
         if self.iips.beta == 0.0 and "iips.beta_from" not in keys:
             keys.append("iips.beta_from")
         if not fluid:  # (an audit: a kinematic run's physics.reference_length, not its L, went unmentioned)
@@ -907,9 +908,24 @@ class Scene:
             keys += ["time.t_end", "time.cfl", "output.every", "output.history_every"]
         if self.iips.update not in ("mls1", "mls2"):
             keys.append("iips.mls_fit")
+        # (a keys audit: the following were read nowhere in such runs, and went unnamed)
+        if scheme == "riemann_ale":  # its fluxes have no tensile switch
+            keys.append("physics.tensile_switch")
+        if scheme in ("delta_ale_const_mass", "delta_ale_const_volume"):  # volumes follow the density there
+            keys.append("physics.max_volume_variation")
+        if self.physics.artificial_viscosity > 0.0:  # nu from alpha, not from U L / Re
+            keys += ["physics.reynolds", "physics.reference_length"]
+        if scheme != "none":  # a static run's
+            keys.append("diagnostics.stop_at_cartesian")
+        if method not in EXPLICIT_LAWS:  # restricts an explicit law's shifting velocity only
+            keys.append("free_surface.lambda_normal")
+        if method == "neuhauser" and self.shifting.fictitious_pressure:  # P^F replaces P_S
+            keys.append("shifting.neuhauser_ps")
+        if method == "explicit_iterative":  # a static run's count, or a time-dependent run's
+            keys.append("shifting.iterations_per_step" if scheme == "none" else "shifting.max_iterations")
         if not self.detects_free_surface():  # (a free-surface audit: they went unnamed)
             keys += [f"free_surface.{name}" for name in FreeSurfaceSpec.__dataclass_fields__]
-        return [key for key in keys if self._set(key)]
+        return [key for key in dict.fromkeys(keys) if self._set(key)]
 
     def detects_free_surface(self) -> bool:
         """Whether the run detects a free surface, which the free_surface keys tune: a shifting method or the

@@ -571,3 +571,41 @@ def test_free_surface_keys_are_named_unread_exactly_where_no_detection_runs():
             assert ("free_surface.lambda_surface" in scene.unread_keys()) == (not detects), (case, sets)
             seen[detects] += 1
     assert seen[True] >= 10 and seen[False] >= 10, seen
+
+
+@pytest.mark.parametrize("case, sets, key", [
+    # a keys audit: each was read nowhere in such a run, and psph info / run did not name it
+    ("taylor_green_thesis", ["physics.tensile_switch=false"], "physics.tensile_switch"),
+    ("kinematic_tgv", ["diagnostics.stop_at_cartesian=1.5"], "diagnostics.stop_at_cartesian"),
+    ("taylor_green", ["diagnostics.stop_at_cartesian=1.5"], "diagnostics.stop_at_cartesian"),
+    ("hydrostatic_tank", ["shifting.method=iips", "free_surface.lambda_normal=0.6"], "free_surface.lambda_normal"),
+    ("taylor_green", ["shifting.method=neuhauser", "iips.update=none", "shifting.fictitious_pressure=true",
+                      "shifting.neuhauser_ps=1"], "shifting.neuhauser_ps"),
+    ("dam_break", ["physics.reynolds=500"], "physics.reynolds"),
+    ("taylor_green", ["physics.scheme=delta_ale_const_mass", "physics.max_volume_variation=0.3"],
+     "physics.max_volume_variation"),
+    ("kinematic_tgv", ["shifting.method=explicit_iterative", "iips.beta=0", "iips.on_stall=stop"], "iips.on_stall"),
+    ("static_perturbed", ["shifting.method=explicit_iterative", "shifting.iterations_per_step=5"],
+     "shifting.iterations_per_step"),
+    ("kinematic_tgv", ["shifting.method=explicit_iterative", "iips.beta=0", "shifting.max_iterations=5"],
+     "shifting.max_iterations"),
+])
+def test_a_key_a_run_does_not_read_is_named(case, sets, key):
+    scene = load_scene(CASES / f"{case}.toml", sets)
+    assert key in scene.unread_keys(), scene.unread_keys()
+
+
+@pytest.mark.parametrize("case, sets", [
+    ("taylor_green", ["physics.tensile_switch=false"]),
+    ("static_perturbed", ["diagnostics.stop_at_cartesian=1.5"]),
+    ("hydrostatic_tank", ["shifting.method=delta_plus", "free_surface.lambda_normal=0.6"]),
+    ("taylor_green", ["shifting.method=neuhauser", "iips.update=none", "shifting.neuhauser_ps=1"]),
+    ("taylor_green", ["physics.reynolds=500"]),
+    ("taylor_green", ["physics.max_volume_variation=0.3"]),
+    ("kinematic_tgv", ["iips.on_stall=stop"]),
+    ("static_perturbed", ["shifting.method=explicit_iterative", "shifting.max_iterations=5"]),
+    ("kinematic_tgv", ["shifting.method=explicit_iterative", "iips.beta=0", "shifting.iterations_per_step=5"]),
+])
+def test_a_key_a_run_reads_is_not_named_unread(case, sets):
+    key = sets[-1].split("=")[0]
+    assert key not in load_scene(CASES / f"{case}.toml", sets).unread_keys()
