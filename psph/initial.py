@@ -102,7 +102,7 @@ def create_particles(scene, comm, specs=()) -> ParticleSet:
     """This rank's share of the initial particles (not yet spatially distributed): the fluid lattice
     (within the fill region and the walls, outside immersed bodies and inflow buffers), then the bodies'
     solid particles, then the inflow buffers' particles (psph.boundaries.open). Collective."""
-    from psph.boundaries import SOLID_FIELDS, fluid_mask, solid_arrays
+    from psph.boundaries import SOLID_FIELDS, in_fluid_region, solid_arrays
 
     dspec = scene.domain
     particles = ParticleSet(dspec.dimension)
@@ -112,7 +112,7 @@ def create_particles(scene, comm, specs=()) -> ParticleSet:
         for spec in SOLID_FIELDS:
             particles.add_field(spec, fill=-1 if spec.name == "body" else 0)
     gid, pos = lattice_block(dspec, comm.rank, comm.size)
-    keep = fluid_mask(scene, pos)
+    keep = in_fluid_region(scene, pos)
     gid, pos = gid[keep], pos[keep]
     if not scene.inflow and not allreduce_sum(comm, len(gid)):  # (a jet may start empty: its buffer fills it)
         ini = scene.initial

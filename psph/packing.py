@@ -63,7 +63,7 @@ def frame_positions(scene) -> np.ndarray:
         return np.concatenate(rings)
     if scene.free_surface_axis() is None:
         return np.zeros((0, d.dimension))
-    from psph.boundaries import fluid_mask as fills
+    from psph.boundaries import in_fluid_region as fills
 
     lo = np.asarray(scene.initial.fill_lower or d.lower, dtype=float)
     hi = np.asarray(scene.initial.fill_upper or d.upper, dtype=float)
@@ -89,7 +89,7 @@ def fluid_volume(scene):
     and a packed Gamma of 1.01: a packing audit); the dam-break column, B = 2 wide in a tank 5.367 wide,
     took the fitted cells whose centres it held, whole, which are not its own: V_tot off by -0.61% / +0.32%
     / -0.15% at dx = 0.1 / 0.05 / 0.025, and the flow's mass with it (a second packing audit)."""
-    from psph.boundaries import fluid_mask as fills
+    from psph.boundaries import in_fluid_region as fills
     from psph.boundaries import lattice_rows
 
     if scene.initial.drop_radius > 0:
@@ -252,11 +252,11 @@ def start_from_snapshot(scene, system, path) -> dict:
 
 
 def _near_fill(scene, points) -> np.ndarray:
-    """Which points lie within dx/2 (along an axis) of the scene's fluid region (psph.boundaries.fluid_mask:
+    """Which points lie within dx/2 (along an axis) of the scene's fluid region (psph.boundaries.in_fluid_region:
     the fill region or drop, outside the bodies): where a packing keeps its particles (the drop's frame
     starts dx/2 outside its rim; a packing audit's t = 0.1 snapshot of the stretched drop, started from
     and packed, put particles into the frame and diverged, blaming packing.cfl)."""
-    from psph.boundaries import fluid_mask as fills
+    from psph.boundaries import in_fluid_region as fills
 
     d = scene.domain
     near = fills(scene, points)

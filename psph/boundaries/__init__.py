@@ -17,7 +17,7 @@ def thickness(scene) -> float:
     return scene.domain.support
 
 
-def fluid_mask(scene, pos) -> np.ndarray:
+def in_fluid_region(scene, pos) -> np.ndarray:
     """Which lattice points the fluid fills: the fill region (or the drop's disc), inside every box, outside
     immersed bodies and inflow buffers."""
     keep = np.ones(len(pos), dtype=bool)

@@ -1028,7 +1028,7 @@ class Scene:
         fluid's top: the fluid is cut below it, by the domain or by a container, and its pressure was taken
         from the surface given, above the cut (an audit: a fill 0.3 above the tank's roof ran so, silently).
         The fluid's top is found on the lattice: the fill region's top row, and the rows below it, as
-        psph.boundaries.fluid_mask fills them, so that any container (box, rotated, polygon) is covered, to
+        psph.boundaries.in_fluid_region fills them, so that any container (box, rotated, polygon) is covered, to
         the lattice's resolution: a surface less than dx/2 above a roof passes, and so does a roof that
         cuts the top row only in part (a tilted one). A fill given wider than a container, as the scenes
         give it, is cut by the walls by design."""
@@ -1052,13 +1052,13 @@ class Scene:
                              f"the domain's top, {d.upper[1]:g}, where the fluid is cut: give at most {d.upper[1]:g}")
         if not any(b.container for b in self.bodies):  # (bodies are 2-D: a row of the lattice is short)
             return
-        from psph.boundaries import fluid_mask  # geometry: numpy and the body profiles
+        from psph.boundaries import in_fluid_region  # geometry: numpy and the body profiles
 
         axes = [d.lower[a] + (np.arange(n) + 0.5) * d.dx for a, n in enumerate(d.lattice_shape())]
 
         def filled(y) -> bool:
             nodes = np.stack([c.ravel() for c in np.meshgrid(*axes[:1], [y], *axes[2:], indexing="ij")], axis=1)
-            return bool(fluid_mask(self, nodes).any())
+            return bool(in_fluid_region(self, nodes).any())
 
         rows = axes[1][axes[1] <= given][::-1]  # from the fill region's top row down
         k = next((k for k, y in enumerate(rows) if filled(y)), None)  # None: no fluid (create_particles says so)
