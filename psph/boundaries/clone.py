@@ -293,7 +293,7 @@ class WallTerms:
         self.particle_force = np.zeros((system.particles.n_owned, 2))
         self.particle_force_at = system.particles.owned("position").copy()
         self.torque[:] = 0.0
-        du = p["shift_velocity"] if scheme.shift.active else p["velocity"]
+        du = scheme.shift.du(p)
         switch = scheme.tensile_rows(system)
         no_pull = scheme.no_pull_rows(system)
         if self.clones:

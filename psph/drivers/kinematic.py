@@ -64,7 +64,7 @@ class KinematicDriver(Driver):
         self.law = make_velocity_shift(scene)  # an explicit law's; inactive for iips, explicit_iterative, none
         specs = ()
         if self.law.active:
-            specs = (FieldSpec("velocity", ("d",)), FieldSpec("shift_velocity", ("d",)), *self.law.fields)
+            specs = (FieldSpec("velocity", ("d",)), *self.law.fields)
         self.sim = Simulation(scene, comm, out_dir, specs=specs, log=log, progress=progress, restart=restart)
         with self.closing_on_failure():
             self.shifting = make_shifting(scene, self.sim.comm)
@@ -97,11 +97,8 @@ class KinematicDriver(Driver):
         system = self.sim.system
         p = system.particles
         pos = p.owned("position")
-        vel = self.frozen_field(pos)
-        if self.law.active:
-            self.law.end_step(system, self, dt)  # Neuhauser's memory: this step's transport velocity
-            vel = vel + p.owned("shift_velocity")
-        pos += dt * vel
+        self.law.end_step(system, self, dt)  # Neuhauser's memory: this step's transport velocity
+        pos += dt * self.law.transport(p, velocity=self.frozen_field(pos))
         system.update()
 
     def shift_by_law(self, dt) -> None:

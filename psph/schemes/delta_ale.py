@@ -117,8 +117,6 @@ class DeltaALE:
     def field_specs(self):
         specs = [FieldSpec("velocity", ("d",)), FieldSpec("density"), FieldSpec("mass"), FieldSpec("pressure"),
                  FieldSpec("grad_rho", ("d",)), FieldSpec("volume0")]
-        if self.shift.active:
-            specs.append(FieldSpec("shift_velocity", ("d",)))
         surface = self.step_surface if self.step_surface is not None else self.surface
         return specs + list(self.shift.fields) + list(surface.fields) + list(self.walls.fields)
 
@@ -127,7 +125,7 @@ class DeltaALE:
         # rebuilds only: it never changes)
         names = ["position", "gid", "kind", "volume", "volume0", "density", "mass", "velocity", "pressure",
                  "grad_rho"]
-        return names + list(self.walls.halo_fields) + (["shift_velocity"] if self.shift.active else [])
+        return names + list(self.walls.halo_fields) + list(self.shift.halo_fields)
 
     def initialize(self, system, t=0.0, fresh=True):
         """Density from the initial pressure (or rho0), masses from volumes, the volumes V0; solids placed
@@ -243,7 +241,7 @@ class DeltaALE:
                 system.refresh(["normal", "wall_accel", "wall_velocity"])
         system.refresh(["density", "mass", "velocity", "volume", "pressure"])
         self.shift_and_density_gradient(system, t, dt, fluid_only=walls)
-        du = p["shift_velocity"] if self.shift.active else p["velocity"]  # (not read without a shift)
+        du = self.shift.du(p)
         if self.reads_grad_rho:
             system.refresh(["grad_rho"])
         kp = system.kernel.params
@@ -264,8 +262,7 @@ class DeltaALE:
             d_rho[fixed], d_mass[fixed], d_mom[fixed] = 0.0, 0.0, 0.0
             self._fall_with_gravity(p, kind == Kind.OUTLET, d_mom)
             self._ramp_inflows(p, kind, t, d_mom)
-        transport = p.owned("velocity") + (p.owned("shift_velocity") if self.shift.active else 0.0)
-        out = {"position": transport, "density": d_rho}
+        out = {"position": self.shift.transport(p), "density": d_rho}
         if self.variant == 0:
             out["mass"] = d_mass
             out["momentum"] = d_mom
@@ -300,7 +297,7 @@ class DeltaALE:
         spares a second pass. Collective."""
         p, law = system.particles, self.shift
         grad_c = None
-        if law.active and law.grad_c_weights is not None and self.fuse_grad_c:
+        if law.grad_c_weights is not None and self.fuse_grad_c:
             grad_c = (*law.grad_c_weights, law.reference_w(system), np.zeros((p.n_owned, p.dim)))
         renormalised_gradient(p["position"], p["volume"], p["density"], system.nbr_ptr, system.nbr_idx,
                               system.kernel.params, p["kind"], fluid_only, p["grad_rho"], self.pairs, grad_c=grad_c,
@@ -345,9 +342,7 @@ class DeltaALE:
         Tait; a Riemann audit found c0 taken there: a time step 33% longer than eq. 5.52's at the default 10%
         density limit)."""
         p = system.particles
-        v = p.owned("velocity")
-        if self.shift.active:
-            v = v + p.owned("shift_velocity")
+        v = self.shift.transport(p)
         speed = np.sqrt((v * v).sum(axis=1))
         vmax = float(speed.max()) if len(v) else 0.0
         signal = self.c0 + vmax

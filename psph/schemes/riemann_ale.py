@@ -66,7 +66,7 @@ class RiemannALE(DeltaALE):
         p = system.particles
         system.refresh(["density", "mass", "velocity", "volume", "pressure"])
         self.shift_and_density_gradient(system, t, dt, fluid_only=False)
-        v0 = p["velocity"] + p["shift_velocity"] if self.shift.active else p["velocity"]
+        v0 = self.shift.transport(p, owned=False)
         velocity_gradient(p["position"], p["volume"], p["velocity"], self.pairs, p["grad_velocity"])
         system.refresh(["grad_rho", "grad_velocity"])
         n, d = p.n_owned, p.dim

@@ -55,16 +55,22 @@ def strength_advice(spec) -> str:
     key = strength_key(spec)
     return f" (shifting.method = {spec.method}: a law too strong, {key}, does that too)" if key else ""
 
+SHIFT_VELOCITY = FieldSpec("shift_velocity", ("d",))
+
+
 class VelocityShift:
-    """Base: `velocity(system, scheme, dt, grad)` fills the owned rows of field 'shift_velocity'.
+    """Base, and no law (du = 0): a law's `velocity(system, scheme, dt, grad)` fills the owned rows of field
+    'shift_velocity'; the scheme reads it through `du` and `transport`, which without a law are the velocity
+    (and no field exists, none is sent).
 
     A law built on the corrected grad C (compute.shift_velocity.corrected_grad_c) names its (coeff, power) in
     `grad_c_weights`; the scheme may then compute that grad C in its own pass over the lists and hand it
     over as `grad` (the fluid part only: the law adds the ghost walls' images)."""
 
     name = "none"
-    active = False
-    fields = ()
+    active = False  # (the kernels' dispatch: du-terms or none)
+    fields = ()  # the fields it adds
+    halo_fields = ()  # those of them the neighbours read
     grad_c_weights = None
 
     def __init__(self, scene=None):
@@ -72,6 +78,19 @@ class VelocityShift:
 
     def velocity(self, system, scheme, dt, grad=None):
         return None
+
+    def du(self, p) -> np.ndarray:
+        """du of the local rows, for the kernels' du-terms (without a law: the velocity, which they skip)."""
+        return p["velocity"]
+
+    def transport(self, p, owned=True, velocity=None) -> np.ndarray:
+        """The transport velocity u + du (seed 001 eq. 10) of the owned (else the local) rows, a new array;
+        `velocity`: u there if not the field's (a kinematic run's frozen field)."""
+        rows = p.owned if owned else p.__getitem__
+        return (rows("velocity") if velocity is None else velocity) + self._du_rows(rows)
+
+    def _du_rows(self, rows):
+        return 0.0
 
     def reference_w(self, system):
         """W(dx), the reference of the corrected grad C's weights."""
@@ -86,6 +105,20 @@ class VelocityShift:
 
 class NoVelocityShift(VelocityShift):
     pass
+
+
+class ShiftingLaw(VelocityShift):
+    """An explicit law: it adds and sends the field 'shift_velocity' (and its own `fields`)."""
+
+    active = True
+    fields = (SHIFT_VELOCITY,)
+    halo_fields = ("shift_velocity",)
+
+    def du(self, p) -> np.ndarray:
+        return p["shift_velocity"]
+
+    def _du_rows(self, rows):
+        return rows("shift_velocity")
 
 
 def _grad_c_hat(law, system, scheme, grad):
@@ -103,9 +136,8 @@ def _grad_c_hat(law, system, scheme, grad):
     return out
 
 
-class DeltaPlus(VelocityShift):
+class DeltaPlus(ShiftingLaw):
     name = "delta_plus"
-    active = True
 
     def __init__(self, scene):
         super().__init__(scene)
@@ -126,9 +158,8 @@ class DeltaPlus(VelocityShift):
                 f"|du| <= U_max/2 (seed 001 eq. 16-17)")
 
 
-class Lind(VelocityShift):
+class Lind(ShiftingLaw):
     name = "lind"
-    active = True
     grad_c_weights = (0.2, 4.0)
 
     def __init__(self, scene):
@@ -150,9 +181,8 @@ class Lind(VelocityShift):
                 "6.15-6.16; cap as delta_plus')")
 
 
-class Skillen(VelocityShift):
+class Skillen(ShiftingLaw):
     name = "skillen"
-    active = True
     grad_c_weights = (0.0, 1.0)
 
     def __init__(self, scene):
@@ -170,9 +200,8 @@ class Skillen(VelocityShift):
         return f"shifting: Skillen dx = -A h |u| dt grad C, A = {self.a:g} (thesis eq. 6.18)"
 
 
-class Oger(VelocityShift):
+class Oger(ShiftingLaw):
     name = "oger"
-    active = True
     grad_c_weights = (0.0, 1.0)
 
     def __init__(self, scene):
@@ -193,10 +222,9 @@ class Oger(VelocityShift):
         return "shifting: Oger du = -Ma c0 2 dx grad C, |du| <= 0.25 |u| (thesis eq. 6.32)"
 
 
-class Neuhauser(VelocityShift):
+class Neuhauser(ShiftingLaw):
     name = "neuhauser"
-    active = True
-    fields = (FieldSpec("transport_velocity", ("d",)),)
+    fields = (SHIFT_VELOCITY, FieldSpec("transport_velocity", ("d",)))
 
     def __init__(self, scene):
         super().__init__(scene)
