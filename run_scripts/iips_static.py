@@ -39,9 +39,12 @@ def histories(out, ranks, resolutions, sigmas, iterations):
             thousand = first_iteration(h, lambda r, l0=l2[0]: r["L2_grad_c"] <= 1e-3 * l0)
             within = first_iteration(h, lambda r, c=cart: r["L2_dfdx"] <= 1.05 * c)
             best = min(range(len(l2)), key=l2.__getitem__)
-            rows.append([dx, sigma, run.summary["n_particles"], l2[0], l2[min(5, iterations)],
-                         l2[0] / l2[min(5, iterations)], l2[0] / l2[best], int(h[best]["iteration"]),
-                         int(thousand["iteration"]) if thousand else "never",
+            # IIPS may stop before iteration 5 (converged, a lattice it leaves as it is, a --set of max_newton):
+            # "-" for what it did not reach
+            fifth = l2[min(5, iterations)] if len(l2) > min(5, iterations) else None
+            rows.append([dx, sigma, run.summary["n_particles"], l2[0], fifth,
+                         l2[0] / fifth if fifth else None, l2[0] / l2[best] if l2[best] else None,
+                         int(h[best]["iteration"]), int(thousand["iteration"]) if thousand else "never",
                          int(within["iteration"]) if within else "never", h[-1]["L2_dfdx"] / cart])
             curves[(dx, sigma)] = h
     table = write_table(
@@ -76,16 +79,18 @@ def table_8_1(out, ranks, resolutions, ratios, iterations=10):
                 "shifting.method=iips", f"iips.max_newton={iterations}"])
             e = run.history[-1]["L2_dfdx"]
             cart = run.history[0]["L2_dfdx_cartesian"]
-            prev = errors.get((ratio, resolutions[resolutions.index(dx) - 1])) if dx != resolutions[0] else None
+            coarser = resolutions[resolutions.index(dx) - 1] if dx != resolutions[0] else None
+            prev = errors.get((ratio, coarser))
             errors[(ratio, dx)] = e
-            row += [e, rate(prev, e) if prev else float("nan"), e / cart]
+            row += [e, rate(prev, e, coarser / dx) if prev else float("nan"), e / cart]
         rows.append(row)
     header = ["dx/L"]
     for ratio in ratios:
         header += [f"h/dx={ratio}: L2(df/dx)", "rate", "/ Cartesian"]
     return write_table(out / "table_8_1", header, rows,
                        title=f"IIPS static case: L2(df/dx) after {iterations} Newton iterations (thesis Table 8.1)",
-                       note="sigma/dx = 0.1; rate = log2 of the error ratio between successive dx.")
+                       note="sigma/dx = 0.1; rate = the observed order between successive dx, "
+                            "log(error ratio) / log(dx ratio).")
 
 
 def main():

@@ -330,3 +330,49 @@ def test_the_volume_budget_takes_petsc_options_and_reports_a_bad_one_in_a_line(t
     assert res.returncode == 1
     assert res.stderr.strip().splitlines() == [res.stderr.strip()]
     assert "clone walls" in res.stderr and "Unable to find requested PC type nonexistent" in res.stderr
+
+
+
+
+
+
+
+
+
+
+def fake_static_run(errors, iterations=10):
+    """run_scene for iips_static.py: a run whose L2(df/dx) is errors[dx] after `iterations` Newton iterations."""
+    def run_scene(scene, out, ranks, sets):
+        dx = float(next(s for s in sets if s.startswith("domain.dx=")).split("=")[1])
+        history = [{"iteration": k, "L2_grad_c": 1.0 / (k + 1), "L2_dfdx": errors[dx] * (2.0 if k == 0 else 1.0),
+                    "L2_dfdx_cartesian": 0.5 * errors[dx]} for k in range(iterations + 1)]
+        return studies.Run(out, {"n_particles": round(1 / dx**2)}, history)
+    return run_scene
+
+
+def test_the_static_study_rates_by_the_resolutions_ratio(tmp_path, monkeypatch):
+    """A study audit: Table 8.1's rate assumed dx halves (1.14 for the 1.68 of dx = 0.1 to 0.0625)."""
+    import math
+
+    study = study_module("iips_static")
+    monkeypatch.setattr(study, "run_scene", fake_static_run({0.1: 3.77, 0.0625: 1.71}))
+    monkeypatch.setattr("sys.argv", ["iips_static.py", "--resolutions", "0.1", "0.0625", "--ratios", "2.0",
+                                     "--out", str(tmp_path)])
+    study.main()
+    rates = [row.split(",")[2] for row in (tmp_path / "table_8_1.csv").read_text().splitlines()[1:]]
+    assert rates[0] == "nan" and float(rates[1]) == pytest.approx(math.log(3.77 / 1.71) / math.log(0.1 / 0.0625))
+
+
+def test_the_static_study_tables_a_history_shorter_than_five_iterations(tmp_path, monkeypatch):
+    """A study audit: IIPS stopping before iteration 5 (a lattice it leaves alone, a large iips.threshold) ended
+    the study in an IndexError; what was not reached is "-"."""
+    study = study_module("iips_static")
+    monkeypatch.setattr(study, "run_scene", fake_static_run({0.1: 3.77}, iterations=2))
+    monkeypatch.setattr("sys.argv", ["iips_static.py", "--resolutions", "0.1", "--ratios", "2.0", "--out",
+                                     str(tmp_path)])
+    study.main()
+    with open(tmp_path / "histories.csv", newline="") as f:
+        header, *rows = list(csv.reader(f))
+    assert len(rows) == 2 and all(row[header.index("L2(gradC) it 5")] == "" for row in rows)
+    assert all(row[header.index("drop at it 5")] == "" and row[header.index("at it")] == "2" for row in rows)
+    assert "| - | - |" in (tmp_path / "histories.md").read_text()
