@@ -2,6 +2,7 @@
 and write tables (Markdown and CSV) and convergence rates. Every figure a study reports comes from runs
 it makes itself."""
 
+import argparse
 import csv
 import functools
 import hashlib
@@ -11,12 +12,13 @@ import os
 import shlex
 import subprocess
 import sys
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from psph.errors import NumericalError, PsphError
+from psph.errors import NumericalError, PsphError, UsageError
 from psph.io.history import read_history
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -83,19 +85,124 @@ _STALE_RUNS = []
 # what the study's own command line adds to every run it makes (parse_args)
 _EVERY_RUN = {"sets": [], "petsc": []}
 
+# psph's rule for domain.h_over_dx (psph.scene.schema)
+H_OVER_DX = (1.0, 4.0)
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1 (a rank count, a resolution, a count)."""
+    from psph.cli import positive_int as check
+
+    return check(text)
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0 (a grid spacing, a time, a Reynolds number)."""
+    from psph.cli import positive_float as check
+
+    return check(text)
+
+
+def smoothing_ratio(text: str) -> float:
+    """argparse type: a smoothing length over particle spacing, a finite number within psph's H_OVER_DX."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not H_OVER_DX[0] <= value <= H_OVER_DX[1]:  # (NaN fails it too)
+        raise argparse.ArgumentTypeError(f"h/dx must be within {H_OVER_DX[0]:g} and {H_OVER_DX[1]:g} (as psph's "
+                                         f"domain.h_over_dx), got {text}")
+    return value
+
+
+def one_line_errors(parser):
+    """Make `parser` report a bad argument as one line, `PROG: error: MESSAGE`, and exit 2 (argparse prints
+    its usage first)."""
+    def error(message):
+        print(f"{parser.prog}: error: {message}", file=sys.stderr)
+        sys.exit(2)
+
+    parser.error = error
+    return parser
+
+
+def check_out(parser, path, option="--out") -> None:
+    """Refuse (parser.error) an output directory that is a file or cannot be created, before any run: the
+    nearest existing ancestor must be a directory in which one can be made (tried, and removed)."""
+    if path is None:
+        return
+    path = Path(path)
+    base = path
+    while not base.exists() and base != base.parent:
+        base = base.parent
+    if not base.is_dir():
+        what = "is a file" if base == path else f"lies in {base}, a file"
+        parser.error(f"argument {option}: {path} {what}, not a directory")
+    try:
+        tempfile.TemporaryDirectory(dir=base).cleanup()
+    except OSError as err:
+        parser.error(f"argument {option}: cannot create {path if base != path else 'files in ' + str(path)}: "
+                     f"{err.strerror or err}")
+
+
+def check_args(parser, args) -> None:
+    """The checks of every study's and benchmark's arguments, after parsing: --out (check_out) and no value
+    given twice to an option of resolutions (a convergence rate between them divides by log 1)."""
+    check_out(parser, getattr(args, "out", None))
+    for name, values in vars(args).items():
+        if name.endswith("resolutions") and isinstance(values, list):
+            twice = [v for k, v in enumerate(values) if v in values[:k]]
+            if twice:
+                parser.error(f"argument --{name.replace('_', '-')}: {twice[0]:g} given twice")
+
+
+def machine_memory() -> int:
+    """This machine's memory in bytes (as psph.simulation.machine_memory, without importing MPI)."""
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def check_memory(parser, option, value, need, particles=None) -> None:
+    """Refuse (parser.error, naming `option` and its `value`) what would need `need` bytes, more than 80% of
+    this machine's memory: the limit psph run applies (psph.simulation.check_resources)."""
+    if need > 0.8 * machine_memory():
+        what = f"{particles:.4g} particles" if particles is not None else "it"
+        parser.error(f"argument {option}: {value}: {what} would need about {need / 2**30:.3g} GiB, more than 80% "
+                     f"of this machine's {machine_memory() / 2**30:.3g} GiB")
+
+
+def check_scene_memory(parser, option, value, scene, ranks=1, assembled=False) -> None:
+    """check_memory of a scene a benchmark builds itself (not through psph run, which checks it): psph's own
+    estimate (psph.simulation.estimate_resources) on `ranks` ranks of this machine."""
+    from psph.simulation import estimate_resources
+
+    n, need, _ = estimate_resources(scene, ranks, assembled)
+    check_memory(parser, option, value, need, n)
+
+
+def parse_plain(parser, argv=None):
+    """parser.parse_args(argv) with one-line errors (one_line_errors) and check_args: what a script that takes
+    neither --set nor PETSc options for runs (a benchmark, a study of no runs) parses with."""
+    one_line_errors(parser)
+    args = parser.parse_args(argv)
+    check_args(parser, args)
+    return args
+
 
 def parse_args(parser, argv=None):
     """The study's arguments by `parser`, plus what every study takes: `--set KEY=VALUE` (repeatable; as
     `args.set`) and PETSc options (`-iips_pc_type hypre`, ...; as `args.petsc`). run_scene gives both to every
-    run after the study's own overrides, as `psph run` takes them."""
+    run after the study's own overrides, as `psph run` takes them. A bad argument is one line
+    (one_line_errors), and --out and the resolutions are checked (check_args)."""
     from psph.cli import split_petsc_options
 
+    one_line_errors(parser)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a scene override for every run, after the study's own (as psph run --set)")
     parser.epilog = "PETSc options (e.g. -iips_pc_type hypre) are passed to every run."
     ours, petsc = split_petsc_options(sys.argv[1:] if argv is None else list(argv))
     args = parser.parse_args(ours)
     args.petsc = petsc
+    check_args(parser, args)
     _EVERY_RUN.update(sets=list(args.set), petsc=petsc)
     return args
 
@@ -390,19 +497,43 @@ def shepard_sample(pos, vol, values, points, kernel):
         return num / den.reshape((-1,) + (1,) * (num.ndim - 1))
 
 
+def unit_box_kernel(n, h_over_dx):
+    """The Wendland C6 kernel of n particles of the bi-periodic unit box at h = h_over_dx / sqrt(n), refused
+    (UsageError) where psph refuses a periodic axis: a support not smaller than the box (the 3 x 3 tiling
+    then misses neighbours and counts images of a particle's own), or h/dx outside psph's H_OVER_DX."""
+    from psph.compute.smoothing import make_kernel
+
+    dx = 1.0 / math.sqrt(n) if n > 0 else math.inf
+    if not H_OVER_DX[0] <= h_over_dx <= H_OVER_DX[1]:
+        raise UsageError(f"h/dx = {h_over_dx:g}: must be within {H_OVER_DX[0]:g} and {H_OVER_DX[1]:g} (as psph's "
+                         "domain.h_over_dx)")
+    kern = make_kernel("wendland_c6", 2, h_over_dx * dx) if n > 0 else None
+    if kern is None or kern.support >= 1.0:
+        support = f"{kern.support:g}" if kern is not None else "inf"
+        raise UsageError(f"h/dx = {h_over_dx:g} on {n} particles (dx = {dx:g}): the kernel support {support} is not "
+                         "smaller than the periodic unit box; use more particles or a smaller h/dx")
+    return kern
+
+
+def unit_box_bytes(n, h_over_dx) -> float:
+    """A rough upper estimate of the memory tgv_operator_errors takes on n particles at h_over_dx: the 3 x 3
+    tiling's fields (9 copies of about 80 bytes) and, per particle, a neighbour list entry and the pair cache's
+    values (80 bytes) for each neighbour within the support (2 h_over_dx spacings)."""
+    return n * (9 * 80 + 80 * math.pi * (2.0 * h_over_dx) ** 2)
+
+
 def _tiled_unit_box(pos, vol, h_over_dx):
     """A 2-D distribution of the bi-periodic unit box and its 3 x 3 tiling (the box itself first), Wendland
     C6 with h = h_over_dx / sqrt(n): (positions, volumes, kernel, ptr, idx), the neighbour lists of the n
-    particles of the box."""
+    particles of the box (unit_box_kernel refuses a support not smaller than the box)."""
 
     from psph.compute.neighbours import build_neighbour_lists
-    from psph.compute.smoothing import make_kernel
 
     n = len(pos)
+    kern = unit_box_kernel(n, h_over_dx)
     tiles = np.array([(a, b) for a in (0, -1, 1) for b in (0, -1, 1)], float)
     all_pos = np.ascontiguousarray((np.mod(pos, 1.0)[None, :, :] + tiles[:, None, :]).reshape(-1, 2))
     all_vol = np.ascontiguousarray(np.tile(vol, len(tiles)))
-    kern = make_kernel("wendland_c6", 2, h_over_dx / math.sqrt(n))
     ptr, idx = build_neighbour_lists(all_pos, n, kern.support)
     return all_pos, all_vol, kern, ptr, idx
 

@@ -25,12 +25,23 @@ from psph.scene.load import scene_from_table
 from psph.scene.schema import EXPLICIT_LAWS, FLUID_SCHEMES
 from psph.schemes import make_scheme
 from psph.simulation import build_system
+from psph.studies import check_scene_memory, parse_plain
 
 
 def diffusion(scheme, delta) -> dict:
     """The scheme's diffusive coefficients at delta (delta_ale's D^rho and D^m; its variants' D^rho)."""
     keys = {"riemann_ale": (), "delta_ale": ("delta", "delta_m")}.get(scheme, ("delta",))
     return {key: delta for key in keys}
+
+
+def flow_scene(n, scheme, method, delta):
+    """The benchmark's scene: n x n particles of the bi-periodic unit box, a perturbed Taylor-Green vortex."""
+    return scene_from_table({
+        "name": "bench", "domain": {"dimension": 2, "lower": [0.0, 0.0], "upper": [1.0, 1.0],
+                                    "periodic": [True, True], "dx": 1.0 / n},
+        "initial": {"velocity": "taylor_green", "sigma_over_dx": 0.1},
+        "physics": {"scheme": scheme, **diffusion(scheme, delta)},
+        "time": {"t_end": 1.0}, "shifting": {"method": method}})
 
 
 def main():
@@ -44,20 +55,17 @@ def main():
     parser.add_argument("--delta", type=float, nargs="+", default=[0.1],
                         help="physics.delta (and delta_m): 0 is standard SPH, whose diffusive terms cost nothing "
                              "(not read by riemann_ale)")
-    args = parser.parse_args()
+    args = parse_plain(parser)
     comm = MPI.COMM_WORLD
+    for n in args.sizes:  # build_system allocates without psph run's check
+        check_scene_memory(parser, "--sizes", n, flow_scene(n, args.scheme, "none", max(args.delta)), comm.size)
     if comm.rank == 0:
         print(f"{args.scheme} right-hand side, {comm.size} rank(s), Wendland C6, h = 2 dx")
         print(f"{'particles':>10} {'shifting':>11} {'delta':>6} {'RHS/s per core [M]: median':>27} {'best':>6}"
               "  split (rank 0)")
     for n in args.sizes:
         for method, delta in ((m, dl) for m in args.shifting for dl in args.delta):
-            scene = scene_from_table({
-                "name": "bench", "domain": {"dimension": 2, "lower": [0.0, 0.0], "upper": [1.0, 1.0],
-                                            "periodic": [True, True], "dx": 1.0 / n},
-                "initial": {"velocity": "taylor_green", "sigma_over_dx": 0.1},
-                "physics": {"scheme": args.scheme, **diffusion(args.scheme, delta)},
-                "time": {"t_end": 1.0}, "shifting": {"method": method}})
+            scene = flow_scene(n, args.scheme, method, delta)
             scheme = make_scheme(scene)
             system = build_system(scene, comm, specs=scheme.field_specs(), halo_fields=scheme.halo_fields())
             scheme.initialize(system)

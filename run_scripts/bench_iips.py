@@ -32,6 +32,7 @@ import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 
 from psph.cli import positive_int, split_petsc_options  # noqa: E402
+from psph.studies import check_scene_memory, parse_plain  # noqa: E402
 
 SWEEPS = 27  # vectors of 8 bytes per row read or written per BCGS + Jacobi iteration (docstring)
 
@@ -53,6 +54,16 @@ def stream_bandwidth(n=20_000_000):
     return 24.0 * n / best
 
 
+def iips_scene(n, operator):
+    """The benchmark's scene: n x n particles of the bi-periodic unit box, sigma/dx = 0.1, one Newton iteration."""
+    from psph.scene.load import scene_from_table
+
+    return scene_from_table({"name": "bench", "domain": {
+        "dimension": 2, "lower": [0.0, 0.0], "upper": [1.0, 1.0], "periodic": [True, True], "dx": 1.0 / n},
+        "initial": {"sigma_over_dx": 0.1, "seed": 1}, "shifting": {"method": "iips"},
+        "iips": {"max_newton": 1, "operator": operator}})
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=positive_int, nargs="+", default=[200, 400], help="particles per side")
@@ -62,7 +73,7 @@ def main():
                         help="iips.operator (default: the assembled AIJ matrix, whose bandwidth bound is printed; "
                              "a scene's default is matrix-free)")
     ours, petsc_args = split_petsc_options(sys.argv[1:])  # a mistyped --option is an error, not a PETSc option
-    args = parser.parse_args(ours)
+    args = parse_plain(parser, ours)
 
     from psph.solvers.petsc import initialize
 
@@ -71,12 +82,14 @@ def main():
 
     from psph import profiling
     from psph.parallel.comm import allreduce_max
-    from psph.scene.load import scene_from_table
     from psph.shifting.iips import ImplicitShifting
     from psph.simulation import build_system
     from psph.solvers.petsc import petsc
 
     comm = MPI.COMM_WORLD
+    for n in args.sizes:  # build_system allocates without psph run's check
+        check_scene_memory(parser, "--sizes", n, iips_scene(n, args.operator), comm.size,
+                           assembled=args.operator == "assembled")
     bandwidth = stream_bandwidth()
     bandwidth = comm.allreduce(bandwidth, op=MPI.MIN)
     if comm.rank == 0:
@@ -87,10 +100,7 @@ def main():
     parts = ["grad_c", "iips_structure", "iips_assemble", "ksp_solve", "halo_exchange", "neighbour_search",
              "rebuild"]
     for n in args.sizes:
-        scene = scene_from_table({"name": "bench", "domain": {
-            "dimension": 2, "lower": [0.0, 0.0], "upper": [1.0, 1.0], "periodic": [True, True], "dx": 1.0 / n},
-            "initial": {"sigma_over_dx": 0.1, "seed": 1}, "shifting": {"method": "iips"},
-            "iips": {"max_newton": 1, "operator": args.operator}})
+        scene = iips_scene(n, args.operator)
         system = build_system(scene, comm)
         shifting = ImplicitShifting(scene.iips, comm)
         # warm-up: compiles and builds the matrix structure; the first call's step rebuilds the neighbour lists

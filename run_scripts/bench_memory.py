@@ -20,7 +20,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from psph.cli import positive_int  # (psph.cli loads neither MPI nor numpy)
+from psph.cli import positive_float, positive_int  # (psph.cli loads neither MPI nor numpy)
+from psph.studies import parse_plain  # (nor does psph.studies)
 
 ROOT = Path(__file__).resolve().parent.parent
 D3 = ["domain.dimension=3", "domain.lower=[0,0,0]", "domain.upper=[1,1,1]", "domain.periodic=[true,true,true]"]
@@ -74,11 +75,21 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ranks", type=positive_int, nargs="+", default=[1])
     parser.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
-    parser.add_argument("--dx", type=float, nargs=2, metavar=("DX0", "DX1"),
+    parser.add_argument("--dx", type=positive_float, nargs=2, metavar=("DX0", "DX1"),
                         help="the two grid spacings of every case (default: each case's own)")
-    args = parser.parse_args()
+    args = parse_plain(parser)
     if args.dx and args.dx[0] == args.dx[1]:  # (the growth per particle divides by their counts' difference)
         parser.error(f"--dx: two different grid spacings, got {args.dx[0]:g} twice")
+    if args.dx:
+        from psph.scene.load import load_scene  # (no MPI: mpiexec's runs come first)
+
+        for name in args.cases:
+            scene, sets, _ = CASES[name]
+            counts = [load_scene(ROOT / "cases" / f"{scene}.toml", [*sets, f"domain.dx={dx!r}"]).domain
+                      .estimated_particles() for dx in args.dx]
+            if counts[0] == counts[1]:
+                parser.error(f"--dx {args.dx[0]!r} {args.dx[1]!r}: the same {counts[0]} particles (case {name}); "
+                             "give two spacings whose lattices differ")
     mib = 2**20
     print(f"{'case':>14} {'ranks':>5} {'particles':>9} {'peak/rank MiB':>13} {'estimate MiB':>12} {'ratio':>6}   "
           f"growth per particle: measured / estimate [bytes]")
@@ -96,6 +107,8 @@ def main():
     for first, second in zip(runs[::2], runs[1::2]):
         name, ranks = first[:2]
         (n0, p0), (n1, p1) = first[4:], second[4:]
+        if n0 == n1:  # (the estimate's lattice counted apart what the runs built alike)
+            sys.exit(f"bench_memory.py: error: --dx: both runs of {name} had {n0} particles: no growth per particle")
         growth = (p1 - p0) / ((n1 - n0) / ranks)
         for i, (_, _, scene, settings, n, peak) in enumerate((first, second)):
             _, per_rank, per_particle = estimate(scene, settings, ranks)

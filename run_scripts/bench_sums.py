@@ -27,6 +27,7 @@ from psph.compute.neighbours import build_cross_lists, build_neighbour_lists
 from psph.compute.smoothing import kernel_f
 from psph.scene.load import scene_from_table
 from psph.simulation import build_system
+from psph.studies import check_scene_memory, parse_plain
 
 
 @njit(cache=True)
@@ -92,8 +93,10 @@ def main():
     parser.add_argument("--sizes", type=positive_int, nargs="+", default=[100, 200, 400], help="particles per side")
     parser.add_argument("--min-time", type=positive_float, default=0.3,
                         help="minimum wall time of each timed repetition, in seconds (default 0.3)")
-    args = parser.parse_args()
+    args = parse_plain(parser)
     comm = MPI.COMM_WORLD
+    for n in args.sizes:  # build_system allocates without psph run's check
+        check_scene_memory(parser, "--sizes", n, lattice_scene(n), comm.size)
     if comm.rank == 0:
         print(f"grad C pair throughput, {comm.size} rank(s), Wendland C6, h = 2 dx, 2-D periodic lattice")
         print(f"{'particles':>10} {'nbrs/ptcl':>9} {'useful Mpairs/s/core':>21} {'list Mpairs/s/core':>19} "

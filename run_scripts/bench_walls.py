@@ -21,7 +21,7 @@ from psph import profiling
 from psph.cli import positive_int
 from psph.drivers.fluid import FluidDriver
 from psph.scene.load import load_scene
-from psph.studies import CASES, command_line, write_table
+from psph.studies import CASES, command_line, parse_plain, write_table
 
 SETTINGS = {"lid_driven_cavity": ["domain.dx=0.02"], "moving_square": ["domain.dx=0.05"],
             "inclined_ellipse": ["domain.dx=0.04"]}  # a/dx = 25
@@ -34,7 +34,7 @@ def main():
     parser.add_argument("--shifting", default="delta_plus", help="shifting.method (iips adds its own cost)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="scene override")
     parser.add_argument("--out", type=Path, help="also write the table to OUT/walls_{N}ranks.md and .csv")
-    args = parser.parse_args()
+    args = parse_plain(parser)  # (--out checked before the runs)
     comm = MPI.COMM_WORLD
     rows = []
     for case in args.cases:

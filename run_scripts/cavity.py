@@ -36,9 +36,12 @@ from psph.studies import (  # noqa: E402
     command_line,
     last_snapshot,
     parse_args,
+    positive_float,
+    positive_int,
     run_scene,
     shepard_sample,
     shifting_label,
+    smoothing_ratio,
     stop_message,
     write_histories,
     write_table,
@@ -52,6 +55,13 @@ def ghia(re):
         rows = list(csv.DictReader(line for line in f if not line.startswith("#")))
     col = lambda k: np.array([float(r[k]) for r in rows])  # noqa: E731
     return col("y"), col(f"u_Re{re}"), col("x"), col(f"v_Re{re}")
+
+
+def ghia_reynolds() -> list:
+    """The Reynolds numbers the reference data has both centrelines of."""
+    with open(GHIA) as f:
+        header = next(csv.reader(line for line in f if not line.startswith("#")))
+    return sorted(int(k[4:]) for k in header if k.startswith("u_Re") and f"v_Re{k[4:]}" in header)
 
 
 def centrelines(run, ratio, dx):
@@ -77,14 +87,19 @@ def kinetic_energy_change(rows, fraction=0.2) -> float:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/cavity"))
-    parser.add_argument("--ranks", type=int, default=1)
-    parser.add_argument("--t-end", type=float, default=20.0)
-    parser.add_argument("--re", type=int, nargs="+", default=[100])
-    parser.add_argument("--resolutions", type=int, nargs="+", default=[50, 100], help="L/dx")
-    parser.add_argument("--h-over-dx", type=float, help="h/dx (default: the scene's, 2)")
+    parser.add_argument("--ranks", type=positive_int, default=1)
+    parser.add_argument("--t-end", type=positive_float, default=20.0)
+    parser.add_argument("--re", type=positive_int, nargs="+", default=[100])
+    parser.add_argument("--resolutions", type=positive_int, nargs="+", default=[50, 100], help="L/dx")
+    parser.add_argument("--h-over-dx", type=smoothing_ratio, help="h/dx (default: the scene's, 2)")
     parser.add_argument("--walls", nargs="+", default=["clone"], choices=["clone", "ghost"])
-    parser.add_argument("--ghost-resolutions", type=int, nargs="+", help="L/dx of the ghost runs (default: all)")
+    parser.add_argument("--ghost-resolutions", type=positive_int, nargs="+",
+                        help="L/dx of the ghost runs (default: all)")
     args = parse_args(parser)
+    unknown = [re for re in args.re if re not in ghia_reynolds()]
+    if unknown:  # (the comparison is the study: no run without it)
+        parser.error(f"argument --re: no reference data for Re = {', '.join(map(str, unknown))} (Ghia et al. 1982 "
+                     f"in {GHIA.name}: Re = {', '.join(map(str, ghia_reynolds()))})")
     for walls in args.walls:  # every wall model's scene is checked before the first run starts
         try:
             load_scene(CAVITY, [*CAVITY_WALLS[walls], *args.set])
@@ -101,7 +116,7 @@ def main():
             for n in (args.ghost_resolutions or args.resolutions) if walls == "ghost" else args.resolutions:
                 dx = 1.0 / n
                 name = f"Re{re}_L{n}" + ("" if walls == "clone" else f"_{walls}")
-                ratio = args.h_over_dx or load_scene(CAVITY).domain.h_over_dx
+                ratio = args.h_over_dx if args.h_over_dx is not None else load_scene(CAVITY).domain.h_over_dx
                 sets = [f"domain.dx={dx}", f"domain.h_over_dx={ratio}", f"physics.reynolds={re}",
                         f"time.t_end={args.t_end}", f"output.every={args.t_end}", "output.history_every=50",
                         *CAVITY_WALLS[walls]]

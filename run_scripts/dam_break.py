@@ -45,6 +45,8 @@ from psph.studies import (
     command_line,
     parse_args,
     plot_histories,
+    positive_float,
+    positive_int,
     release_pressure_errors,
     run_scene,
     write_histories,
@@ -140,13 +142,14 @@ def snapshots_figure(path, out, times):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/dam_break"))
-    parser.add_argument("--ranks", type=int, default=2)
-    parser.add_argument("--t-end", type=float, default=8.0, help="t sqrt(g/H)")
-    parser.add_argument("--resolutions", type=int, nargs="*", default=[20, 40], help="H/dx of the runs to --t-end")
-    parser.add_argument("--early-resolutions", type=int, nargs="+", default=[20, 40], help="H/dx")
-    parser.add_argument("--early-sound-speeds", type=float, nargs="+", default=[20.0, 40.0, 80.0],
+    parser.add_argument("--ranks", type=positive_int, default=2)
+    parser.add_argument("--t-end", type=positive_float, default=8.0, help="t sqrt(g/H)")
+    parser.add_argument("--resolutions", type=positive_int, nargs="*", default=[20, 40],
+                        help="H/dx of the runs to --t-end")
+    parser.add_argument("--early-resolutions", type=positive_int, nargs="+", default=[20, 40], help="H/dx")
+    parser.add_argument("--early-sound-speeds", type=positive_float, nargs="+", default=[20.0, 40.0, 80.0],
                         help="c0 / sqrt(g H) of the initial-pressure runs")
-    parser.add_argument("--impact-resolutions", type=int, nargs="*", default=[80],
+    parser.add_argument("--impact-resolutions", type=positive_int, nargs="*", default=[80],
                         help=f"H/dx of runs to t = {IMPACT_END:g} only (the surge and the first impact)")
     args = parse_args(parser)
     if args.resolutions and args.t_end < IMPACT_END:  # the table of the runs to --t-end reads the first impact

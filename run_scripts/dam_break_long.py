@@ -51,6 +51,8 @@ from psph.studies import (
     command_line,
     last_snapshot,
     parse_args,
+    positive_float,
+    positive_int,
     run_scene,
     spot_noise,
     stop_message,
@@ -125,10 +127,10 @@ def figure(path, runs, n):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/dam_break_long"))
-    parser.add_argument("--t-end", type=float, default=30.0, help="t sqrt(g/H) (seed 001: 30)")
-    parser.add_argument("--resolutions", type=int, nargs="+", default=[20], help="H/dx")
+    parser.add_argument("--t-end", type=positive_float, default=30.0, help="t sqrt(g/H) (seed 001: 30)")
+    parser.add_argument("--resolutions", type=positive_int, nargs="+", default=[20], help="H/dx")
     parser.add_argument("--schemes", nargs="+", choices=list(SCHEMES), default=list(SCHEMES))
-    parser.add_argument("--jobs", type=int, default=2, help="runs at a time (one rank each)")
+    parser.add_argument("--jobs", type=positive_int, default=2, help="runs at a time (one rank each)")
     args = parse_args(parser)
     cases = [(scheme, n) for n in args.resolutions for scheme in args.schemes]
 

@@ -43,6 +43,8 @@ from psph.studies import (  # noqa: E402
     last_snapshot,
     parse_args,
     plot_histories,
+    positive_float,
+    positive_int,
     run_scene,
     write_histories,
     write_table,
@@ -127,9 +129,9 @@ def plot_variations(run, n, rho0, path):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/ellipse"))
-    parser.add_argument("--ranks", type=int, default=1)
-    parser.add_argument("--t-end", type=float, default=50.0)
-    parser.add_argument("--resolutions", type=int, nargs="+", default=[25, 50], help="a/dx")
+    parser.add_argument("--ranks", type=positive_int, default=1)
+    parser.add_argument("--t-end", type=positive_float, default=50.0)
+    parser.add_argument("--resolutions", type=positive_int, nargs="+", default=[25, 50], help="a/dx")
     parser.add_argument("--in-progress", action="store_true",
                         help="tabulate finished runs and, for the others, what they have written so far")
     parser.add_argument("--rerun", action="store_true",

@@ -25,7 +25,18 @@ import matplotlib.pyplot as plt  # noqa: E402
 from psph.initial import elliptical_drop  # noqa: E402
 from psph.particles import Kind  # noqa: E402
 from psph.scene.load import load_scene  # noqa: E402
-from psph.studies import CASES, at_time, command_line, last_snapshot, parse_args, plot_histories, run_scene, write_table  # noqa: E402
+from psph.studies import (  # noqa: E402
+    CASES,
+    at_time,
+    command_line,
+    last_snapshot,
+    parse_args,
+    plot_histories,
+    positive_float,
+    positive_int,
+    run_scene,
+    write_table,
+)
 
 SCENE = CASES / "elliptical_drop.toml"
 SWEEP_ITERATIONS = 3000
@@ -117,10 +128,10 @@ def plot_packing(path, histories, n):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/elliptical_drop"))
-    parser.add_argument("--ranks", type=int, default=1)
-    parser.add_argument("--resolutions", type=int, nargs="+", default=[20, 40, 80], help="R/dx")
-    parser.add_argument("--alphas", type=float, nargs="+", default=[0.002, 0.005, 0.01, 0.05])
-    parser.add_argument("--alpha-resolution", type=int, default=40, help="R/dx of the alpha sweep")
+    parser.add_argument("--ranks", type=positive_int, default=1)
+    parser.add_argument("--resolutions", type=positive_int, nargs="+", default=[20, 40, 80], help="R/dx")
+    parser.add_argument("--alphas", type=positive_float, nargs="+", default=[0.002, 0.005, 0.01, 0.05])
+    parser.add_argument("--alpha-resolution", type=positive_int, default=40, help="R/dx of the alpha sweep")
     args = parse_args(parser)
     rows, runs = flow_runs(args)
     note = "Command: " + command_line()

@@ -34,6 +34,7 @@ from psph.studies import (  # noqa: E402
     last_snapshot,
     parse_args,
     plot_histories,
+    positive_int,
     run_scene,
     write_table,
 )
@@ -110,9 +111,9 @@ def plot_surface(path, run, n):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/free_surface"))
-    parser.add_argument("--ranks", type=int, default=2)
-    parser.add_argument("--drop-resolutions", type=int, nargs="*", default=[20, 40, 80], help="R/dx")
-    parser.add_argument("--tank-resolutions", type=int, nargs="*", default=[20, 40], help="H/dx")
+    parser.add_argument("--ranks", type=positive_int, default=2)
+    parser.add_argument("--drop-resolutions", type=positive_int, nargs="*", default=[20, 40, 80], help="R/dx")
+    parser.add_argument("--tank-resolutions", type=positive_int, nargs="*", default=[20, 40], help="H/dx")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
     parser.add_argument("--no-run", action="store_true", help="tables and plots from the finished runs only")
     args = parse_args(parser)

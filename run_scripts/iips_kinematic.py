@@ -21,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from psph.studies import CASES, parse_args, rate, run_scene, write_table  # noqa: E402
+from psph.studies import CASES, parse_args, positive_float, positive_int, rate, run_scene, smoothing_ratio, write_table  # noqa: E402
 
 SCENE = CASES / "kinematic_tgv.toml"
 PROCEDURES = {  # name: (directory tag, scene overrides)
@@ -45,10 +45,10 @@ def sets_for(name, dx, ratio, t_end):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/iips_kinematic"))
-    parser.add_argument("--ranks", type=int, default=1)
-    parser.add_argument("--t-end", type=float, default=0.2)
-    parser.add_argument("--resolutions", type=float, nargs="+", default=[0.05, 0.025, 0.0125])
-    parser.add_argument("--ratios", type=float, nargs="+", default=[2.0, 1.6, 1.3])
+    parser.add_argument("--ranks", type=positive_int, default=1)
+    parser.add_argument("--t-end", type=positive_float, default=0.2)
+    parser.add_argument("--resolutions", type=positive_float, nargs="+", default=[0.05, 0.025, 0.0125])
+    parser.add_argument("--ratios", type=smoothing_ratio, nargs="+", default=[2.0, 1.6, 1.3])
     args = parse_args(parser)
     runs = {}
     for ratio in args.ratios:

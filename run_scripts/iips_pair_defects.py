@@ -25,7 +25,10 @@ from psph.studies import (
     iips_pair_defects,
     last_snapshot,
     parse_args,
+    positive_float,
+    positive_int,
     run_scene,
+    smoothing_ratio,
     stop_message,
     write_table,
 )
@@ -35,11 +38,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--dx", type=float, default=0.0125)
-    parser.add_argument("--h-over-dx", type=float, default=3.0)
-    parser.add_argument("--t-end", type=float, default=0.2)
-    parser.add_argument("--every", type=float, default=0.005, help="snapshot interval")
-    parser.add_argument("--ranks", type=int, default=2)
+    parser.add_argument("--dx", type=positive_float, default=0.0125)
+    parser.add_argument("--h-over-dx", type=smoothing_ratio, default=3.0)
+    parser.add_argument("--t-end", type=positive_float, default=0.2)
+    parser.add_argument("--every", type=positive_float, default=0.005, help="snapshot interval")
+    parser.add_argument("--ranks", type=positive_int, default=2)
     parser.add_argument("--out", type=Path, default=Path("results/iips_pair_defects"))
     args = parse_args(parser)
     run_dir = args.out / "run"

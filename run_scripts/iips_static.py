@@ -21,7 +21,17 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from psph.studies import CASES, first_iteration, parse_args, rate, run_scene, write_table  # noqa: E402
+from psph.studies import (  # noqa: E402
+    CASES,
+    first_iteration,
+    parse_args,
+    positive_float,
+    positive_int,
+    rate,
+    run_scene,
+    smoothing_ratio,
+    write_table,
+)
 
 SCENE = CASES / "static_perturbed.toml"
 
@@ -96,14 +106,14 @@ def table_8_1(out, ranks, resolutions, ratios, iterations=10):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/iips_static"))
-    parser.add_argument("--ranks", type=int, default=1)
+    parser.add_argument("--ranks", type=positive_int, default=1)
     parser.add_argument("--quick", action="store_true", help="coarse resolutions only (a smoke run)")
-    parser.add_argument("--resolutions", type=float, nargs="+",
+    parser.add_argument("--resolutions", type=positive_float, nargs="+",
                         help="dx/L of both the histories and Table 8.1 (default: 0.05 0.025 0.0125, and 0.00625 "
                              "in Table 8.1; --quick: 0.05 0.025)")
-    parser.add_argument("--ratios", type=float, nargs="+", default=[2.0, 1.6, 1.3], help="h/dx of Table 8.1")
+    parser.add_argument("--ratios", type=smoothing_ratio, nargs="+", default=[2.0, 1.6, 1.3], help="h/dx of Table 8.1")
     args = parse_args(parser)
-    args.out.mkdir(parents=True, exist_ok=True)
+    args.out.mkdir(parents=True, exist_ok=True)  # (parse_args checked that it can be)
     res = args.resolutions or ([0.05, 0.025] if args.quick else [0.05, 0.025, 0.0125])
     print(histories(args.out, args.ranks, res, [0.10, 0.25], 10))
     print(table_8_1(args.out, args.ranks, res if args.quick or args.resolutions else res + [0.00625], args.ratios))

@@ -25,7 +25,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from psph.studies import CASES, RunStopped, pareto, parse_args, run_scene, stop_message, write_table  # noqa: E402
+from psph.studies import CASES, RunStopped, pareto, parse_args, positive_int, run_scene, stop_message, write_table  # noqa: E402
 
 # preconditioner: (-iips_pc_type, scene overrides). Jacobi runs matrix-free (iips.operator "auto"), and once
 # more on the assembled matrix; hypre and GAMG need the assembled matrix ("auto" gives it them)
@@ -119,7 +119,7 @@ def kinematic_sweep(out, ranks, sweep=FULL):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/iips_tradeoff"))
-    parser.add_argument("--ranks", type=int, default=1)
+    parser.add_argument("--ranks", type=positive_int, default=1)
     parser.add_argument("--quick", action="store_true", help="a smoke run: coarse, short and few cases (above)")
     args = parse_args(parser)
     sweep = QUICK if args.quick else FULL

@@ -43,7 +43,16 @@ from pathlib import Path
 
 import numpy as np
 
-from psph.studies import CASES, RunStopped, parse_args, run_scene, stop_message, write_table
+from psph.studies import (
+    CASES,
+    RunStopped,
+    parse_args,
+    positive_float,
+    positive_int,
+    run_scene,
+    stop_message,
+    write_table,
+)
 
 SCENE = CASES / "static_perturbed.toml"
 COMMON = ["initial.sigma_over_dx=0.1", "diagnostics.stop_at_cartesian=1.05"]  # after domain.dx (--dx)
@@ -66,12 +75,12 @@ def reached(run):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/iips_vs_explicit"))
-    parser.add_argument("--ranks", type=int, nargs="+", default=[1, 2])
-    parser.add_argument("--repeats", type=int, default=5, help="IIPS runs per setting (their median time)")
-    parser.add_argument("--wavelengths", type=float, nargs="+", default=[0.125, 0.25, 0.5],
+    parser.add_argument("--ranks", type=positive_int, nargs="+", default=[1, 2])
+    parser.add_argument("--repeats", type=positive_int, default=5, help="IIPS runs per setting (their median time)")
+    parser.add_argument("--wavelengths", type=positive_float, nargs="+", default=[0.125, 0.25, 0.5],
                         help="the test function's wavelengths l, as lengths (l / L; the table gives l / dx, the "
                         "particles per wavelength)")
-    parser.add_argument("--dx", type=float, default=0.0125, help="dx/L (default: the thesis' 0.0125)")
+    parser.add_argument("--dx", type=positive_float, default=0.0125, help="dx/L (default: the thesis' 0.0125)")
     parser.add_argument("--settings", nargs="+", default=[name for name, _, _ in IIPS],
                         choices=[name for name, _, _ in IIPS], help="the IIPS settings run (default: all)")
     args = parse_args(parser)

@@ -42,6 +42,8 @@ from psph.studies import (  # noqa: E402
     command_line,
     parse_args,
     plot_histories,
+    positive_float,
+    positive_int,
     run_scene,
     stop_message,
     write_table,
@@ -81,12 +83,12 @@ def summary_row(run, t0):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/impinging_jet"))
-    parser.add_argument("--ranks", type=int, default=2)
-    parser.add_argument("--resolutions", type=int, nargs="+", default=[10, 20], help="H/dx")
+    parser.add_argument("--ranks", type=positive_int, default=2)
+    parser.add_argument("--resolutions", type=positive_int, nargs="+", default=[10, 20], help="H/dx")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
-    parser.add_argument("--iips-resolutions", type=int, nargs="*", default=[10],
+    parser.add_argument("--iips-resolutions", type=positive_int, nargs="*", default=[10],
                         help="H/dx of the IIPS runs (each call stalls at 20 Newton iterations: README)")
-    parser.add_argument("--t-end", type=float, default=10.0)
+    parser.add_argument("--t-end", type=positive_float, default=10.0)
     parser.add_argument("--average-from", type=float, default=5.0)
     parser.add_argument("--no-run", action="store_true", help="tables and plots from the finished runs only")
     args = parse_args(parser)

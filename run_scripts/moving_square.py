@@ -25,6 +25,8 @@ from psph.studies import (  # noqa: E402
     RunStopped,
     command_line,
     parse_args,
+    positive_float,
+    positive_int,
     run_scene,
     stop_message,
     tag,
@@ -42,9 +44,9 @@ METHODS = {
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/moving_square"))
-    parser.add_argument("--dx", type=float, default=0.05)
-    parser.add_argument("--t-end", type=float, default=5.0)
-    parser.add_argument("--ranks", type=int, nargs="+", default=[1])
+    parser.add_argument("--dx", type=positive_float, default=0.05)
+    parser.add_argument("--t-end", type=positive_float, default=5.0)
+    parser.add_argument("--ranks", type=positive_int, nargs="+", default=[1])
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
     args = parse_args(parser)
     table, runs = [], {}

@@ -21,7 +21,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from psph.studies import CASES, fmt, parse_args, run_scene, write_table  # noqa: E402
+from psph.studies import CASES, fmt, parse_args, positive_float, positive_int, run_scene, write_table  # noqa: E402
 
 SCENE = CASES / "kinematic_tgv.toml"
 RUNS = {  # label: (figure, c0, P_S; None: no shifting)
@@ -48,9 +48,9 @@ def sets_for(label, dx, t_end):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/neuhauser_kinematic"))
-    parser.add_argument("--ranks", type=int, default=1)
-    parser.add_argument("--dx", type=float, default=0.0125)
-    parser.add_argument("--t-end", type=float, default=0.2)
+    parser.add_argument("--ranks", type=positive_int, default=1)
+    parser.add_argument("--dx", type=positive_float, default=0.0125)
+    parser.add_argument("--t-end", type=positive_float, default=0.2)
     args = parse_args(parser)
     runs = {}
     for label in RUNS:

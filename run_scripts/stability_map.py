@@ -20,13 +20,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from psph.scene.schema import SHIFTING_METHODS  # noqa: E402
 from psph.studies import (  # noqa: E402
     CASES,
     RunFailed,
     RunStopped,
     last_snapshot,
     parse_args,
+    positive_float,
     run_scene,
+    smoothing_ratio,
     stop_message,
     write_table,
 )
@@ -63,13 +66,13 @@ def run_case(out, sigma, ratio, c0, reynolds, method, dx, t_end):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/stability_map"))
-    parser.add_argument("--dx", type=float, default=0.05)
-    parser.add_argument("--t-end", type=float, default=0.5)
+    parser.add_argument("--dx", type=positive_float, default=0.05)
+    parser.add_argument("--t-end", type=positive_float, default=0.5)
     parser.add_argument("--sigmas", type=float, nargs="+", default=[0.0, 0.5])
-    parser.add_argument("--ratios", type=float, nargs="+", default=[1.2, 2.0, 2.5])
-    parser.add_argument("--c0", type=float, nargs="+", default=[5.0, 50.0])
-    parser.add_argument("--reynolds", type=float, nargs="+", default=[10.0, 1e4])
-    parser.add_argument("--methods", nargs="+", default=["none", "delta_plus", "iips"])
+    parser.add_argument("--ratios", type=smoothing_ratio, nargs="+", default=[1.2, 2.0, 2.5])
+    parser.add_argument("--c0", type=positive_float, nargs="+", default=[5.0, 50.0])
+    parser.add_argument("--reynolds", type=positive_float, nargs="+", default=[10.0, 1e4])
+    parser.add_argument("--methods", nargs="+", default=["none", "delta_plus", "iips"], choices=SHIFTING_METHODS)
     args = parse_args(parser)
     rows = []
     cases = list(itertools.product(args.methods, args.sigmas, args.ratios, args.c0, args.reynolds))

@@ -23,7 +23,17 @@ from pathlib import Path
 import numpy as np
 
 from psph.particles import Kind
-from psph.studies import CASES, command_line, last_snapshot, parse_args, plot_histories, run_scene, write_table
+from psph.studies import (
+    CASES,
+    command_line,
+    last_snapshot,
+    parse_args,
+    plot_histories,
+    positive_float,
+    positive_int,
+    run_scene,
+    write_table,
+)
 
 TANKS = {"box": "hydrostatic_tank.toml", "trapezoid": "trapezoidal_tank.toml"}
 
@@ -39,11 +49,12 @@ def pressure_error(out, depth=1.0):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/tank"))
-    parser.add_argument("--ranks", type=int, default=1)
-    parser.add_argument("--t-end", type=float, default=10.0, help="t sqrt(g/H)")
+    parser.add_argument("--ranks", type=positive_int, default=1)
+    parser.add_argument("--t-end", type=positive_float, default=10.0, help="t sqrt(g/H)")
     parser.add_argument("--tanks", nargs="+", default=list(TANKS), choices=list(TANKS))
-    parser.add_argument("--resolutions", type=int, nargs="+", default=[20, 40], help="H/dx of the box")
-    parser.add_argument("--trapezoid-resolutions", type=int, nargs="+", default=[25, 50], help="H/dx (seed 002)")
+    parser.add_argument("--resolutions", type=positive_int, nargs="+", default=[20, 40], help="H/dx of the box")
+    parser.add_argument("--trapezoid-resolutions", type=positive_int, nargs="+", default=[25, 50],
+                        help="H/dx (seed 002)")
     parser.add_argument("--walls", nargs="+", default=["clone", "ghost"], choices=["clone", "ghost"])
     args = parse_args(parser)
     rows, histories = [], {}

@@ -20,7 +20,20 @@ from pathlib import Path
 
 import numpy as np
 
-from psph.studies import command_line, fmt, last_snapshot, tgv_operator_errors, write_table
+from psph.errors import UsageError
+from psph.studies import (
+    check_memory,
+    command_line,
+    fmt,
+    last_snapshot,
+    parse_plain,
+    positive_int,
+    smoothing_ratio,
+    tgv_operator_errors,
+    unit_box_bytes,
+    unit_box_kernel,
+    write_table,
+)
 
 
 def implied_energy_error(ratio, reynolds=100.0, t=1.0):
@@ -32,15 +45,22 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=Path, nargs="+",
                         default=[Path("results/" + name) for name in ("tgv_tradeoff", "tgv_tradeoff_A", "tgv_hdx3")])
-    parser.add_argument("--h-over-dx", type=float, nargs="+", default=[2.0, 2.5, 3.0])
-    parser.add_argument("--lattices", type=int, nargs="+", default=[40, 80, 160])
+    parser.add_argument("--h-over-dx", type=smoothing_ratio, nargs="+", default=[2.0, 2.5, 3.0])
+    parser.add_argument("--lattices", type=positive_int, nargs="+", default=[40, 80, 160])
     parser.add_argument("--out", type=Path, default=Path("results/tgv_operator_error"))
     parser.add_argument("--viscosity", choices=("monaghan", "morris"), default="monaghan",
                         help="the viscous operator measured (physics.viscosity)")
-    args = parser.parse_args()
+    args = parse_plain(parser)
     missing = [str(p) for p in args.runs if not p.is_dir()]
     if missing:
         parser.error(f"--runs: no directory {', '.join(missing)}")
+    for m in args.lattices:  # (the runs' distributions are checked as they are read: tgv_operator_errors)
+        check_memory(parser, "--lattices", m, unit_box_bytes(m * m, max(args.h_over_dx)), m * m)
+        for hdx in args.h_over_dx:
+            try:
+                unit_box_kernel(m * m, hdx)
+            except UsageError as err:
+                parser.error(f"argument --lattices / --h-over-dx: lattice {m} x {m}, {err}")
     cases = []
     for m in args.lattices:
         g = (np.arange(m) + 0.5) / m

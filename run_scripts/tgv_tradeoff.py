@@ -25,6 +25,8 @@ from psph.studies import (  # noqa: E402
     RunStopped,
     pareto,
     parse_args,
+    positive_float,
+    positive_int,
     rate,
     run_scene,
     stop_message,
@@ -49,9 +51,9 @@ METHODS = {  # label: scene overrides
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/tgv_tradeoff"))
-    parser.add_argument("--ranks", type=int, default=1)
-    parser.add_argument("--t-end", type=float, default=1.0)
-    parser.add_argument("--resolutions", type=float, nargs="+", default=[0.05, 0.025, 0.0125, 0.00625])
+    parser.add_argument("--ranks", type=positive_int, default=1)
+    parser.add_argument("--t-end", type=positive_float, default=1.0)
+    parser.add_argument("--resolutions", type=positive_float, nargs="+", default=[0.05, 0.025, 0.0125, 0.00625])
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
     parser.add_argument("--procedure", choices=["A", "B"],
                         help="IIPS procedure (thesis Algorithms 2-3; default: the scene's, B)")

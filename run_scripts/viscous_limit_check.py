@@ -20,7 +20,7 @@ import numpy as np
 
 from psph.compute.smoothing import KERNEL_NAMES
 from psph.schemes.viscous_limit import SAFETY, lattice_symbol
-from psph.studies import viscous_operator_on_lattice, write_table
+from psph.studies import parse_plain, smoothing_ratio, viscous_operator_on_lattice, write_table
 
 CASES = ((0.0, 1.0), (0.25, 1.0), (0.5, 1.0), (0.8, 1.0), (0.0, 1.5), (0.0, 2.0), (0.3, 1.5))  # (sigma, stretch)
 
@@ -28,10 +28,10 @@ CASES = ((0.0, 1.0), (0.25, 1.0), (0.5, 1.0), (0.8, 1.0), (0.0, 1.5), (0.0, 2.0)
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/viscous_limit"))
-    parser.add_argument("--ratios", type=float, nargs="+", default=[1.2, 1.5, 2.0, 2.5], help="h/dx")
+    parser.add_argument("--ratios", type=smoothing_ratio, nargs="+", default=[1.2, 1.5, 2.0, 2.5], help="h/dx")
     parser.add_argument("--kernels", nargs="+", default=list(KERNEL_NAMES), choices=KERNEL_NAMES,
                         help="the kernels checked (default: all)")
-    args = parser.parse_args()
+    args = parse_plain(parser)
     rng = np.random.default_rng(3)
     rows, ratios = [], []
     for kernel, h_over_dx, morris in itertools.product(args.kernels, args.ratios, (False, True)):

@@ -34,7 +34,7 @@ from psph.parallel.comm import allreduce_sum
 from psph.particles import FieldSpec
 from psph.scene.load import load_scene
 from psph.solvers.petsc import initialize
-from psph.studies import CAVITY, CAVITY_DELTA_PLUS, CAVITY_WALLS, command_line, parse_args, write_table
+from psph.studies import CAVITY, CAVITY_DELTA_PLUS, CAVITY_WALLS, command_line, parse_args, positive_float, write_table
 
 PARTS = ("fluid pairs, u", "fluid pairs, du", "walls, u", "walls, du", "IIPS field update")
 REGIONS = ("top-left corner", "top-right corner", "lid", "other walls", "interior")
@@ -148,7 +148,7 @@ def total_volume(system):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--walls", nargs="+", default=["clone", "ghost"], choices=["clone", "ghost"])
-    parser.add_argument("--dx", type=float, default=0.04)
+    parser.add_argument("--dx", type=positive_float, default=0.04)
     parser.add_argument("--t0", type=float, default=2.0)
     parser.add_argument("--t1", type=float, default=6.0)
     parser.add_argument("--out", type=Path, default=Path("results/volume_budget"))

@@ -338,6 +338,56 @@ def test_a_benchmark_refuses_a_bad_argument_in_one_line(script, args, message):
     assert res.returncode == 2 and res.stderr.strip().splitlines()[-1] == f"{script}.py: error: {message}", res.stderr
 
 
+MEMORY = r"\d[\d.e+]* particles would need about [\d.e+]+ GiB, more than 80% of this machine's [\d.]+ GiB"
+
+
+@pytest.mark.parametrize("script,args,message", [
+    ("iips_kinematic", ["--resolutions", "0.1", "0.1"], "argument --resolutions: 0.1 given twice"),  # ZeroDivision
+    ("iips_static", ["--ranks", "0"], "argument --ranks: must be >= 1, got 0"),  # ran on one rank
+    ("iips_static", ["--out", "{tmp}/file"], "argument --out: {tmp}/file is a file, not a directory"),  # traceback
+    ("cavity", ["--out", "/proc/x"], "argument --out: cannot create /proc/x: No such file or directory"),
+    ("bench_walls", ["--out", "/proc/x"],  # failed after the measurement
+     "argument --out: cannot create /proc/x: No such file or directory"),
+    ("viscous_limit_check", ["--out", "{tmp}/file/table"],
+     "argument --out: {tmp}/file/table lies in {tmp}/file, a file, not a directory"),
+    ("cavity", ["--re", "50", "100", "0"], "argument --re: must be >= 1, got 0"),
+    ("cavity", ["--re", "50", "100"],  # KeyError after the runs
+     "argument --re: no reference data for Re = 50 (Ghia et al. 1982 in ghia1982_Re100_Re1000.csv: Re = 100, 1000)"),
+    ("cavity", ["--h-over-dx", "0"],  # ignored: the scene's 2 ran
+     "argument --h-over-dx: h/dx must be within 1 and 4 (as psph's domain.h_over_dx), got 0"),
+    ("ellipse", ["--resolutions", "0"], "argument --resolutions: must be >= 1, got 0"),  # ZeroDivisionError
+    ("viscous_limit_check", ["--ratios", "0.5"],  # ZeroDivisionError; 0, nan: psph's ValueError; 1e9: 30 GiB
+     "argument --ratios: h/dx must be within 1 and 4 (as psph's domain.h_over_dx), got 0.5"),
+    ("viscous_limit_check", ["--ratios", "nan"],
+     "argument --ratios: h/dx must be within 1 and 4 (as psph's domain.h_over_dx), got nan"),
+    ("viscous_limit_check", ["--ratios", "1e9"],
+     "argument --ratios: h/dx must be within 1 and 4 (as psph's domain.h_over_dx), got 1e9"),
+    ("tgv_operator_error", ["--runs", "{tmp}", "--lattices", "2", "--h-over-dx", "2"],  # tabled grad p errors of 3e12
+     "argument --lattices / --h-over-dx: lattice 2 x 2, h/dx = 2 on 4 particles (dx = 0.5): the kernel support 2 is "
+     "not smaller than the periodic unit box; use more particles or a smaller h/dx"),
+    ("tgv_operator_error", ["--runs", "{tmp}", "--lattices", "0"], "argument --lattices: must be >= 1, got 0"),
+    ("tgv_operator_error", ["--runs", "{tmp}", "--lattices", "100000"], "argument --lattices: 100000: " + MEMORY),
+    ("bench_flow", ["--sizes", "100000"], "argument --sizes: 100000: " + MEMORY),  # 74.5 GiB allocation failed
+    ("bench_iips", ["--sizes", "100000"], "argument --sizes: 100000: " + MEMORY),
+    ("bench_sums", ["--sizes", "100000"], "argument --sizes: 100000: " + MEMORY),
+    ("bench_memory", ["--cases", "tgv", "--dx", "0.1", "0.1000000001"],  # ZeroDivisionError after the runs
+     "--dx 0.1 0.1000000001: the same 100 particles (case tgv); give two spacings whose lattices differ"),
+    ("stability_map", ["--methods", "bogus"],  # a refused first case emptied a finished map
+     "argument --methods: invalid choice: 'bogus' (choose from 'none', 'iips', 'explicit_iterative', 'lind', "
+     "'skillen', 'oger', 'delta_plus', 'neuhauser')")])
+def test_a_study_refuses_a_bad_argument_in_one_line_before_any_run(script, args, message, tmp_path):
+    """A study audit: these ended in a traceback (some after all their runs), ran on silently or tabled
+    nonsense. Every refusal is one line (no usage), exit code 2, before any computation."""
+    (tmp_path / "file").write_text("")
+    args = [a.format(tmp=tmp_path) for a in args]
+    res = subprocess.run([sys.executable, f"run_scripts/{script}.py", *args], capture_output=True, text=True,
+                         timeout=120, cwd=ROOT, env=mpi_environment())
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert re.fullmatch(f"{script}.py: error: " + re.escape(message.format(tmp=tmp_path)).replace(
+        re.escape(MEMORY), MEMORY), res.stderr.strip()), res.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]  # nothing written
+
+
 def test_every_script_is_run_here_or_in_test_studies():
     """A script added to run_scripts/ gets its smoke run (here, or end to end in tests/test_studies.py)."""
     elsewhere = {"dam_break_long", "volume_budget"}

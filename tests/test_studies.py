@@ -376,3 +376,16 @@ def test_the_static_study_tables_a_history_shorter_than_five_iterations(tmp_path
     assert len(rows) == 2 and all(row[header.index("L2(gradC) it 5")] == "" for row in rows)
     assert all(row[header.index("drop at it 5")] == "" and row[header.index("at it")] == "2" for row in rows)
     assert "| - | - |" in (tmp_path / "histories.md").read_text()
+
+
+
+
+def test_the_operator_study_refuses_a_kernel_support_as_large_as_the_periodic_box():
+    """A study audit: the 3 x 3 tiling of a unit box that the support covers tabled a grad p error of 3e12."""
+    lattice = (np.stack(np.meshgrid(*[(np.arange(2) + 0.5) / 2] * 2, indexing="ij"), -1).reshape(-1, 2))
+    with pytest.raises(studies.UsageError, match=r"^h/dx = 2 on 4 particles \(dx = 0.5\): the kernel support 2 "
+                                                 r"is not smaller than the periodic unit box"):
+        studies.tgv_operator_errors(lattice, np.full(4, 0.25), 2.0)
+    with pytest.raises(studies.UsageError, match=r"^h/dx = nan: must be within 1 and 4"):
+        studies.unit_box_kernel(100, float("nan"))
+    assert studies.unit_box_kernel(100, 2.0).support == pytest.approx(0.4)
