@@ -9,6 +9,7 @@ import hashlib
 import json
 import math
 import os
+import re
 import shlex
 import subprocess
 import sys
@@ -52,14 +53,22 @@ class RunFailed(Exception):
 
 
 def run_study(main) -> None:
-    """Run a study's main(): bad input (PsphError), a run psph refused or that crashed (RunFailed) and a
-    diagnosed stop the study does not table (RunStopped) end it with one line on stderr and exit code 2
-    (3 for a stop); the runs already made stay in their directories (PSPH_STUDY_REUSE=1 resumes). A
-    main() that returns a number exits with it."""
+    """Run a study's main(): bad input (PsphError, a run psph refused: RunFailed with exit code 2), a
+    diagnosed stop the study does not table (RunStopped, or a NumericalError of an in-process benchmark) and
+    a run that crashed (RunFailed otherwise) end it with one line on stderr and exit code 2 (bad input), 3
+    (a stop) or 1 (a crash, whose line names the file holding the run's whole stderr); the runs already
+    made stay in their directories (PSPH_STUDY_REUSE=1 resumes). A main() that returns a number exits with
+    it."""
     name = Path(sys.argv[0]).name
     try:
         code = main()
-    except (PsphError, RunFailed) as err:
+    except RunFailed as err:
+        print(f"{name}: error: {err}", file=sys.stderr)
+        sys.exit(2 if err.returncode == 2 else 1)
+    except NumericalError as err:
+        print(f"{name}: error: {err}", file=sys.stderr)
+        sys.exit(NumericalError.exit_code)
+    except PsphError as err:
         print(f"{name}: error: {err}", file=sys.stderr)
         sys.exit(2)
     except RunStopped as err:
@@ -84,6 +93,9 @@ _STALE_RUNS = []
 
 # what the study's own command line adds to every run it makes (parse_args)
 _EVERY_RUN = {"sets": [], "petsc": []}
+
+# the study's --out (parse_args), and the runs run_scene(only_finished=True) found no finished run of
+_STUDY = {"out": None, "not_run": []}
 
 # psph's rule for domain.h_over_dx (psph.scene.schema)
 H_OVER_DX = (1.0, 4.0)
@@ -204,6 +216,7 @@ def parse_args(parser, argv=None):
     args.petsc = petsc
     check_args(parser, args)
     _EVERY_RUN.update(sets=list(args.set), petsc=petsc)
+    _STUDY.update(out=getattr(args, "out", None), not_run=[])
     return args
 
 
@@ -253,6 +266,7 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, on
         if stopped.exists():
             raise RunStopped(stopped.read_text())
     if only_finished:
+        _STUDY["not_run"].append(out)
         raise NotRun(f"{out}: no finished run of this command")
     for path in (stamp, stopped, failed):  # a run killed half-way must not pass for the old complete one
         path.unlink(missing_ok=True)
@@ -264,9 +278,15 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, on
             stopped.write_text(message)
             stamp.write_text(json.dumps(key))
             raise RunStopped(message)
+        line = f"{out}: {stop_message(message).removeprefix('psph: error: ')}"
         if out.is_dir():
             failed.write_text(message)
-        raise RunFailed(f"{out}: {stop_message(message).removeprefix('psph: error: ')}", res.returncode)
+        if res.returncode != 2:  # a crash: its cause is in the traceback, which the line points to
+            cause = next((t.strip() for t in reversed(res.stderr.splitlines())
+                          if re.match(r"\s*[\w.]*(Error|Exception)\b.*:", t)), "")
+            line += (f" ({cause})" if cause and cause not in line else "") + \
+                (f"; its stderr is in {failed}" if out.is_dir() else "")
+        raise RunFailed(line, res.returncode)
     stamp.write_text(json.dumps(key))
     return Run(out, json.loads(summary.read_text()), read_history(out / "history.csv"))
 
@@ -372,11 +392,29 @@ def command_line() -> str:
     return " ".join(["run_scripts/" + Path(sys.argv[0]).name, *map(shlex.quote, sys.argv[1:])])
 
 
-def write_table(path, header, rows, title="", note="") -> str:
+class NothingMeasured(UsageError):
+    """write_table was given a table without a measured row: it writes nothing (exit code 2)."""
+
+
+def unmeasured(value) -> bool:
+    """A table cell that holds no measurement: None (fmt's "-"), "-" or empty."""
+    return value is None or (isinstance(value, str) and value.strip() in ("", "-"))
+
+
+def write_table(path, header, rows, title="", note="", labels=1) -> str:
     """Write a Markdown table (path.md) and the same data as CSV (path.csv); returns the Markdown. The note
     ends with the study's command line (unless it gives one) and names the runs read back that other psph
-    source made (run_scene(only_finished=True))."""
+    source made (run_scene(only_finished=True)).
+
+    A table without a measured row (no rows, or in every row each cell past its first `labels` columns
+    unmeasured) is refused (NothingMeasured, one line) and the files already there are left as they are: a
+    study whose runs all failed, or found none (--no-run), replaces no table with an empty one."""
     path = Path(path)
+    if not rows or (len(header) > labels and all(all(map(unmeasured, row[labels:])) for row in rows)):
+        where = _STUDY["out"] or path.parent
+        why = (f"found no finished run in --out {where} (--no-run)" if _STUDY["not_run"]
+               else "no row of it was measured")
+        raise NothingMeasured(f"{path.with_suffix('.md')} not written: {why}; the files there are kept")
     path.parent.mkdir(parents=True, exist_ok=True)
     lines = [f"### {title}", ""] if title else []
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]

@@ -123,7 +123,7 @@ def main():
         print(write_table(args.out / "drop", [
             "R/dx", "shifting", "axes error t = 0.5", "t = 1", "b/b_exact - 1 (t = 1)", "RMS p error",
             "min spacing / dx (t = 1)", "interior Linf(grad C), mean", "surface particles (t = 1)", "wall s"],
-            rows, title="Elliptical drop (packed) to t A0 = 1 with a detected free surface", note=note))
+            rows, title="Elliptical drop (packed) to t A0 = 1 with a detected free surface", note=note, labels=2))
         curves = [([r["time"] for r in run.history], [max(r["semi_axis_error"], 1e-6) for r in run.history],
                    f"{method}, R/dx = {n}", {"ls": {"none": ":", "delta_plus": "-", "iips": "--"}[method]})
                   for (method, n), run in sorted(runs.items(), key=lambda kv: (kv[0][1], kv[0][0]))]
@@ -137,7 +137,7 @@ def main():
         print(write_table(args.out / "tank", [
             "H/dx", "shifting", "max speed at t = 10", "max speed, t >= 5", "eps_V(t_end)",
             "interior Linf(grad C), mean", "surface particles (t_end)", "wall s"], rows,
-            title="Hydrostatic tank (clone walls) to t sqrt(g/H) = 10: speeds in sqrt(g H)", note=note))
+            title="Hydrostatic tank (clone walls) to t sqrt(g/H) = 10: speeds in sqrt(g H)", note=note, labels=2))
         curves = [([r["time"] for r in run.history], [max(r["max_speed"], 1e-8) for r in run.history],
                    f"{method}, H/dx = {n}", {"ls": {"none": ":", "delta_plus": "-", "iips": "--"}[method]})
                   for (method, n), run in sorted(runs.items(), key=lambda kv: (kv[0][1], kv[0][0]))]

@@ -124,7 +124,7 @@ def main():
         f"RMS profile error, x within {SPAN:g} H", "cl (pressure + viscous)", "cl / -2 - 1", "min spacing / dx",
         "wall s"], rows,
         title=f"Impinging jet against Taylor's wall solution: averages over {window}",
-        note="Command: " + command_line()))
+        note="Command: " + command_line(), labels=2))
     if profiles:
         fig, ax = plt.subplots(figsize=(7, 4))
         x = np.linspace(-4.0, 4.0, 801)

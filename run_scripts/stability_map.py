@@ -83,12 +83,14 @@ def main():
             rows.append([method, sigma, ratio, c0, reynolds, outcome, detail])
             print(f"[{k}/{len(cases)}] {method:10s} sigma/dx={sigma} h/dx={ratio} c0/U={c0:g} Re={reynolds:g}: "
                   f"{outcome}; {detail}", flush=True)
-    finally:  # the cases done so far, also when a refused one stops the map
+    finally:  # the cases done so far, also when a refused one stops the map (none: the old map is kept)
         counts = {o: sum(r[5] == o for r in rows) for o in OUTCOMES}
         given = "".join(f", then --set {s}" for s in args.set) + (f", {' '.join(args.petsc)}" if args.petsc else "")
         note = f"dx = {args.dx}, t_end = {args.t_end}{given}; " + ", ".join(f"{o}: {n}" for o, n in counts.items())
-        print(write_table(args.out / "map.md", ["method", "sigma/dx", "h/dx", "c0/U", "Re", "outcome", "detail"],
-                          rows, title="Stability map: Taylor-Green runs at the extremes", note=note))
+        if rows:
+            print(write_table(args.out / "map.md", ["method", "sigma/dx", "h/dx", "c0/U", "Re", "outcome",
+                                                    "detail"], rows,
+                              title="Stability map: Taylor-Green runs at the extremes", note=note, labels=5))
     # one panel per method: x = (h/dx, sigma/dx), y = (c0/U, Re), colour = outcome
     fig, axes = plt.subplots(1, len(args.methods), figsize=(5 * len(args.methods), 4.2), squeeze=False)
     xs = list(itertools.product(args.ratios, args.sigmas))

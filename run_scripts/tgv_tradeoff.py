@@ -96,7 +96,8 @@ def main():
         e = [err(label, dx) for dx in args.resolutions]
         row = [label]
         for k, dx in enumerate(args.resolutions):
-            row += [cell(label, dx), rate(e[k - 1], e[k], args.resolutions[k - 1] / dx) if k else None]
+            both = k and runs.get((label, args.resolutions[k - 1])) and runs.get((label, dx))
+            row += [cell(label, dx), rate(e[k - 1], e[k], args.resolutions[k - 1] / dx) if both else None]
         row.append(cell(label, args.resolutions[-1], "kinetic_energy_error"))
         rows.append(row)
     header = ["method"]
@@ -117,6 +118,9 @@ def main():
             s = runs[(label, dx)].summary
             overhead = s.get("iips_time_s", 0.0) / max(s["step_time_s"] - s.get("iips_time_s", 0.0), 1e-12)
             trade.append([label, dx, wall, e, s["steps"], overhead if label.startswith("IIPS") else "-"])
+    if not trade:  # every run stopped: no time against error (the old figure and table are kept)
+        print(f"no finished run: {args.out / 'tradeoff.md'} and tradeoff.png not written", flush=True)
+        return
     front = set(pareto([(row[2], row[3]) for row in trade]))
     for i, row in enumerate(trade):
         row.append("*" if i in front else "")

@@ -20,6 +20,7 @@ SETS = ["domain.dx=0.1", "time.t_end=0.02", "shifting.method=none", "iips.update
 def no_study_overrides(monkeypatch):
     """What a study's command line adds to every run (studies.parse_args) stays within its test."""
     monkeypatch.setattr(studies, "_EVERY_RUN", {"sets": [], "petsc": []})
+    monkeypatch.setattr(studies, "_STUDY", {"out": None, "not_run": []})
 
 
 def test_a_studys_set_and_petsc_options_reach_every_run(tmp_path):
@@ -332,12 +333,57 @@ def test_the_volume_budget_takes_petsc_options_and_reports_a_bad_one_in_a_line(t
     assert "clone walls" in res.stderr and "Unable to find requested PC type nonexistent" in res.stderr
 
 
+def run_main(study, capsys):
+    """study.main() as run_study runs it: (exit code, stderr)."""
+    with pytest.raises(SystemExit) as info:
+        studies.run_study(study.main)
+        raise SystemExit(0)
+    return info.value.code, capsys.readouterr().err
 
 
+def test_a_table_without_a_measured_row_is_not_written_and_the_old_one_is_kept(tmp_path):
+    """A study audit: a failed or empty sweep (no row, or nothing but "-" past the labels) replaced the tables of
+    an earlier one with empty ones."""
+    studies.write_table(tmp_path / "t", ["method", "error"], [["IIPS", 0.5]])
+    old = (tmp_path / "t.md").read_text(), (tmp_path / "t.csv").read_text()
+    for rows, labels in (([], 1), ([["IIPS", None], ["delta+", "-"]], 1), ([[0.1, "IIPS", ""]], 2)):
+        with pytest.raises(studies.NothingMeasured, match=r"t\.md not written: no row of it was measured; the files "
+                                                          r"there are kept$"):
+            studies.write_table(tmp_path / "t", ["dx", "method", "error"][-len(rows[0]) if rows else 1:], rows,
+                                labels=labels)
+        assert ((tmp_path / "t.md").read_text(), (tmp_path / "t.csv").read_text()) == old
+    # a row whose only cells are labels is a table (one resolution: no rate), and a stop's message a result
+    studies.write_table(tmp_path / "u", ["h/dx"], [[2.0]])
+    studies.write_table(tmp_path / "u", ["method", "error"], [["IIPS", "stopped: NaN"], ["delta+", None]])
 
 
+def test_a_stability_map_keeps_the_finished_map_when_its_first_case_is_refused(tmp_path, monkeypatch, capsys):
+    """A study audit: a refused first case (e.g. a value psph refuses) replaced the finished map with an empty
+    one, and the finally block's table could hide the refusal's message."""
+    study = study_module("stability_map")
+    (tmp_path / "map.md").write_text("the finished map\n")
+
+    def refused(scene, out, sets):
+        raise studies.RunFailed(f"{out}: physics.sound_speed: must be > 0", 2)
+
+    monkeypatch.setattr(study, "run_scene", refused)
+    monkeypatch.setattr("sys.argv", ["stability_map.py", "--dx", "0.1", "--sigmas", "0", "--ratios", "2", "--c0", "5",
+                                     "--reynolds", "10", "--methods", "none", "--out", str(tmp_path)])
+    code, err = run_main(study, capsys)
+    assert code == 2 and err.strip().endswith("physics.sound_speed: must be > 0") and len(err.splitlines()) == 1, err
+    assert (tmp_path / "map.md").read_text() == "the finished map\n" and not (tmp_path / "map.csv").exists()
 
 
+def test_no_run_with_no_finished_run_says_so_and_keeps_the_tables(tmp_path):
+    """A study audit: --no-run with no finished run in --out replaced the tables with empty ones and exited 0."""
+    script = studies.CASES.parent / "run_scripts" / "tgv_tradeoff.py"
+    (tmp_path / "convergence.md").write_text("old\n")
+    res = subprocess.run([sys.executable, str(script), "--resolutions", "0.05", "0.025", "--methods", "IIPS",
+                          "--no-run", "--out", str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2 and res.stderr.strip().splitlines() == [
+        f"tgv_tradeoff.py: error: {tmp_path / 'convergence.md'} not written: found no finished run in --out {tmp_path} "
+        "(--no-run); the files there are kept"], res.stderr
+    assert (tmp_path / "convergence.md").read_text() == "old\n" and not (tmp_path / "tradeoff.md").exists()
 
 
 def fake_static_run(errors, iterations=10):
@@ -389,3 +435,33 @@ def test_the_operator_study_refuses_a_kernel_support_as_large_as_the_periodic_bo
     with pytest.raises(studies.UsageError, match=r"^h/dx = nan: must be within 1 and 4"):
         studies.unit_box_kernel(100, float("nan"))
     assert studies.unit_box_kernel(100, 2.0).support == pytest.approx(0.4)
+
+
+def test_run_study_exit_codes_a_stop_a_crash_and_bad_input(tmp_path, monkeypatch, capsys):
+    """A study audit: a NumericalError of an in-process benchmark exited 2 (bad input), not 3; a crashed run
+    exited 2 with psph's "internal error" line only, not saying where its traceback was."""
+    from psph.errors import NumericalError, SceneError
+
+    class Study:
+        def __init__(self, err):
+            self.err = err
+
+        def main(self):
+            raise self.err
+
+    code, err = run_main(Study(NumericalError("density left the range", step=3)), capsys)
+    assert code == 3 and err.endswith("error: density left the range [step 3]\n")
+    code, err = run_main(Study(SceneError("domain.dx", "must be > 0")), capsys)
+    assert code == 2 and err.endswith("error: domain.dx: must be > 0\n")
+    crash = ("Traceback (most recent call last):\n  File x, line 1\nImportError: cannot import name 'GAMMA' from "
+             "'psph.schemes.eos'\npsph: internal error on rank 0 (a bug; please report it)\n")
+    monkeypatch.setattr(subprocess, "run", lambda *a, **k: subprocess.CompletedProcess(a, 1, "", crash))
+    (tmp_path / "run").mkdir()
+    with pytest.raises(studies.RunFailed) as failed:
+        studies.run_scene(studies.CASES / "taylor_green.toml", tmp_path / "run", sets=SETS)
+    code, err = run_main(Study(failed.value), capsys)
+    assert code == 1 and err.splitlines() == [
+        f"{Path(sys.argv[0]).name}: error: {tmp_path / 'run'}: psph: internal error on rank 0 (a bug; please report "
+        "it) (ImportError: cannot import name 'GAMMA' from 'psph.schemes.eos'); its stderr is in "
+        f"{tmp_path / 'run' / 'study_failed.txt'}"]
+    assert "Traceback" in (tmp_path / "run" / "study_failed.txt").read_text()
