@@ -14,6 +14,7 @@ import shlex
 import subprocess
 import sys
 import tempfile
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -92,10 +93,14 @@ _STALE_RUNS = []
 
 
 # what the study's own command line adds to every run it makes (parse_args)
-_EVERY_RUN = {"sets": [], "petsc": []}
+_EVERY_RUN = {"sets": [], "petsc": [], "allow_large": False}
 
 # the study's --out (parse_args), and the runs run_scene(only_finished=True) found no finished run of
 _STUDY = {"out": None, "not_run": []}
+
+# keys a study sets on its runs that the study's own --set may change: how often a run writes its snapshots
+# and history rows, not what it computes or what the study's tables label
+WRITE_KEYS = ("output.every", "output.history_every")
 
 # psph's rule for domain.h_over_dx (psph.scene.schema)
 H_OVER_DX = (1.0, 4.0)
@@ -202,39 +207,63 @@ def parse_plain(parser, argv=None):
 
 def parse_args(parser, argv=None):
     """The study's arguments by `parser`, plus what every study takes: `--set KEY=VALUE` (repeatable; as
-    `args.set`) and PETSc options (`-iips_pc_type hypre`, ...; as `args.petsc`). run_scene gives both to every
-    run after the study's own overrides, as `psph run` takes them. A bad argument is one line
+    `args.set`), `--allow-large` and PETSc options (`-iips_pc_type hypre`, ...; as `args.petsc`). run_scene gives
+    them to every run after the study's own overrides, as `psph run` takes them. A bad argument is one line
     (one_line_errors), and --out and the resolutions are checked (check_args)."""
     from psph.cli import split_petsc_options
 
     one_line_errors(parser)
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="a scene override for every run, after the study's own (as psph run --set)")
+                        help="a scene override for every run, after the study's own (as psph run --set); a key "
+                             "the study sets itself is refused (but output.every and output.history_every)")
+    parser.add_argument("--allow-large", action="store_true",
+                        help="run scenes psph estimates too large for this machine (as psph run --allow-large)")
     parser.epilog = "PETSc options (e.g. -iips_pc_type hypre) are passed to every run."
     ours, petsc = split_petsc_options(sys.argv[1:] if argv is None else list(argv))
     args = parser.parse_args(ours)
     args.petsc = petsc
     check_args(parser, args)
-    _EVERY_RUN.update(sets=list(args.set), petsc=petsc)
+    _EVERY_RUN.update(sets=list(args.set), petsc=petsc, allow_large=args.allow_large)
     _STUDY.update(out=getattr(args, "out", None), not_run=[])
     return args
 
 
-def study_command(scene, out, sets=(), petsc=(), ranks=1, quiet=True) -> list:
+def _scene_value(text):
+    """A --set value as psph reads it: a TOML literal, else a bare word (a string)."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text.strip()
+
+
+def study_command(scene, out, sets=(), petsc=(), ranks=1, quiet=True, settable=()) -> list:
     """The command line of `psph run scene --out out --overwrite --set ... [PETSc options]` on `ranks` MPI
-    ranks, the study's command line's --set and PETSc options (parse_args) after `sets` and `petsc`."""
+    ranks, the study's command line's --set, --allow-large and PETSc options (parse_args) after `sets` and
+    `petsc`. A --set of the study's command line that gives a key of `sets` another value is refused
+    (UsageError): the study labels its tables with its own values. Exempt are WRITE_KEYS and `settable`, the
+    keys the study reads back from the scene the run had."""
+    own = dict(s.split("=", 1) for s in sets if "=" in s)
+    for s in _EVERY_RUN["sets"]:
+        key, _, value = s.partition("=")
+        key = key.strip()
+        if key in own and key not in (*WRITE_KEYS, *settable) and _scene_value(value) != _scene_value(own[key]):
+            raise UsageError(f"--set {s}: this study sets {key} on its runs itself ({key}={own[key]} in {out}), "
+                             "and its tables say so; change it with the study's own options")
     cmd = [sys.executable, "-m", "psph", "run", str(scene), "--out", str(out), "--overwrite"]
     for s in [*sets, *_EVERY_RUN["sets"]]:
         cmd += ["--set", s]
     if quiet:
         cmd.append("--quiet")
+    if _EVERY_RUN.get("allow_large"):
+        cmd.append("--allow-large")
     cmd += [*petsc, *_EVERY_RUN["petsc"]]
     if ranks > 1:
         cmd = ["mpiexec", "-n", str(ranks), "--oversubscribe"] + cmd
     return cmd
 
 
-def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, only_finished=False) -> Run:
+def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, only_finished=False,
+              settable=()) -> Run:
     """`psph run scene --out out --set ... [PETSc options]` on `ranks` MPI ranks; raises on failure.
 
     With reuse (default: the PSPH_STUDY_REUSE environment variable is set), a directory holding a
@@ -244,8 +273,9 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, on
     running (a study's table from the runs it has); a run of other psph source is read then, and
     write_table says so in the table's note.
     Raises RunStopped for a diagnosed stop (exit code 3) and RunFailed for anything else.
-    The study's command line's --set and PETSc options (parse_args) follow `sets` and `petsc`."""
-    cmd = study_command(scene, out, sets, petsc, ranks, quiet)
+    The study's command line's --set and PETSc options (parse_args) follow `sets` and `petsc`; a --set that
+    changes a key of `sets` (but those in `settable`) is refused (study_command)."""
+    cmd = study_command(scene, out, sets, petsc, ranks, quiet, settable)
     out = Path(out)
     stamp = out / "study_command.json"
     if only_finished:

@@ -123,7 +123,9 @@ def main():
                 scene = load_scene(CAVITY, [*sets, *args.set])  # run_scene adds --set to the runs
                 shifting = shifting_label(scene)
                 try:
-                    run = run_scene(CAVITY, args.out / name, sets=sets, ranks=args.ranks)
+                    # the centrelines are sampled with the h/dx of the scene the run had (a --set of it too)
+                    run = run_scene(CAVITY, args.out / name, sets=sets, ranks=args.ranks,
+                                    settable=("domain.h_over_dx",))
                 except RunStopped as err:  # psph's diagnosis stopped the run (its state and history are kept)
                     print(f"Re={re} {walls} L/dx={n}: stopped: {stop_message(err)}", flush=True)
                     table.append([re, walls, shifting, n,

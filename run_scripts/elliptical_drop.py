@@ -76,7 +76,8 @@ def sweep_runs(args):
         run = run_scene(SCENE, args.out / f"alpha{alpha:g}_r{n}", ranks=args.ranks,
                         sets=[f"domain.dx={1.0 / n}", f"packing.alpha={alpha}",
                               f"packing.iterations={SWEEP_ITERATIONS}", "packing.tolerance=1e-30",
-                              "time.t_end=0.001", "output.every=0"])
+                              "time.t_end=0.001", "output.every=0"],
+                        settable=("time.t_end",))  # (its packing is measured, whatever t_end the run has)
         data = packing_rows(run.out)
         histories[alpha] = data
         linf = {int(it): value for it, _, value in data}

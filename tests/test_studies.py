@@ -19,24 +19,34 @@ SETS = ["domain.dx=0.1", "time.t_end=0.02", "shifting.method=none", "iips.update
 @pytest.fixture(autouse=True)
 def no_study_overrides(monkeypatch):
     """What a study's command line adds to every run (studies.parse_args) stays within its test."""
-    monkeypatch.setattr(studies, "_EVERY_RUN", {"sets": [], "petsc": []})
+    monkeypatch.setattr(studies, "_EVERY_RUN", {"sets": [], "petsc": [], "allow_large": False})
     monkeypatch.setattr(studies, "_STUDY", {"out": None, "not_run": []})
 
 
 def test_a_studys_set_and_petsc_options_reach_every_run(tmp_path):
     """Every study takes --set KEY=VALUE and PETSc options, as psph run does, and gives them to every run after
-    its own overrides (which they win over)."""
+    its own overrides; a --set of a key the study sets itself to another value is refused (its tables label the
+    runs with the study's values), but for how often a run writes (studies.WRITE_KEYS) and the keys the study
+    reads back from its runs' scenes (settable)."""
     import argparse
 
     parser = argparse.ArgumentParser()
     parser.add_argument("--ranks", type=int, default=1)
     args = studies.parse_args(parser, ["--set", "domain.dx=0.2", "-iips_ksp_type", "gmres", "--ranks", "1",
-                                       "--set", "iips.max_newton=2", "-iips_ksp_monitor"])
-    assert args.set == ["domain.dx=0.2", "iips.max_newton=2"] and args.ranks == 1
+                                       "--set", "iips.max_newton=2", "-iips_ksp_monitor", "--set",
+                                       "output.history_every=1"])
+    assert args.set == ["domain.dx=0.2", "iips.max_newton=2", "output.history_every=1"] and args.ranks == 1
     assert args.petsc == ["-iips_ksp_type", "gmres", "-iips_ksp_monitor"]
+    with pytest.raises(studies.UsageError, match=r"^--set domain.dx=0.2: this study sets domain.dx on its runs "
+                                                 r"itself \(domain.dx=0.1 in "):
+        studies.run_scene(studies.CASES / "static_perturbed.toml", tmp_path / "refused",
+                          sets=["domain.dx=0.1", "shifting.method=iips"])
+    assert not (tmp_path / "refused").exists()  # nothing ran
     run = studies.run_scene(studies.CASES / "static_perturbed.toml", tmp_path / "run",
-                            sets=["domain.dx=0.1", "shifting.method=iips"])
-    assert run.summary["n_particles"] == 25 and run.summary["steps"] == 2  # dx = 0.2 won
+                            sets=["domain.dx=0.20", "shifting.method=iips", "output.history_every=5"])
+    assert run.summary["n_particles"] == 25 and run.summary["steps"] == 2  # (0.20 is 0.2: no clash)
+    assert [r["iteration"] for r in run.history] == [0, 1, 2]  # history_every = 1 won
+    studies.study_command("s.toml", tmp_path, sets=["domain.dx=0.1"], settable=("domain.dx",))  # no error
     command = (tmp_path / "run" / "study_command.json").read_text()
     assert '"-iips_ksp_type", "gmres", "-iips_ksp_monitor"' in command
     assert "nothing read" not in (tmp_path / "run" / "psph.log").read_text()  # the run read them
@@ -180,8 +190,8 @@ def test_the_cavity_study_samples_with_the_kernel_of_its_runs(tmp_path, monkeypa
     cavity = study_module()
     seen = {}
 
-    def fake_run(scene, out, sets, ranks):
-        assert scene == studies.CAVITY
+    def fake_run(scene, out, sets, ranks, settable=()):
+        assert scene == studies.CAVITY and settable == ("domain.h_over_dx",)  # (a --set of it is sampled with)
         seen["sets"] = sets
         return None
 
@@ -424,6 +434,17 @@ def test_the_static_study_tables_a_history_shorter_than_five_iterations(tmp_path
     assert "| - | - |" in (tmp_path / "histories.md").read_text()
 
 
+def test_a_study_refuses_a_set_of_a_key_it_sweeps_before_any_run(tmp_path, monkeypatch, capsys):
+    """A study audit: --set domain.dx=0.05 in iips_static.py ran at dx = 0.05 and labelled the row dx = 0.1."""
+    study = study_module("iips_static")
+    monkeypatch.setattr(subprocess, "run", lambda *a, **k: pytest.fail("a run started"))
+    monkeypatch.setattr("sys.argv", ["iips_static.py", "--resolutions", "0.1", "--ratios", "2.0", "--set",
+                                     "domain.dx=0.05", "--out", str(tmp_path)])
+    code, err = run_main(study, capsys)
+    assert code == 2 and err == ("iips_static.py: error: --set domain.dx=0.05: this study sets domain.dx on its runs "
+                                 f"itself (domain.dx=0.1 in {tmp_path / 'dx0.1_s0.1'}), and its tables say so; change "
+                                 "it with the study's own options\n")
+    assert not list(tmp_path.iterdir())
 
 
 def test_the_operator_study_refuses_a_kernel_support_as_large_as_the_periodic_box():
@@ -465,3 +486,13 @@ def test_run_study_exit_codes_a_stop_a_crash_and_bad_input(tmp_path, monkeypatch
         "it) (ImportError: cannot import name 'GAMMA' from 'psph.schemes.eos'); its stderr is in "
         f"{tmp_path / 'run' / 'study_failed.txt'}"]
     assert "Traceback" in (tmp_path / "run" / "study_failed.txt").read_text()
+
+
+def test_a_study_passes_allow_large_to_every_run():
+    """A study audit: psph's advice "(run with --allow-large to try anyway)" named an option no study took."""
+    import argparse
+
+    args = studies.parse_args(argparse.ArgumentParser(), ["--allow-large"])
+    assert args.allow_large and "--allow-large" in studies.study_command("s.toml", "out", sets=["domain.dx=0.1"])
+    studies.parse_args(argparse.ArgumentParser(), [])
+    assert "--allow-large" not in studies.study_command("s.toml", "out")
