@@ -95,6 +95,8 @@ def main():
     parser.add_argument("--walls", nargs="+", default=["clone"], choices=["clone", "ghost"])
     parser.add_argument("--ghost-resolutions", type=positive_int, nargs="+",
                         help="L/dx of the ghost runs (default: all)")
+    parser.add_argument("--history-every", type=positive_int, default=50,
+                        help="steps between history rows (output.history_every; the KE change reads them)")
     args = parse_args(parser)
     unknown = [re for re in args.re if re not in ghia_reynolds()]
     if unknown:  # (the comparison is the study: no run without it)
@@ -118,7 +120,8 @@ def main():
                 name = f"Re{re}_L{n}" + ("" if walls == "clone" else f"_{walls}")
                 ratio = args.h_over_dx if args.h_over_dx is not None else load_scene(CAVITY).domain.h_over_dx
                 sets = [f"domain.dx={dx}", f"domain.h_over_dx={ratio}", f"physics.reynolds={re}",
-                        f"time.t_end={args.t_end}", f"output.every={args.t_end}", "output.history_every=50",
+                        f"time.t_end={args.t_end}", f"output.every={args.t_end}",
+                        f"output.history_every={args.history_every}",
                         *CAVITY_WALLS[walls]]
                 scene = load_scene(CAVITY, [*sets, *args.set])  # run_scene adds --set to the runs
                 shifting = shifting_label(scene)

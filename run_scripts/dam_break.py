@@ -198,13 +198,14 @@ def main():
                       title=f"Dam break up to t = {IMPACT_END:g} sqrt(H/g): the surge and the first impact against "
                             "resolution (the runs below cut there, and runs to that time only); t in sqrt(H/g), "
                             "lengths in H, the front from the back wall, pressures in rho0 g H", note=note))
-    print(write_table(args.out / "dam_break",
-                      ["H/dx", "particles", "P1 max t >= 5, average", "raw",
-                       f"energy dissipated by t = {args.t_end:g}", "max mass drift", "eps_V(t_end)",
-                       "max density variation", "wall reflections", "wall s"], rows,
-                      title=f"Dam break to t = {args.t_end:g} sqrt(H/g): the plunging wave, the energy, the "
-                            "conservation; pressures in rho0 g H, the dissipated energy over the potential energy "
-                            "the collapse can release", note=note))
+    if rows:  # (none with --resolutions given no value: the runs to --t-end are the table)
+        print(write_table(args.out / "dam_break",
+                          ["H/dx", "particles", "P1 max t >= 5, average", "raw",
+                           f"energy dissipated by t = {args.t_end:g}", "max mass drift", "eps_V(t_end)",
+                           "max density variation", "wall reflections", "wall s"], rows,
+                          title=f"Dam break to t = {args.t_end:g} sqrt(H/g): the plunging wave, the energy, the "
+                                "conservation; pressures in rho0 g H, the dissipated energy over the potential "
+                                "energy the collapse can release", note=note))
     styles = {n: {"lw": 1.0 + 0.5 * k} for k, n in enumerate(args.resolutions + args.impact_resolutions)}
     curves = [(np.array([r["time"] for r in run.history]), np.array([r["front_x"] for r in run.history]),
                f"H/dx = {n}", styles[n]) for (n,), run in runs + short]

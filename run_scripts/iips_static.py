@@ -49,7 +49,7 @@ def histories(out, ranks, resolutions, sigmas, iterations):
             thousand = first_iteration(h, lambda r, l0=l2[0]: r["L2_grad_c"] <= 1e-3 * l0)
             within = first_iteration(h, lambda r, c=cart: r["L2_dfdx"] <= 1.05 * c)
             best = min(range(len(l2)), key=l2.__getitem__)
-            # IIPS may stop before iteration 5 (converged, a lattice it leaves as it is, a --set of max_newton):
+            # IIPS may stop before iteration 5 (converged, or a lattice it leaves as it is):
             # "-" for what it did not reach
             fifth = l2[min(5, iterations)] if len(l2) > min(5, iterations) else None
             rows.append([dx, sigma, run.summary["n_particles"], l2[0], fifth,

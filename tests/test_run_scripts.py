@@ -237,7 +237,7 @@ def tgv_operator_error(out):
 
 def cavity(out):
     # history rows every 5 steps (not 50): a row with the lid's flow before the last fifth ("KE change")
-    run_script("cavity", "--resolutions", 10, "--t-end", 0.1, "--set", "output.history_every=5", "--out", out)
+    run_script("cavity", "--resolutions", 10, "--t-end", 0.1, "--history-every", 5, "--out", out)
     finite(*table(out / "deviation", rows=1), skip=["walls", "shifting"])
     histories(out / "histories.csv", 3)
     figures(out, "centrelines_Re100.png", "volume_error.png")

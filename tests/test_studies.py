@@ -34,8 +34,8 @@ def test_a_studys_set_and_petsc_options_reach_every_run(tmp_path):
     parser.add_argument("--ranks", type=int, default=1)
     args = studies.parse_args(parser, ["--set", "domain.dx=0.2", "-iips_ksp_type", "gmres", "--ranks", "1",
                                        "--set", "iips.max_newton=2", "-iips_ksp_monitor", "--set",
-                                       "output.history_every=1"])
-    assert args.set == ["domain.dx=0.2", "iips.max_newton=2", "output.history_every=1"] and args.ranks == 1
+                                       "output.every=0.5"])
+    assert args.set == ["domain.dx=0.2", "iips.max_newton=2", "output.every=0.5"] and args.ranks == 1
     assert args.petsc == ["-iips_ksp_type", "gmres", "-iips_ksp_monitor"]
     with pytest.raises(studies.UsageError, match=r"^--set domain.dx=0.2: this study sets domain.dx on its runs "
                                                  r"itself \(domain.dx=0.1 in "):
@@ -43,9 +43,13 @@ def test_a_studys_set_and_petsc_options_reach_every_run(tmp_path):
                           sets=["domain.dx=0.1", "shifting.method=iips"])
     assert not (tmp_path / "refused").exists()  # nothing ran
     run = studies.run_scene(studies.CASES / "static_perturbed.toml", tmp_path / "run",
-                            sets=["domain.dx=0.20", "shifting.method=iips", "output.history_every=5"])
+                            sets=["domain.dx=0.20", "shifting.method=iips", "output.every=0"])
     assert run.summary["n_particles"] == 25 and run.summary["steps"] == 2  # (0.20 is 0.2: no clash)
-    assert [r["iteration"] for r in run.history] == [0, 1, 2]  # history_every = 1 won
+    assert [r["iteration"] for r in run.history] == [0, 1, 2]
+    # the history rows a study reads are its own (a review: a dam break's average of probe rows moved 3x)
+    with pytest.raises(studies.UsageError, match=r"^--set output.history_every=1: this study sets"):
+        studies._EVERY_RUN["sets"] = ["output.history_every=1"]
+        studies.study_command("s.toml", tmp_path, sets=["output.history_every=5"])
     studies.study_command("s.toml", tmp_path, sets=["domain.dx=0.1"], settable=("domain.dx",))  # no error
     command = (tmp_path / "run" / "study_command.json").read_text()
     assert '"-iips_ksp_type", "gmres", "-iips_ksp_monitor"' in command
@@ -382,6 +386,27 @@ def test_a_stability_map_keeps_the_finished_map_when_its_first_case_is_refused(t
     code, err = run_main(study, capsys)
     assert code == 2 and err.strip().endswith("physics.sound_speed: must be > 0") and len(err.splitlines()) == 1, err
     assert (tmp_path / "map.md").read_text() == "the finished map\n" and not (tmp_path / "map.csv").exists()
+
+
+def test_a_stability_map_keeps_the_finished_map_when_a_later_case_refuses_its_set(tmp_path, monkeypatch, capsys):
+    """A review: `--set iips.threshold=0.01` ran the "none" cases, was refused at the first IIPS case (which
+    sets the key itself), and the finally block replaced the finished map with the one case run."""
+    study = study_module("stability_map")
+    (tmp_path / "map.md").write_text("the finished map\n")
+    calls = []
+
+    def run(scene, out, sets):
+        calls.append(out)
+        studies.study_command(scene, out, sets)  # the clash check of every run
+        raise AssertionError("a case ran past the check") if len(calls) > 1 else studies.RunStopped("stopped")
+
+    monkeypatch.setattr(study, "run_scene", run)
+    monkeypatch.setattr("sys.argv", ["stability_map.py", "--dx", "0.1", "--sigmas", "0", "--ratios", "2", "--c0", "5",
+                                     "--reynolds", "10", "--methods", "none", "iips", "--set", "iips.threshold=0.01",
+                                     "--out", str(tmp_path)])
+    code, err = run_main(study, capsys)
+    assert code == 2 and "--set iips.threshold=0.01: this study sets iips.threshold on its runs itself" in err, err
+    assert len(calls) == 2 and (tmp_path / "map.md").read_text() == "the finished map\n"
 
 
 def test_no_run_with_no_finished_run_says_so_and_keeps_the_tables(tmp_path):
