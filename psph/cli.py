@@ -547,6 +547,11 @@ def scene_warnings(scene, restart=None) -> list:
                         f"physics.reference_velocity = {phys.reference_velocity:g}: weakly compressible SPH takes "
                         f"c0 >= {1.0 / MAX_MACH:g} U (Mach <= {MAX_MACH:g}), which keeps the density within about 1% "
                         "of rho0 (its variation grows as Mach^2)")
+    speed = math.hypot(*scene.initial.uniform_velocity) if scene.initial.velocity == "uniform" else 0.0
+    if phys.scheme in FLUID_SCHEMES and speed > phys.reference_velocity * (1.0 + 1e-9) and not restart:
+        warnings.append(f"initial.uniform_velocity: the fluid starts at {speed:g}, faster than "
+                        f"physics.reference_velocity = {phys.reference_velocity:g}, the speed the Mach number "
+                        "(its warning) and the shifting laws' caps assume: raise it")
     if phys.scheme == "riemann_ale" and phys.riemann_dissipation == "full" and mach < 0.05:
         warnings.append(f"physics.sound_speed / reference_velocity = {1.0 / mach:g}: the acoustic Riemann "
                         "solver's dissipation z (u_L - u_R) / 2 grows with c0 (Taylor-Green, dx = 0.05, t = 0.01: "

@@ -56,7 +56,8 @@ def _check_inside(scene, comm, gid, pos) -> None:
 
 def initial_fields(scene, pos) -> dict:
     """Fields the scene's initial condition sets at the fluid positions `pos`: the analytic Taylor-Green
-    velocity and pressure, or the hydrostatic pressure (none for initial.velocity = zero, pressure = zero)."""
+    velocity and pressure, a uniform velocity (the first inflow's, or initial.uniform_velocity), or the
+    hydrostatic pressure (none for initial.velocity = zero, pressure = zero)."""
     fields = {}
     if scene.initial.velocity == "taylor_green":
         d = scene.domain
@@ -66,8 +67,9 @@ def initial_fields(scene, pos) -> dict:
     if scene.initial.velocity == "elliptical_drop":
         vel, p = elliptical_drop(scene).fields(pos, 0.0)
         fields = {"velocity": vel, "pressure": p}
-    if scene.initial.velocity == "inflow":
-        fields = {"velocity": np.tile(np.asarray(scene.inflow[0].velocity, dtype=np.float64), (len(pos), 1))}
+    if scene.initial.velocity in ("inflow", "uniform"):
+        velocity = scene.inflow[0].velocity if scene.initial.velocity == "inflow" else scene.initial.uniform_velocity
+        fields = {"velocity": np.tile(np.asarray(velocity, dtype=np.float64), (len(pos), 1))}
     if scene.initial.pressure == "hydrostatic":
         fields["pressure"] = hydrostatic_pressure(scene, pos)
     return fields

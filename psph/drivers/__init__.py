@@ -23,6 +23,8 @@ def describe_model(scene) -> list:
         particles += f" filling a drop of radius {init.drop_radius:g} (free surface all round)"
     if init.velocity == "inflow":
         particles += f"; initial velocity: the first inflow's, {tuple(scene.inflow[0].velocity)}"
+    elif init.velocity == "uniform":
+        particles += f"; initial velocity: uniform, {tuple(init.uniform_velocity)}"
     elif init.velocity != "zero":
         particles += f"; initial velocity and pressure: analytic {init.velocity}"
     lines = [f"kernel {d.kernel}, h = {d.h_over_dx:g} dx = {d.h:g}, support 2h, {d.dimension}-D", particles]

@@ -300,8 +300,11 @@ class InitialSpec:
                            "taylor_green vortex (2-D bi-periodic square), or elliptical_drop: u = A0 x, v = -A0 y "
                            "and p = rho0 A0^2 / 2 (R^2 - r^2) about the drop's centre, A0 = reference_velocity / "
                            "drop_radius (seed 002 eq. 3.19-3.20), or inflow: the fill region moves with the first "
-                           "inflow's velocity (a jet already on its way)",
-                           choices=("zero", "taylor_green", "elliptical_drop", "inflow"))
+                           "inflow's velocity (a jet already on its way), or uniform: the fluid moves at "
+                           "initial.uniform_velocity",
+                           choices=("zero", "taylor_green", "elliptical_drop", "inflow", "uniform"))
+    uniform_velocity: tuple[float, ...] = option((), doc="initial.velocity = uniform: the fluid's velocity at t = 0, "
+                                                 "one entry per axis (the pressure stays initial.pressure's)")
     drop_radius: float = option(0.0, doc="2-D: the fluid fills the disc of this radius R at the domain's centre, "
                                 "a drop whose rim is a free surface (0: no drop)", ge=0.0)
     fill_lower: tuple[float, ...] = option((), doc="lower corner of the region the fluid fills (default: "
@@ -712,6 +715,9 @@ class Scene:
 
     def _check_open(self, fluid):
         d = self.domain
+        if self.initial.velocity == "uniform" and len(self.initial.uniform_velocity) != d.dimension:
+            raise SceneError("initial.uniform_velocity", f"initial.velocity = \"uniform\" needs {d.dimension} "
+                             f"entries (domain.dimension), got {list(self.initial.uniform_velocity)}")
         if self.initial.velocity == "inflow" and not self.inflow:
             raise SceneError("initial.velocity", "inflow sets the fluid moving with the first [[inflow]]: the "
                              "scene has none")
@@ -908,6 +914,8 @@ class Scene:
             keys += ["time.t_end", "time.cfl", "output.every", "output.history_every"]
         if self.iips.update not in ("mls1", "mls2"):
             keys.append("iips.mls_fit")
+        if self.initial.velocity != "uniform":
+            keys.append("initial.uniform_velocity")
         # (a keys audit: the following were read nowhere in such runs, and went unnamed)
         if scheme == "riemann_ale":  # its fluxes have no tensile switch
             keys.append("physics.tensile_switch")
