@@ -38,8 +38,11 @@ METHODS = {  # label: scene overrides
     "no shifting": ["shifting.method=none", "iips.update=none"],
     "delta+": ["shifting.method=delta_plus", "iips.update=none"],
     # eq. 6.33 as Neuhauser (2014) wrote it: the first column of Tables 7.1 and 9.1
-    "Neuhauser P_S=1": ["shifting.method=neuhauser", "shifting.neuhauser_ps=1", "iips.update=none"],
-    "Neuhauser P_S=10": ["shifting.method=neuhauser", "shifting.neuhauser_ps=10", "iips.update=none"],  # eq. 7.1
+    # (P^F off said outright: a --set of it is then refused, not tabled as P_S's row, studies.study_command)
+    "Neuhauser P_S=1": ["shifting.method=neuhauser", "shifting.neuhauser_ps=1", "shifting.fictitious_pressure=false",
+                        "iips.update=none"],
+    "Neuhauser P_S=10": ["shifting.method=neuhauser", "shifting.neuhauser_ps=10",  # eq. 7.1
+                         "shifting.fictitious_pressure=false", "iips.update=none"],
     "Neuhauser P^F": ["shifting.method=neuhauser", "shifting.fictitious_pressure=true", "iips.update=none"],  # 7.4
     "IIPS": ["shifting.method=iips", "iips.update=none"],
     "IIPS + NFTS": ["shifting.method=iips", "iips.update=nfts"],
