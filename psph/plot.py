@@ -17,8 +17,8 @@ from psph.errors import UsageError
 # pressure, the dam break's front and column, the jet's stagnation pressure, an open flow's mass budget)
 HISTORY_COLUMNS = ("kinetic_energy", "L2_vx_error", "kinetic_energy_error", "max_density_variation", "volume_error",
                    "L2_grad_c", "Linf_grad_c", "L2_dfdx", "max_speed", "dt", "iips_newton", "cd_pressure",
-                   "semi_axis_error", "L2_pressure_error", "front_x", "column_height", "stagnation_pressure",
-                   "mass_balance_error")
+                   "cl_pressure", "semi_axis_error", "L2_pressure_error", "front_x", "column_height",
+                   "stagnation_pressure", "mass_balance_error")
 ERROR_KEYS = ("L2_vx_error", "semi_axis_error", "L2_dfdx", "L2_grad_c")  # a study's error: the first a run has
 
 
@@ -55,9 +55,12 @@ def _history(path: Path) -> list:
     from psph.io.history import read_history
 
     try:
-        return read_history(path)
+        rows = read_history(path)
     except (ValueError, TypeError) as exc:  # a cell that is not a number; a row longer than the header
         raise UsageError(f"{str(path)!r} is not a psph history: {exc}") from None
+    if rows and "time" not in rows[0]:  # (a plot audit: a KeyError, "internal error")
+        raise UsageError(f"{str(path)!r} is not a psph history: no time column")
+    return rows
 
 
 def plot(out_dir, fig_dir=None, warn=print, line=None, points=None) -> list:
@@ -105,9 +108,24 @@ def _plot(out_dir: Path, fig_dir: Path, warn) -> list:
     raise UsageError(f"{str(out_dir)!r} holds neither a run (history.csv) nor runs (*/summary.json)")
 
 
+def _values(rows, column) -> np.ndarray:
+    """A history or probes column as floats, NaN where a cell is empty (a row cut short, a value not measured)."""
+    return np.array([np.nan if r.get(column) is None else r[column] for r in rows], dtype=float)
+
+
+def _shown(rows, column) -> bool:
+    """Whether history.png draws `column`: it has a finite value (an all-NaN column drew an empty panel, with
+    numpy's warning), and iips_newton only if IIPS ever iterated (a plot audit)."""
+    y = _values(rows, column)
+    finite = y[np.isfinite(y)]
+    if column == "iips_newton":
+        return bool(np.any(finite != 0.0))
+    return finite.size > 0
+
+
 def plot_history(run_dir: Path, fig_dir: Path):
     rows = _history(run_dir / "history.csv")
-    columns = [c for c in HISTORY_COLUMNS if rows and c in rows[0] and any(r[c] is not None for r in rows)]
+    columns = [c for c in HISTORY_COLUMNS if rows and c in rows[0] and _shown(rows, c)]
     if not columns:
         return None
     plt = _pyplot()
@@ -115,11 +133,15 @@ def plot_history(run_dir: Path, fig_dir: Path):
     ncol = min(n, 3)
     fig, axes = plt.subplots((n + ncol - 1) // ncol, ncol, figsize=(4.2 * ncol, 3.0 * ((n + ncol - 1) // ncol)),
                              squeeze=False)
-    t = [r["time"] for r in rows]
+    t = _values(rows, "time")
     for ax, c in zip(axes.flat, columns):
-        y = np.array([np.nan if r[c] is None else r[c] for r in rows])
-        positive = np.nanmin(y) > 0 and np.nanmax(y) / max(np.nanmin(y), 1e-300) > 100
-        (ax.semilogy if positive else ax.plot)(t, y)
+        y = _values(rows, c)
+        if c == "dt":
+            y[y == 0.0] = np.nan  # (the t = 0 row's: no step yet)
+        finite = y[np.isfinite(y)]
+        positive = finite.size > 0 and finite.min() > 0 and finite.max() / max(finite.min(), 1e-300) > 100
+        # (markers where a line has too few points to be seen: a static run's single row)
+        (ax.semilogy if positive else ax.plot)(t, y, marker="o" if np.isfinite(y).sum() < 3 else None)
         ax.set_title(c, fontsize=9)
         ax.set_xlabel("time (iteration for static runs)", fontsize=8)
     for ax in list(axes.flat)[n:]:
@@ -138,11 +160,11 @@ def plot_probes(run_dir: Path, fig_dir: Path):
         return None
     plt = _pyplot()
     fig, (ax_p, ax_u) = plt.subplots(1, 2, figsize=(9.0, 3.4))
-    t = np.array([r["time"] for r in rows])
+    t = _values(rows, "time")
     for k in range(sum(c.startswith("p_") for c in rows[0])):
         velocity = [c for c in rows[0] if c[0] in "uvw" and c[1:] == f"_{k}"]
-        ax_p.plot(t, [r[f"p_{k}"] for r in rows], label=f"probe {k}")
-        ax_u.plot(t, [np.sqrt(sum(r[c] ** 2 for c in velocity)) for r in rows], label=f"probe {k}")
+        ax_p.plot(t, _values(rows, f"p_{k}"), label=f"probe {k}")
+        ax_u.plot(t, np.sqrt(sum(_values(rows, c) ** 2 for c in velocity)), label=f"probe {k}")
     for ax, what in ((ax_p, "pressure"), (ax_u, "speed")):
         ax.set_xlabel("time", fontsize=8)
         ax.set_title(what, fontsize=9)
@@ -252,22 +274,30 @@ def plot_fields(run_dir: Path, fig_dir: Path):
     pos = data["position"]
     if pos.shape[1] == 3:
         return None  # 3-D: ParaView (OUT/psph.xdmf)
+    from psph.particles import Kind
+
     fields = shown_fields(run_dir, data)
     plt = _pyplot()
     n = len(fields)
     fig, axes = plt.subplots(1, n, figsize=(4.6 * n, 4.2), squeeze=False)
     placed = np.isfinite(pos).all(axis=1)
+    # the fluid's values only: walls, bodies and buffers hold stand-ins (a plot audit: the cavity's outer wall
+    # layers' |grad C| h of 0.91 set the colour scale of a fluid at 0.039, and the moving lid showed |u| = 0)
+    fluid = data["kind"] == Kind.FLUID
+    solid = placed & ~fluid
+    size = max(0.5, 4000.0 / len(pos))
     for ax, (name, values) in zip(axes.flat, fields.items()):
         # a failed run's last snapshot holds the state at the failure, possibly with non-finite values
-        shown = placed & np.isfinite(values)
-        left_out = len(pos) - int(np.count_nonzero(shown))
+        shown = placed & fluid & np.isfinite(values)
+        left_out = int(np.count_nonzero(fluid)) - int(np.count_nonzero(shown))
         if not shown.any():
             ax.axis("off")
         elif pos.shape[1] == 1:
             ax.plot(pos[shown, 0], values[shown], ".", ms=2)
         else:
-            sc = ax.scatter(pos[shown, 0], pos[shown, 1], c=values[shown], s=max(0.5, 4000.0 / len(pos)),
-                            cmap="viridis", linewidths=0)
+            if solid.any():  # where the solids and buffers are, uncoloured
+                ax.scatter(pos[solid, 0], pos[solid, 1], c="0.8", s=size, linewidths=0)
+            sc = ax.scatter(pos[shown, 0], pos[shown, 1], c=values[shown], s=size, cmap="viridis", linewidths=0)
             fig.colorbar(sc, ax=ax, shrink=0.8)
             ax.set_aspect("equal")
         ax.set_title(name + (f" ({left_out} non-finite left out)" if left_out else ""), fontsize=10)

@@ -884,3 +884,58 @@ def test_petsc_s_stream_viewers_are_no_files():
 
     assert viewer_file("ascii:stdout") is None and viewer_file("ascii:stderr:ascii_info") is None
     assert viewer_file("ascii:out.txt") == ["ascii", "out.txt", "", ""]
+
+
+def test_plot_colours_the_fluid_only_and_takes_damaged_or_empty_columns(tmp_path, monkeypatch):
+    """A plot audit: fields.png coloured the walls' stand-in values (the cavity's outer wall layers' |grad C| h
+    of 0.9 set the scale of a fluid at 0.04; the moving lid showed |u| = 0); a probes.csv row cut short, or a
+    history without a time column, was an internal error; an all-NaN history column drew an empty panel with
+    numpy's warning."""
+    import warnings
+
+    import matplotlib.pyplot as plt
+
+    import psph.plot as plot_module
+    from psph.errors import UsageError
+    from psph.particles import Kind
+    from psph.studies import last_snapshot
+
+    out = tmp_path / "cavity"
+    res = run_psph("run", CASES / "lid_driven_cavity.toml", "--out", out, "--quiet", "--set", "domain.dx=0.1",
+                   "--set", "time.t_end=0.05", "--set", "output.probes=[[0.5, 0.5], [0.5, 0.9]]")
+    assert res.returncode == 0, res.stderr
+    figures = {}
+
+    def keep(plt_, fig, path, title=None):
+        figures[path.name] = fig
+        return path
+
+    monkeypatch.setattr(plot_module, "_save", keep)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plot_module.plot(out)
+    data, _ = last_snapshot(out)
+    fluid = data["kind"] == Kind.FLUID
+    speed = np.linalg.norm(data["velocity"], axis=1)
+    coloured = [c for c in figures["fields.png"].axes[0].collections if c.get_array() is not None]
+    assert len(coloured) == 1 and coloured[0].get_clim() == pytest.approx((speed[fluid].min(), speed[fluid].max()))
+    assert len(coloured[0].get_array()) == fluid.sum() < len(fluid)
+    plt.close("all")
+    probes = out / "probes.csv"
+    probes.write_text(probes.read_text() + "0.06,1.0\n")  # a row cut short (a run killed while writing it)
+    history = out / "history.csv"
+    lines = history.read_text().splitlines()
+    header = lines[0].split(",")
+    nan_column = header.index("L2_grad_c")
+    history.write_text("\n".join([lines[0]] + [",".join("nan" if k == nan_column else v for k, v in
+                                                        enumerate(line.split(","))) for line in lines[1:]]) + "\n")
+    figures.clear()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plot_module.plot(out)
+    titles = [ax.get_title() for ax in figures["history.png"].axes]
+    assert "L2_grad_c" not in titles and "kinetic_energy" in titles
+    plt.close("all")
+    history.write_text("step,kinetic_energy\n1,2.0\n")
+    with pytest.raises(UsageError, match=r"history.csv' is not a psph history: no time column"):
+        plot_module.plot(out)
