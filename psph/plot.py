@@ -381,6 +381,7 @@ def plot_line(run_dir: Path, fig_dir: Path, ends, points: int) -> Path:
             ax.legend(fontsize=7)
         ax.set_title(name, fontsize=9)
         ax.set_xlabel("distance along the line", fontsize=8)
+        ax.set_xlim(distance[0], distance[-1])  # the whole segment, dry parts too (a plot audit)
     first, last = (", ".join(f"{v:.4g}" for v in e) for e in ends)
     return _save(plt, fig, fig_dir / "line.png", f"{run_dir.name}: t = {t:.4g}, from ({first}) to ({last})")
 
