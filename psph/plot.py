@@ -173,17 +173,26 @@ def plot_probes(run_dir: Path, fig_dir: Path):
 
 
 def _run_scene_table(run_dir: Path):
-    """The run's scene (a table): summary.json's, or a stopped run's newest checkpoint's; None without either."""
+    """The run's scene (a table): summary.json's, or a stopped run's newest checkpoint's, or its last snapshot's
+    (a run in progress; a plot audit: --line refused it, fields.png left |grad C| h out); None without any."""
     if (run_dir / "summary.json").is_file():
         return _summary(run_dir)["scene"]
     from psph.io.checkpoint import latest_checkpoint
-    from psph.io.snapshots import h5py
+    from psph.io.snapshots import h5py, snapshot_files
 
     path = latest_checkpoint(run_dir)
-    if path is None:
+    if path is not None:
+        with h5py.File(path) as f:
+            return json.loads(bytes(f["state"][()]).decode())["scene"]
+    snapshots = snapshot_files(run_dir)
+    if not snapshots:
         return None
-    with h5py.File(path) as f:
-        return json.loads(bytes(f["state"][()]).decode())["scene"]
+    try:
+        with h5py.File(snapshots[-1]) as f:
+            scene = f.attrs.get("scene")
+    except OSError:  # (a damaged snapshot: _last_snapshot names it)
+        return None
+    return json.loads(scene) if scene is not None else None  # (an older psph's snapshot: none)
 
 
 def _grad_c_magnitude(run_dir: Path, data: dict):
@@ -301,7 +310,10 @@ def plot_fields(run_dir: Path, fig_dir: Path):
             fig.colorbar(sc, ax=ax, shrink=0.8)
             ax.set_aspect("equal")
         ax.set_title(name + (f" ({left_out} non-finite left out)" if left_out else ""), fontsize=10)
-    return _save(plt, fig, fig_dir / "fields.png", f"{run_dir.name}: last snapshot, t = {t:.4g}")
+    table = _run_scene_table(run_dir)
+    static = table is not None and table.get("physics", {}).get("scheme") == "none"  # (its time: the iteration)
+    when = f"iteration {t:g}" if static else f"t = {t:.4g}"
+    return _save(plt, fig, fig_dir / "fields.png", f"{run_dir.name}: last snapshot, {when}")
 
 
 LINE_FIELDS = ("pressure", "density", "velocity")  # what a line cut samples, where a snapshot holds them

@@ -1,5 +1,6 @@
 """Assembling a simulation from a scene: domain, kernel, distributed particles, output writers."""
 
+import json
 import time
 import uuid
 from contextlib import contextmanager
@@ -73,7 +74,8 @@ class Simulation:
         # older psph carries none: the continuation's files get a new one)
         self.run = (state or {}).get("run") or self.comm.bcast(uuid.uuid4().hex if self.comm.rank == 0 else None)
         self.system = build_system(scene, self.comm, specs, halo_fields, particles, decomposition)
-        self.snapshots = SnapshotWriter(self.comm, self.out_dir, self.system.domain, run=self.run)
+        self.snapshots = SnapshotWriter(self.comm, self.out_dir, self.system.domain, run=self.run,
+                                        scene=json.dumps(to_table(scene)))
         self.history = History(self.comm, self.out_dir)
         # the run's particle count at its start: a continuation's is the checkpoint's record, not the count it
         # holds (open boundaries emit and remove particles: a continued jet's summary said 2016 against 1936,

@@ -110,3 +110,20 @@ def test_a_damaged_last_snapshot_is_one_line_naming_it(tmp_path, damage, words):
         res = run_psph("plot", out, *args)
         assert res.returncode == 2 and res.stderr.strip() == f"psph: error: the last snapshot {last.name} {words}", \
             res.stderr
+
+
+def test_a_run_in_progress_is_cut_and_plotted_with_the_scene_its_snapshots_carry(tmp_path, monkeypatch):
+    """A plot audit: a run with neither summary.json nor a checkpoint (in progress, or killed) had its --line
+    refused ("holds no snapshot of a run to cut") and its fields.png without |grad C| h, for want of the
+    scene; every snapshot now carries it (attribute "scene")."""
+    import psph.plot as plot_module
+
+    out = taylor_green_run(tmp_path / "tg", 0.1)
+    done = cut(out, "0", "0.25", "1", "0.25", "--points", "11")[1]
+    (out / "summary.json").unlink()
+    assert np.array_equal(cut(out, "0", "0.25", "1", "0.25", "--points", "11")[1], done)
+    titles = []
+    monkeypatch.setattr(plot_module, "_save", lambda plt, fig, path, title=None: titles.append(
+        [ax.get_title() for ax in fig.axes]) or path)
+    plot_module.plot_fields(out, out / "figures")
+    assert "|grad C| h" in titles[0], titles

@@ -175,11 +175,13 @@ def _write_particle_file(comm, path, start, total, data, attrs, extra, options) 
 class SnapshotWriter:
     """Writes snapshots into `out_dir` and keeps the XDMF index current. Collective `write`."""
 
-    def __init__(self, comm, out_dir, domain, run=None):
+    def __init__(self, comm, out_dir, domain, run=None, scene=None):
         self.comm = comm
         self.out_dir = Path(out_dir)
         self.domain = domain
         self.run = run  # the run's id, stamped on every snapshot (a continuation in place checks it)
+        # the scene as a JSON table, on every snapshot too: psph plot reads a run in progress with it
+        self.scene = scene
         self.entries = []  # (file name, time, step, {field: (shape tail, dtype)})
 
     def checkpoint_state(self) -> list:
@@ -221,7 +223,8 @@ class SnapshotWriter:
         name = snapshot_name(len(self.entries))
         path = self.out_dir / name
         tmp = path.with_name(name + ".tmp")
-        attrs = {"time": float(time), "step": int(step)} | ({"run": self.run} if self.run else {})
+        attrs = {"time": float(time), "step": int(step)} | ({"run": self.run} if self.run else {}) \
+            | ({"scene": self.scene} if self.scene else {})
         try:
             write_particle_file(self.comm, str(tmp), start, total, ordered, attrs)
         except BaseException:
