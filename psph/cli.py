@@ -24,12 +24,17 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(message)
 
 
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0 (the benchmarks' timing budgets)."""
+def number(text: str) -> float:
+    """argparse type: any number (nan and inf too; the types below bound it)."""
     try:
-        value = float(text)
+        return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0 (the benchmarks' timing budgets)."""
+    value = number(text)
     if not 0.0 < value < float("inf"):
         raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
     return value

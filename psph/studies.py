@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from psph.cli import number, positive_float, positive_int  # noqa: F401 (the scripts' argparse types)
 from psph.errors import NumericalError, PsphError, UsageError
 from psph.io.history import read_history
 
@@ -108,26 +109,9 @@ WRITE_KEYS = ("output.every",)
 H_OVER_DX = (1.0, 4.0)
 
 
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1 (a rank count, a resolution, a count)."""
-    from psph.cli import positive_int as check
-
-    return check(text)
-
-
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0 (a grid spacing, a time, a Reynolds number)."""
-    from psph.cli import positive_float as check
-
-    return check(text)
-
-
 def smoothing_ratio(text: str) -> float:
     """argparse type: a smoothing length over particle spacing, a finite number within psph's H_OVER_DX."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    value = number(text)
     if not H_OVER_DX[0] <= value <= H_OVER_DX[1]:  # (NaN fails it too)
         raise argparse.ArgumentTypeError(f"h/dx must be within {H_OVER_DX[0]:g} and {H_OVER_DX[1]:g} (as psph's "
                                          f"domain.h_over_dx), got {text}")

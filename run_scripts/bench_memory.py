@@ -20,8 +20,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from psph.cli import positive_float, positive_int  # (psph.cli loads neither MPI nor numpy)
-from psph.studies import parse_plain  # (nor does psph.studies)
+from psph.studies import parse_plain, positive_float, positive_int  # (numpy, not MPI: mpiexec's runs come first)
 
 ROOT = Path(__file__).resolve().parent.parent
 D3 = ["domain.dimension=3", "domain.lower=[0,0,0]", "domain.upper=[1,1,1]", "domain.periodic=[true,true,true]"]
