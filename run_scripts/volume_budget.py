@@ -33,6 +33,7 @@ from psph.errors import PsphError
 from psph.parallel.comm import allreduce_sum
 from psph.particles import FieldSpec
 from psph.scene.load import load_scene
+from psph.simulation import check_resources
 from psph.solvers.petsc import initialize
 from psph.studies import CAVITY, CAVITY_DELTA_PLUS, CAVITY_WALLS, command_line, parse_args, positive_float, write_table
 
@@ -161,6 +162,7 @@ def main():
         try:
             scenes[walls] = load_scene(CAVITY, [f"domain.dx={args.dx}", f"time.t_end={args.t1}", "output.every=0",
                                                  *CAVITY_DELTA_PLUS, *CAVITY_WALLS[walls], *args.set])
+            check_resources(scenes[walls], allow_large=args.allow_large, ranks=MPI.COMM_WORLD.size)  # as psph run
         except PsphError as err:
             parser.error(f"{walls} walls: {err}")
     rows = []

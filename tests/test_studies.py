@@ -347,6 +347,19 @@ def test_the_volume_budget_takes_petsc_options_and_reports_a_bad_one_in_a_line(t
     assert "clone walls" in res.stderr and "Unable to find requested PC type nonexistent" in res.stderr
 
 
+def test_the_volume_budget_refuses_a_scene_too_large_unless_allowed(tmp_path, monkeypatch, capsys):
+    """It builds its runs itself (not through psph run): its --allow-large did nothing, and a dx of 2e-4 (25
+    million particles) or a t1 of 1e9 (7e11 steps) started a run that could not end."""
+    study = study_module("volume_budget")
+    for arg, value, key in (("--dx", "0.0002", "domain.dx"), ("--t1", "1e9", "time.t_end")):
+        monkeypatch.setattr("sys.argv", ["volume_budget.py", "--walls", "clone", arg, value, "--out", str(tmp_path)])
+        with pytest.raises(SystemExit) as info:
+            study.main()
+        err = capsys.readouterr().err
+        assert info.value.code == 2 and f"clone walls: {key}:" in err and "--allow-large" in err
+        assert not (tmp_path / "run_clone").exists()
+
+
 def run_main(study, capsys):
     """study.main() as run_study runs it: (exit code, stderr)."""
     with pytest.raises(SystemExit) as info:
