@@ -75,7 +75,8 @@ def _parser() -> argparse.ArgumentParser:
                      help="replace results already in the output directory (psph's own files are set aside, and "
                      "put back if the run is refused while it sets up)")
     run.add_argument("--allow-large", action="store_true",
-                     help="run even if the estimated memory exceeds this machine's, or the estimated steps 1e9")
+                     help="run even if the estimated memory exceeds 80%% of this machine's, or the estimated steps "
+                          "1e9")
     run.add_argument("--quiet", action="store_true",
                      help="print nothing but errors and set-up warnings (the log file still gets it all)")
     run.add_argument("--log", metavar="FILE", help="log file (default: OUT/psph.log, which --overwrite starts "

@@ -118,11 +118,22 @@ def smoothing_ratio(text: str) -> float:
     return value
 
 
+# the variables MPI launchers (Open MPI, MPICH / Hydra, PMIx) give each process its rank in
+LAUNCHER_RANK_VARIABLES = ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK")
+
+
+def launcher_rank() -> int:
+    """This process' rank under mpiexec (0 outside it), from the launcher's environment: a script's arguments
+    are checked before MPI is imported."""
+    return next((int(os.environ[v]) for v in LAUNCHER_RANK_VARIABLES if os.environ.get(v, "").isdigit()), 0)
+
+
 def one_line_errors(parser):
     """Make `parser` report a bad argument as one line, `PROG: error: MESSAGE`, and exit 2 (argparse prints
-    its usage first)."""
+    its usage first). Under mpiexec every rank exits, rank 0 prints (the line was once per rank)."""
     def error(message):
-        print(f"{parser.prog}: error: {message}", file=sys.stderr)
+        if launcher_rank() == 0:
+            print(f"{parser.prog}: error: {message}", file=sys.stderr)
         sys.exit(2)
 
     parser.error = error

@@ -1,6 +1,7 @@
 """The study harness of run_scripts/ (psph.studies.run_scene): a resumed study reads back the runs it
 already made, complete or stopped by a diagnosis, instead of running them again."""
 
+import argparse
 import csv
 import json
 import subprocess
@@ -28,7 +29,6 @@ def test_a_studys_set_and_petsc_options_reach_every_run(tmp_path):
     its own overrides; a --set of a key the study sets itself to another value is refused (its tables label the
     runs with the study's values), but for how often a run writes (studies.WRITE_KEYS) and the keys the study
     reads back from its runs' scenes (settable)."""
-    import argparse
 
     parser = argparse.ArgumentParser()
     parser.add_argument("--ranks", type=int, default=1)
@@ -165,6 +165,18 @@ def test_the_dominant_frequency_of_an_unevenly_sampled_noisy_oscillation():
     assert np.isnan(studies.dominant_frequency(t, np.full(t.size, 0.6), t0=25.0))  # no oscillation
     assert np.isnan(studies.dominant_frequency(t[:5], lift[:5]))
     assert np.isnan(studies.dominant_frequency(t, lift, t0=40.0))  # two periods are no steady oscillation
+
+
+@pytest.mark.parametrize("variable", studies.LAUNCHER_RANK_VARIABLES)
+def test_a_bad_argument_under_mpiexec_is_printed_by_rank_0_only(monkeypatch, capsys, variable):
+    """A benchmark run as `mpiexec -n 2 python run_scripts/bench_iips.py --bad` printed its line once per rank;
+    every rank still exits 2."""
+    parser = studies.one_line_errors(argparse.ArgumentParser(prog="bench.py"))
+    for rank, printed in (("1", ""), ("0", "bench.py: error: unrecognized arguments: --bad\n")):
+        monkeypatch.setenv(variable, rank)
+        with pytest.raises(SystemExit) as info:
+            parser.parse_args(["--bad"])
+        assert info.value.code == 2 and capsys.readouterr().err == printed
 
 
 def test_a_tables_command_line_is_the_study_as_typed(monkeypatch):
@@ -528,7 +540,6 @@ def test_run_study_exit_codes_a_stop_a_crash_and_bad_input(tmp_path, monkeypatch
 
 def test_a_study_passes_allow_large_to_every_run():
     """A study audit: psph's advice "(run with --allow-large to try anyway)" named an option no study took."""
-    import argparse
 
     args = studies.parse_args(argparse.ArgumentParser(), ["--allow-large"])
     assert args.allow_large and "--allow-large" in studies.study_command("s.toml", "out", sets=["domain.dx=0.1"])
