@@ -215,14 +215,65 @@ def parse_args(parser, argv=None):
                              "the study sets itself to another value is refused (but output.every)")
     parser.add_argument("--allow-large", action="store_true",
                         help="run scenes psph estimates too large for this machine (as psph run --allow-large)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help=f"replace the results another command left in --out (its {STUDY_STAMP} names it); "
+                             "the same command again needs no --overwrite")
     parser.epilog = "PETSc options (e.g. -iips_pc_type hypre) are passed to every run."
     ours, petsc = split_petsc_options(sys.argv[1:] if argv is None else list(argv))
     args = parser.parse_args(ours)
     args.petsc = petsc
     check_args(parser, args)
+    claim_out(parser, args)
     _EVERY_RUN.update(sets=list(args.set), petsc=petsc, allow_large=args.allow_large)
     _STUDY.update(out=getattr(args, "out", None), not_run=[])
     return args
+
+
+STUDY_STAMP = "study.json"  # in a study's --out: the script and the arguments whose results it holds
+# arguments that change no result (--no-run tables the runs of the same arguments again)
+UNSTAMPED_ARGUMENTS = ("out", "overwrite", "no_run", "allow_large")
+
+
+def claim_out(parser, args) -> None:
+    """Refuse (parser.error on --out) a study's --out that holds the results of the same script with other
+    arguments, unless --overwrite: a second study into a default --out replaced the first one's runs and
+    tables silently (a scripts audit). The stamp (STUDY_STAMP) is this study's from its first run or table
+    on (stamp_out): a study refused before it wrote anything leaves none, and a stamp alone holds no
+    results. A directory without a stamp (results made before stamps) is taken as it is."""
+    _STUDY.pop("stamp", None)
+    out = getattr(args, "out", None)
+    if out is None:
+        return
+    stamp = Path(out) / STUDY_STAMP
+    ours = {"script": Path(sys.argv[0]).name,
+            "arguments": json.loads(json.dumps({k: v for k, v in sorted(vars(args).items())
+                                                if k not in UNSTAMPED_ARGUMENTS}, default=str))}
+    try:
+        theirs = json.loads(stamp.read_text())
+    except (OSError, ValueError):  # no stamp (or one cut short: not a study's)
+        theirs = None
+    results = Path(out).is_dir() and any(p.name != STUDY_STAMP for p in Path(out).iterdir())
+    if theirs is not None and theirs != ours and results and not args.overwrite:
+        old, new = theirs.get("arguments", {}), ours["arguments"]
+        changed = [f"{k} {old.get(k, '-')} -> {new.get(k, '-')}" for k in sorted(set(old) | set(new))
+                   if old.get(k) != new.get(k)]
+        what = (f"other arguments ({'; '.join(changed)})" if theirs.get("script") == ours["script"]
+                else str(theirs.get("script")))
+        parser.error(f"argument --out: {out} holds the results of {what}; give --overwrite to replace them, or "
+                     "another --out")
+    _STUDY["stamp"] = (stamp, ours)
+
+
+def stamp_out() -> None:
+    """Write the stamp claim_out made of the study's --out (once; by rank 0 under mpiexec, whole or not at
+    all): run_scene before the first run and write_table before the first table call it, and a study that
+    runs psph in-process before its first run."""
+    stamp, ours = _STUDY.pop("stamp", (None, None))
+    if stamp is not None and launcher_rank() == 0:
+        stamp.parent.mkdir(parents=True, exist_ok=True)
+        part = stamp.with_name(stamp.name + ".part")
+        part.write_text(json.dumps(ours, indent=1) + "\n")
+        os.replace(part, stamp)
 
 
 def _scene_value(text):
@@ -297,6 +348,7 @@ def run_scene(scene, out, sets=(), petsc=(), ranks=1, quiet=True, reuse=None, on
         raise NotRun(f"{out}: no finished run of this command")
     for path in (stamp, stopped, failed):  # a run killed half-way must not pass for the old complete one
         path.unlink(missing_ok=True)
+    stamp_out()
     env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_COMM", "PMIX"))}
     res = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if res.returncode != 0:
@@ -442,6 +494,7 @@ def write_table(path, header, rows, title="", note="", labels=1) -> str:
         why = (f"found no finished run in --out {where} (--no-run)" if _STUDY["not_run"]
                else "no row of it was measured")
         raise NothingMeasured(f"{path.with_suffix('.md')} not written: {why}; the files there are kept")
+    stamp_out()
     path.parent.mkdir(parents=True, exist_ok=True)
     lines = [f"### {title}", ""] if title else []
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]

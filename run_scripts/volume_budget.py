@@ -35,7 +35,16 @@ from psph.particles import FieldSpec
 from psph.scene.load import load_scene
 from psph.simulation import check_resources
 from psph.solvers.petsc import initialize
-from psph.studies import CAVITY, CAVITY_DELTA_PLUS, CAVITY_WALLS, command_line, parse_args, positive_float, write_table
+from psph.studies import (
+    CAVITY,
+    CAVITY_DELTA_PLUS,
+    CAVITY_WALLS,
+    command_line,
+    parse_args,
+    positive_float,
+    stamp_out,
+    write_table,
+)
 
 PARTS = ("fluid pairs, u", "fluid pairs, du", "walls, u", "walls, du", "IIPS field update")
 REGIONS = ("top-left corner", "top-right corner", "lid", "other walls", "interior")
@@ -156,7 +165,6 @@ def main():
     args = parse_args(parser)  # --set KEY=VALUE for every run (e.g. physics.reynolds=1000), and PETSc options
     if args.petsc:  # before the first PETSc object (a process that has made one keeps its options)
         initialize(args.petsc)
-    args.out.mkdir(parents=True, exist_ok=True)
     scenes = {}
     for walls in args.walls:  # every scene is checked before the first run starts
         try:
@@ -166,6 +174,8 @@ def main():
         except PsphError as err:
             parser.error(f"{walls} walls: {err}")
     rows = []
+    args.out.mkdir(parents=True, exist_ok=True)
+    stamp_out()  # (it runs psph in-process: --out is this study's from here on)
     for walls, scene in scenes.items():
         try:
             table, eps = budget(scene, args.t0, args.t1, args.out / f"run_{walls}")

@@ -446,6 +446,38 @@ def test_no_run_with_no_finished_run_says_so_and_keeps_the_tables(tmp_path):
     assert (tmp_path / "convergence.md").read_text() == "old\n" and not (tmp_path / "tradeoff.md").exists()
 
 
+def test_a_study_keeps_the_results_of_other_arguments_unless_told_to_overwrite(tmp_path, monkeypatch, capsys):
+    """A scripts audit: a second study into the same --out (iips_static.py --resolutions 0.1 after
+    --resolutions 0.1 0.0625) replaced the first one's runs and tables without a word."""
+    def parse(*argv):
+        parser = argparse.ArgumentParser(prog="s.py")
+        parser.add_argument("--out", type=Path)
+        parser.add_argument("--resolutions", type=float, nargs="+")
+        parser.add_argument("--no-run", action="store_true")
+        args = studies.parse_args(parser, ["--out", str(tmp_path), *argv])
+        studies.write_table(tmp_path / "table", ["resolutions", "error"], [[str(args.resolutions), 0.1]])
+
+    monkeypatch.setattr("sys.argv", ["run_scripts/s.py"])
+    with pytest.raises(SystemExit):  # refused before it wrote anything: no stamp, no claim
+        parse("--resolutions", "0.1", "0.1")
+    assert "0.1 given twice" in capsys.readouterr().err and not tmp_path.joinpath(studies.STUDY_STAMP).exists()
+    parse("--resolutions", "0.1", "0.05")
+    parse("--resolutions", "0.1", "0.05", "--no-run")  # the same arguments again, or their tables again
+    with pytest.raises(SystemExit) as info:
+        parse("--resolutions", "0.1")
+    assert info.value.code == 2 and capsys.readouterr().err == (
+        f"s.py: error: argument --out: {tmp_path} holds the results of other arguments (resolutions [0.1, 0.05] "
+        "-> [0.1]); give --overwrite to replace them, or another --out\n")
+    with pytest.raises(SystemExit):
+        parse("--resolutions", "0.1", "0.05", "--set", "domain.kernel=quintic_spline")
+    assert "set [] -> ['domain.kernel=quintic_spline']" in capsys.readouterr().err
+    parse("--resolutions", "0.1", "--overwrite")  # replaces them, and is the stamp now
+    monkeypatch.setattr("sys.argv", ["run_scripts/t.py"])
+    with pytest.raises(SystemExit):
+        parse("--resolutions", "0.1")
+    assert "holds the results of s.py; give --overwrite" in capsys.readouterr().err
+
+
 def fake_static_run(errors, iterations=10):
     """run_scene for iips_static.py: a run whose L2(df/dx) is errors[dx] after `iterations` Newton iterations."""
     def run_scene(scene, out, ranks, sets):
