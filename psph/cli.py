@@ -553,6 +553,17 @@ def scene_warnings(scene, restart=None) -> list:
                         f"physics.reference_velocity = {phys.reference_velocity:g}: weakly compressible SPH takes "
                         f"c0 >= {1.0 / MAX_MACH:g} U (Mach <= {MAX_MACH:g}), which keeps the density within about 1% "
                         "of rho0 (its variation grows as Mach^2)")
+    height = scene.fluid_height()
+    wave = math.sqrt(math.hypot(*phys.gravity) * height)  # the speed of a gravity wave as deep as the fluid
+    if (phys.scheme in FLUID_SCHEMES and wave > MAX_MACH * phys.sound_speed * (1.0 + 1e-9) and not restart
+            and not (mach > MAX_MACH * (1.0 + 1e-9) and phys.reference_velocity >= wave)):  # (a new user's audit:
+        # g = 9.81 with c0 = 10 over H = 1 started at 98% of the density limit, and stopped at step 32 naming it)
+        warnings.append(f"physics.sound_speed = {phys.sound_speed:g} is {phys.sound_speed / wave:.3g} times "
+                        f"sqrt(|g| H) = {wave:.3g}, the speed gravity gives a fluid {height:g} deep "
+                        f"(physics.gravity, H along it): its weight compresses the fluid's foot by g H / c0^2 = "
+                        f"{wave**2 / phys.sound_speed**2:.2%} (physics.max_density_variation = "
+                        f"{phys.max_density_variation:g}); weakly compressible SPH takes c0 >= {1.0 / MAX_MACH:g} "
+                        f"sqrt(g H) (1%)")
     speed = math.hypot(*scene.initial.uniform_velocity) if scene.initial.velocity == "uniform" else 0.0
     if phys.scheme in FLUID_SCHEMES and speed > phys.reference_velocity * (1.0 + 1e-9) and not restart:
         warnings.append(f"initial.uniform_velocity: the fluid starts at {speed:g}, faster than "

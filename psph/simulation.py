@@ -166,10 +166,12 @@ class Simulation:
     def diagnose_failures(self, where):
         """On a NumericalError inside the block, write a diagnostic snapshot (the state at failure, with
         grad C) before letting the error end the run. It is labelled with the error's step and time (a
-        failure within a step: that step and the time it started from), else with `where()`'s (step, time)
-        (the last completed step). Collective: the error is every rank's (raise_if_any), with its WHERE; one
-        rank's NumericalError, like any other error (a full disk, a bug, a forced stop), leaves the history's
-        rows so far written (rank 0, no collective), unless writing them fails too."""
+        failure inside the integration: that step and the time it started from; one the checks after the
+        step find, an IIPS call's among them: that step and the time it ended at, the state's), else with
+        `where()`'s (step, time) (the last completed step). Collective: the error is every rank's
+        (raise_if_any), with its WHERE; one rank's NumericalError, like any other error (a full disk, a bug,
+        a forced stop), leaves the history's rows so far written (rank 0, no collective), unless writing them
+        fails too."""
         from psph.diagnostics import grad_c
         from psph.errors import NumericalError, is_collective
 

@@ -939,3 +939,21 @@ def test_plot_colours_the_fluid_only_and_takes_damaged_or_empty_columns(tmp_path
     history.write_text("step,kinetic_energy\n1,2.0\n")
     with pytest.raises(UsageError, match=r"history.csv' is not a psph history: no time column"):
         plot_module.plot(out)
+
+
+@pytest.mark.parametrize("case, sets, warned", [
+    ("hydrostatic_tank", ["physics.gravity=[0.0, -9.81]"], "is 3.19 times sqrt(|g| H) = 3.13, the speed gravity "
+                                                            "gives a fluid 1 deep"),
+    ("hydrostatic_tank", [], None),  # the tank's own c0 = 10 sqrt(g H)
+    ("trapezoidal_tank", ["physics.gravity=[0.0, -4.0]"], "is 5 times sqrt(|g| H) = 2,"),
+    ("dam_break", ["physics.sound_speed=5"], None),  # its Mach number says it: U = sqrt(2 g H) > sqrt(g H)
+    ("taylor_green", ["physics.gravity=[0.0, -9.81]"], None),  # periodic along gravity: it falls, freely
+])
+def test_a_sound_speed_slow_against_gravity_waves_is_warned_about(case, sets, warned):
+    """A new user's audit: g = 9.81 with c0 = 10 over a 1-deep tank started at 98% of the density limit (the
+    weight compresses its foot by g H / c0^2) without a word, and stopped at step 32 naming the density."""
+    from psph.cli import scene_warnings
+    from psph.scene.load import load_scene
+
+    found = [w for w in scene_warnings(load_scene(CASES / f"{case}.toml", sets)) if "sqrt(|g| H)" in w]
+    assert (found == []) if warned is None else (len(found) == 1 and warned in found[0]), found

@@ -204,8 +204,11 @@ class BodySpec:
                     raise SceneError(f"{path}.{key}", f"expected 2 entries, got {len(getattr(self, key))}")
             if self.vertices:
                 raise SceneError(f"{path}.vertices", f"corners define a polygon, not a {self.shape}")
-        if self.lid_velocity and (self.shape != "box" or len(self.lid_velocity) != 2):
-            raise SceneError(f"{path}.lid_velocity", "a lid is the top side of a box: give 2 entries")
+        if self.lid_velocity and self.shape != "box":  # (a new user's audit: one message said "give 2 entries")
+            raise SceneError(f"{path}.lid_velocity", f"a lid is the top side of a box (the fluid inside), not of "
+                             f"a {self.shape}")
+        if self.lid_velocity and len(self.lid_velocity) != 2:
+            raise SceneError(f"{path}.lid_velocity", f"expected 2 entries, got {len(self.lid_velocity)}")
         if self.lid_velocity and self.lid_velocity[1] != 0.0:
             raise SceneError(f"{path}.lid_velocity", "a lid slides along the box's top side: give [U, 0] (the "
                              "second entry, normal to the lid, must be 0)")
@@ -908,6 +911,14 @@ class Scene:
             keys.append("iips.beta_from")
         if not fluid:  # (an audit: a kinematic run's physics.reference_length, not its L, went unmentioned)
             keys += ["time.retries", "time.integrator"] + [f"physics.{name}" for name in FLUID_PHYSICS]
+            # only the initial fields read these (psph.initial.initial_fields; a new user's audit: gravity
+            # went unnamed in static and kinematic runs), and the kinematic step c0 and U
+            analytic = self.initial.velocity in ("taylor_green", "elliptical_drop")  # (p from rho0 and U)
+            hydrostatic = self.initial.pressure == "hydrostatic"
+            keys += [] if hydrostatic else ["physics.gravity"]
+            keys += [] if analytic or hydrostatic else ["physics.density"]
+            if scheme == "none":
+                keys += ["physics.sound_speed"] + ([] if analytic else ["physics.reference_velocity"])
         else:
             keys.append("diagnostics.test_wavelength")
         if scheme == "none":
@@ -1007,6 +1018,21 @@ class Scene:
             axis = int(np.argmax(np.abs(inflow.velocity)))
             held.add("xyz"[axis] + ("-" if inflow.velocity[axis] > 0 else "+"))
         return [face for face in self._bare_faces() if face not in held]
+
+    def fluid_height(self) -> float:
+        """The height H of the initial fluid along physics.gravity, across its bounded axes (along a periodic
+        axis the fluid falls freely, no column builds up): the drop's diameter, else the fill region (the
+        domain by default) cut by the domain. The hydrostatic density variation at its foot is g H / c0^2."""
+        d, g = self.domain, np.asarray(self.physics.gravity[:self.domain.dimension], dtype=float)
+        norm = float(np.linalg.norm(g))
+        if norm == 0.0:
+            return 0.0
+        if self.initial.drop_radius > 0:
+            return 2.0 * self.initial.drop_radius
+        lo = np.maximum(self.initial.fill_lower or d.lower, d.lower)
+        hi = np.minimum(self.initial.fill_upper or d.upper, d.upper)
+        bounded = ~np.asarray(d.periodic, dtype=bool)
+        return float(np.sum((np.abs(g) / norm * np.maximum(hi - lo, 0.0))[bounded]))
 
     def free_surface_axes(self) -> list:
         """The axes along which the fluid's fill region stops short of the domain (a free surface there)."""

@@ -220,6 +220,10 @@ def test_a_lid_on_a_periodic_y_axis_is_refused(model):
      "bodies[1].motion.velocity", "give 2 entries, got 1"),
     (["bodies.1.motion.velocity=[0.0, 0.0]"], "bodies[1].motion.velocity", "by law 'spheric6' needs a non-zero"),
     (["bodies.0.lid_velocity=[0.0, 1.0]"], "bodies[0].lid_velocity", "must be 0"),
+    (["bodies.0.lid_velocity=[1.0, 0.0, 0.0]"], "bodies[0].lid_velocity", "expected 2 entries, got 3"),
+    # (a new user's audit: a rectangle's lid was told "give 2 entries", which it had)
+    (["bodies.1.lid_velocity=[1.0, 0.0]"], "bodies[1].lid_velocity", "top side of a box (the fluid inside), not of "
+                                                                      "a rectangle"),
     # the rotation's own law
     (["bodies.1.motion.rotation_law=ramp"], "bodies[1].motion.angular_velocity", "by rotation_law 'ramp' needs"),
     (["bodies.1.motion.law=fixed", "bodies.1.motion.velocity=[]", "bodies.1.motion.angular_velocity=1.0"],
@@ -589,6 +593,13 @@ def test_free_surface_keys_are_named_unread_exactly_where_no_detection_runs():
      "shifting.iterations_per_step"),
     ("kinematic_tgv", ["shifting.method=explicit_iterative", "iips.beta=0", "shifting.max_iterations=5"],
      "shifting.max_iterations"),
+    # (a new user's audit: positions bit-identical with and without them, and no word)
+    ("static_perturbed", ["physics.gravity=[0.0, -9.81]"], "physics.gravity"),
+    ("static_perturbed", ["physics.density=1000"], "physics.density"),
+    ("static_perturbed", ["physics.sound_speed=20"], "physics.sound_speed"),
+    ("static_perturbed", ["physics.reference_velocity=2"], "physics.reference_velocity"),
+    ("kinematic_tgv", ["physics.gravity=[0.0, -9.81]"], "physics.gravity"),
+    ("kinematic_tgv", ["physics.density=1000"], "physics.density"),
 ])
 def test_a_key_a_run_does_not_read_is_named(case, sets, key):
     scene = load_scene(CASES / f"{case}.toml", sets)
@@ -605,6 +616,13 @@ def test_a_key_a_run_does_not_read_is_named(case, sets, key):
     ("kinematic_tgv", ["iips.on_stall=stop"]),
     ("static_perturbed", ["shifting.method=explicit_iterative", "shifting.max_iterations=5"]),
     ("kinematic_tgv", ["shifting.method=explicit_iterative", "iips.beta=0", "shifting.iterations_per_step=5"]),
+    ("kinematic_tgv", ["physics.sound_speed=20"]),  # its time step
+    ("kinematic_tgv", ["physics.reference_velocity=2"]),  # its frozen field
+    ("static_perturbed", ["initial.velocity=taylor_green", "physics.density=1000"]),  # the fields written
+    ("static_perturbed", ["initial.velocity=taylor_green", "physics.reference_velocity=2"]),
+    ("static_perturbed", ["initial.pressure=hydrostatic", "physics.gravity=[0.0, -9.81]"]),
+    ("kinematic_tgv", ["initial.velocity=zero", "initial.pressure=hydrostatic", "physics.gravity=[0.0, -1.0]",
+                       "physics.density=1000"]),
 ])
 def test_a_key_a_run_reads_is_not_named_unread(case, sets):
     key = sets[-1].split("=")[0]
