@@ -42,7 +42,7 @@ def collect_garbage_together():
     """Under mpiexec, after every test, collect the garbage it left in reference cycles (petsc4py wrappers
     among it: an exception path leaves them) on every rank at the same point. Left to the collector, each
     rank frees them at its own moment, and PETSc's communicator pools (hypre's, MUMPS') then differ between
-    the ranks (psph.solvers.petsc.petsc_comm, README "Known issues")."""
+    the ranks (psph.solvers.petsc.petsc_comm, README "Known issues"; details in docs/results.md)."""
     yield
     from mpi4py import MPI
 

@@ -696,7 +696,7 @@ def test_the_plain_first_order_remap_in_a_flow_is_warned_about(tmp_path, update,
 @pytest.mark.parametrize("update", ["mls2", "mls1", "mls2_increment", "nfts"])
 def test_no_field_update_with_a_free_surface_is_warned_about(tmp_path, update):
     """The plain remaps were warned about at a free surface (the dam break at H/dx = 10 to t = 3: kinetic
-    energy 0.079 against 0.450), a loss that was the MLS fits' solid particles (README): since the fit is the
+    energy 0.079 against 0.450), a loss that was the MLS fits' solid particles (CHANGELOG): since the fit is the
     fluid's, mls2 ends with 0.469 and its mass to 8e-6, and no update is warned about for the free surface
     (mls1 is, for its smoothing everywhere)."""
     res = run_psph("run", CASES / "dam_break.toml", "--out", tmp_path / "out", "--quiet", "--set", "domain.dx=0.1",

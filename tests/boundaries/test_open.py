@@ -655,7 +655,7 @@ def test_an_inflow_whose_density_follows_the_fluid_keeps_a_walled_channel_s_mass
     "prescribed") keeps pushing rows in at U against it, and the fluid piles up: its mass grew 7% by t = 3
     (10% by t = 8, 19% with delta+), at densities within 1.5% of rho0 (the volume sum grows with it). With
     the buffer's density extrapolated from the fluid (the default) it grows 1.7% (2% by t = 8, 6% with
-    delta+: README "Known issues")."""
+    delta+: README "Known issues", details in docs/results.md)."""
     growth = {}
     for density in ("prescribed", "extrapolated"):
         with FluidDriver(scene_from_table(walled_channel(density)), MPI.COMM_SELF, tmp_path / density,

@@ -73,7 +73,7 @@ def test_a_polygon_on_a_box_corners_runs_as_the_box(tmp_path):
 def test_the_trapezoidal_tank_fills_the_lattice_and_holds_water_at_rest(tmp_path):
     """H/dx = 10 to t sqrt(g/H) = 2: the clone walls' solids complete the fluid's lattice along the
     inclined wall (grad Gamma is round-off, so the packing has nothing to do), the water stays at rest,
-    its pressure hydrostatic (at H/dx = 25 and 50: README, Walls), and its weight on the tank."""
+    its pressure hydrostatic (at H/dx = 25 and 50: docs/results.md, Walls), and its weight on the tank."""
     scene = load_scene(TRAPEZOID, ["domain.dx=0.1", "time.t_end=2.0", "output.every=0", "output.history_every=10",
                                    "packing.iterations=20"])
     driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path)

@@ -34,7 +34,7 @@ def test_lists_equal_brute_force(dim):
             got = [set(idx[ptr[i]:ptr[i + 1]]) for i in range(n_rows)]
             assert got == expect, label
             assert all(len(idx[ptr[i]:ptr[i + 1]]) == len(got[i]) for i in range(n_rows)), "duplicates"
-            assert idx.dtype == np.int32  # half the memory of int64 (README "Memory")
+            assert idx.dtype == np.int32  # half the memory of int64 (docs/results.md, "Memory")
 
 
 def test_coincident_particles_are_neighbours():

@@ -36,7 +36,7 @@ def test_taylor_green_conserves_mass_and_follows_the_decay(tmp_path, method):
     assert np.abs(mom).max() < 1e-12  # periodic box, no gravity, no tensile switch
     assert abs(rows[-1]["kinetic_energy_error"]) < 0.1  # 20 x 20 particles: coarse
     assert rows[-1]["L2_vx_error"] < 0.05
-    # the stagnation points squeeze the lattice's rows together (README, "At h/dx = 3")
+    # the stagnation points squeeze the lattice's rows together (docs/results.md, "At h/dx = 3")
     spacing = [r["min_spacing"] for r in rows]
     assert spacing[0] == pytest.approx(1.0) and 0.2 < min(spacing) < 0.9
 
@@ -60,7 +60,7 @@ def rate(errors, label) -> float:
 
 
 # The suite's convergence checks on the two coarsest resolutions (t = 1), three tests that the two test workers
-# can share (the full tables: run_scripts/tgv_tradeoff.py, README)
+# can share (the full tables: run_scripts/tgv_tradeoff.py, docs/results.md)
 @pytest.mark.long
 def test_iips_mls2_converges_faster_with_morris_operator(tmp_path):
     """IIPS + MLS-II converges at a rate above 2, above 2.5 with Morris' viscous operator (and more
@@ -69,7 +69,7 @@ def test_iips_mls2_converges_faster_with_morris_operator(tmp_path):
         "mls2": (["shifting.method=iips", "iips.update=mls2"], (0.05, 0.025)),
         "mls2_morris": (["shifting.method=iips", "iips.update=mls2", "physics.viscosity=morris"], (0.05, 0.025))})
     assert rate(errors, "mls2") > 2.0
-    # Morris' viscous operator: rate 3.2 here and 3.9 to dx = 0.0125 (README, results/tgv_morris)
+    # Morris' viscous operator: rate 3.2 here and 3.9 to dx = 0.0125 (docs/results.md, results/tgv_morris)
     assert rate(errors, "mls2_morris") > 2.5
     # ratio 0.79 (0.0075 / 0.0095) with the matrix-free operator's pairs stored in both directions, 0.81
     # (0.0078 / 0.0097) with each pair once, 0.74 (0.0078 / 0.0105) with the assembled matrix: operators equal
@@ -124,7 +124,7 @@ def test_riemann_ale_iips_reproduces_the_thesis_row_from_a_relaxed_start(tmp_pat
     pre-procedure) reproduces the thesis' Table 9.1 row at the two coarsest resolutions: L2|v_x - v_xA| at
     t = 1 within 6% of 0.1111 and 0.0189 (measured: 0.110 and 0.0182, then 0.00194 against the thesis'
     0.0020 at dx = 0.0125), converging at a rate above 2.4 (2.6; thesis 2.55). With the minmod limiter it
-    does not (0.152 and 0.0485; README)."""
+    does not (0.152 and 0.0485; docs/results.md)."""
     errors = []
     for dx in (0.05, 0.025):
         res, out = tgv(tmp_path, f"riemann_nfts_{dx}", dx=dx, t_end=1.0, scene=CASES / "taylor_green_thesis.toml")
@@ -373,7 +373,7 @@ def test_a_rejected_iips_call_leaves_particles_and_fields_as_without_iips(tmp_pa
 
 def test_a_kept_stalled_call_logs_how_far_it_moved_a_particle(tmp_path):
     """A stalled call kept at its best iterate (on_stall = "best") is logged with the largest displacement
-    of that iterate in units of dx (in the impinging jet a stalled call moved a particle 4.2 dx: README),
+    of that iterate in units of dx (in the impinging jet a stalled call moved a particle 4.2 dx: docs/results.md),
     the value the driver measured before the field update reset the displacements."""
     import re
 
