@@ -51,7 +51,7 @@ def extended_lattice(scene, lower=None, upper=None):
     lie on lattice midlines, the n = round(L / dx) rows between them are spaced L / n (within dx / (2 n)
     of dx), so that they meet the rows beyond both sides without a gap: from the domain's lattice, the
     tank's bottom-right corner had one of 1.34 dx (H/dx = 20), a hole in the concentration into which the
-    shifting drove the fluid particles there, through the floor (README "Dam break"). Fitted rows drift
+    shifting drove the fluid particles there, through the floor (docs/results.md, "Dam break"). Fitted rows drift
     from the fluid's lattice, which starts at the domain's lower corner: by 0.13 dx under the dam-break
     column's right end at H/dx = 20. Each point's volume is the product of its spacings."""
     axes, spacings = lattice_rows(scene, lower, upper)

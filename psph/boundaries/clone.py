@@ -262,7 +262,7 @@ class WallTerms:
         seed 001 section 6.3, thesis eq. 6.29) projects du on the surface's tangent, which crosses a wall
         where the surface meets it and along a film on it, and grad C does not hold a particle off a wall's
         line, which lies halfway between the first solid and the first fluid row: the dam break's film and
-        floor particles were driven through the walls (README "Dam break"). Rows farther than dx/2 (the
+        floor particles were driven through the walls (docs/results.md, "Dam break"). Rows farther than dx/2 (the
         lattice's first row lies at dx/2, within round-off) stay free to be shifted back towards the wall.
         Within dx/2 of a convex corner every node's wall counts, so sliding along either face towards the
         other is held too (conservative). Ghost walls need no such rule: the scene refuses them with a free

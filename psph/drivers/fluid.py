@@ -109,7 +109,7 @@ class ImpingingJetReference:
                 integral is the plate's pressure force (a narrower hat samples the particles that sit still at
                 the stagnation point: with dx, the time-averaged load there was 0.92 between 1.03 either side)
         fluid   the fluid's pressure there, Shepard-interpolated from the fluid particles (weighted towards
-                the first row's, which a disordered wall layer raises: README, "Impinging jet")
+                the first row's, which a disordered wall layer raises: docs/results.md, "Impinging jet")
     Columns: the load at the stagnation point (`stagnation_pressure`, 1 exactly in the analytic solution),
     the fluid's there (`stagnation_pressure_fluid`) and the load's RMS error over |x - x0| <= 2 H
     (`wall_pressure_error`). The force on the plate (cl_pressure + cl_viscous with the plate's
@@ -344,7 +344,7 @@ class FluidDriver(Driver):
     def pre_procedure(self) -> dict:
         """The static pre-procedure (iips.pre_newton IIPS iterations, for every shifting method) before the
         fluid fields exist: from a perturbed lattice (initial.sigma_over_dx) it gives a relaxed start that
-        the flow cannot strain into a squeezed lattice as it does the Cartesian one (README, Taylor-Green).
+        the flow cannot strain into a squeezed lattice as it does the Cartesian one (docs/results.md, Taylor-Green).
         The initial condition is then set again at the moved positions. Collective."""
         start = time.perf_counter()
         with self.sim.diagnose_failures(lambda: (0, 0.0)):  # the state at a failure is written
@@ -425,7 +425,7 @@ class FluidDriver(Driver):
             totals["iips_calls"] += int(report.iterations > 0)
             if report.failed:
                 totals["iips_failures"] += 1
-                # how far the kept iterate moved a particle: a stalled call's can be several dx (README, jet)
+                # how far the kept iterate moved a particle: a stalled call's can be several dx (docs/results.md, jet)
                 largest = f"; largest displacement {moved / self.scene.domain.dx:.2g} dx" if moved > 0.0 else ""
                 sim.log(f"step {step}, t = {t:.4g}: {report.message}{largest}")
                 self.kept_stall = moved / self.scene.domain.dx
