@@ -10,6 +10,7 @@ import numpy as np
 
 from psph.compute import (
     csr,
+    eos,
     field_update,
     fluid,
     free_surface,
@@ -98,6 +99,7 @@ def warm_up(dim: int, kernel_name: str, parts=PARTS) -> None:
                                          order, np.zeros((n, 2 + dim)))
     if "fluid" not in parts:
         return
+    eos.elementwise(eos.PRESSURE, field, 1.0, 1.0, True)  # the scheme's equation of state (schemes.eos)
     for directional in (False, True):  # the viscous step limit (schemes.viscous_limit)
         sums.largest_kernel_factor_sum(pos, vol, ptr, idx, kp, np.arange(n), directional, np.zeros((0, dim, dim)))
     fluid.fluid_momentum_totals(kind, field, vector, vector, True, np.empty(2 * dim + 1))

@@ -7,25 +7,25 @@ from psph.compute import eos as formulas
 
 class EquationOfState:
     """p(rho), rho(p) and the sound speed of the linear law (seed 001 eq. 1) or Tait's (thesis eq. 5.4),
-    elementwise over arrays. Out of range (an overflow, a NaN) they give inf or NaN without numpy's warning:
-    the fluid driver's check names the particle and the step."""
+    elementwise over arrays (compiled: numpy warns of nothing). Out of range (an overflow, a NaN) they give inf
+    or NaN: the fluid driver's check names the particle and the step."""
 
     def __init__(self, name, c0, rho0):  # name: "linear" or "tait" (the schema's choices)
         self.name, self.c0, self.rho0 = name, c0, rho0
         self.tait = name == "tait"
 
     def _apply(self, formula, values):
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            return formula(np.asarray(values, dtype=np.float64), self.c0, self.rho0, self.tait)
+        return formulas.elementwise(formula, np.asarray(values, dtype=np.float64), float(self.c0),
+                                    float(self.rho0), self.tait)
 
     def pressure(self, rho):
-        return self._apply(formulas.pressure, rho)
+        return self._apply(formulas.PRESSURE, rho)
 
     def density(self, p):
-        return self._apply(formulas.density, p)
+        return self._apply(formulas.DENSITY, p)
 
     def sound_speed(self, rho):
-        return self._apply(formulas.sound_speed, rho)
+        return self._apply(formulas.SOUND_SPEED, rho)
 
 
 def make_eos(physics) -> EquationOfState:
