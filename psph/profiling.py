@@ -3,7 +3,6 @@
 
 import time
 from collections import defaultdict
-from contextlib import contextmanager
 
 _totals = defaultdict(float)
 _exclusive = defaultdict(float)
@@ -13,34 +12,45 @@ _children = []  # per open phase: time spent so far in the phases nested inside 
 
 
 def _event(name):
+    """The PETSc log event of phase `name` (made on first use), or None before PETSc is initialised."""
+    event = _events.get(name)
+    if event is not None:
+        return event
     from psph.solvers import petsc
 
     if not petsc.is_initialized():
         return None
-    if name not in _events:
-        _events[name] = petsc.petsc().Log.Event(f"psph:{name}")
-    return _events[name]
+    event = _events[name] = petsc.petsc().Log.Event(f"psph:{name}")
+    return event
 
 
-@contextmanager
-def phase(name: str):
-    """Time the enclosed block as phase `name` (also a PETSc log event when PETSc is initialised)."""
-    event = _event(name)
-    if event is not None:
-        event.begin()
-    start = time.perf_counter()
-    _children.append(0.0)
-    try:
-        yield
-    finally:
-        elapsed = time.perf_counter() - start
+class phase:
+    """Time the enclosed block (`with phase(name):`) as phase `name`, also a PETSc log event when PETSc is
+    initialised. A class with slots, not a generator context manager: a run enters 60-80 phases a step, at
+    1.5-1.9 us each against 4-4.75 (a speed audit: 2% of a small dam break)."""
+    __slots__ = ("name", "event", "start")
+
+    def __init__(self, name: str):
+        self.name = name
+
+    def __enter__(self):
+        self.event = event = _event(self.name)
+        if event is not None:
+            event.begin()
+        _children.append(0.0)
+        self.start = time.perf_counter()
+
+    def __exit__(self, *exc):
+        elapsed = time.perf_counter() - self.start
+        name = self.name
         _totals[name] += elapsed
         _exclusive[name] += elapsed - _children.pop()
         if _children:
             _children[-1] += elapsed
         _counts[name] += 1
-        if event is not None:
-            event.end()
+        if self.event is not None:
+            self.event.end()
+        return False
 
 
 def totals() -> dict:
