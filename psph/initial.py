@@ -67,9 +67,12 @@ def initial_fields(scene, pos) -> dict:
     if scene.initial.velocity == "elliptical_drop":
         vel, p = elliptical_drop(scene).fields(pos, 0.0)
         fields = {"velocity": vel, "pressure": p}
-    if scene.initial.velocity in ("inflow", "uniform"):
-        velocity = scene.inflow[0].velocity if scene.initial.velocity == "inflow" else scene.initial.uniform_velocity
-        fields = {"velocity": np.tile(np.asarray(velocity, dtype=np.float64), (len(pos), 1))}
+    if scene.initial.velocity == "inflow":  # its profile too, by the transverse coordinates (0 beside it)
+        from psph.boundaries.open import Inflow
+
+        fields = {"velocity": Inflow(scene.inflow[0], scene.domain.dx).velocity_at(0.0, pos)}
+    if scene.initial.velocity == "uniform":
+        fields = {"velocity": np.tile(np.asarray(scene.initial.uniform_velocity, dtype=np.float64), (len(pos), 1))}
     if scene.initial.pressure == "hydrostatic":
         fields["pressure"] = hydrostatic_pressure(scene, pos)
     return fields

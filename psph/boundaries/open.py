@@ -13,8 +13,13 @@ of the buffer's upstream face and D its depth:
     a particle joins       the fluid (Kind.FLUID) once xi > D
 
 so every row travels on the same lattice and the buffer lets |U| rho0 dx^(d-1) of mass in per unit area
-and time, whatever the time step. Which rows exist depends on t only: runs on any number of ranks emit
-the same particles with the same gids. At an outflow face (domain.outflow) fluid particles that crossed it
+and time, whatever the time step. With `profile = "parabolic"` each column of the buffer (a point of its
+cross-section, transverse coordinates s_a scaled to 0..1 across the section) moves at its own speed
+|U| prod_a 4 s_a (1 - s_a), Poiseuille's profile with U at the centre (its mean over a 2-D section 2/3 U,
+4/9 U over a 3-D one), and emits its own rows by the rule above at that speed. Which rows exist depends on t
+only: runs on any number of ranks emit the same particles with the same gids.
+
+At an outflow face (domain.outflow) fluid particles that crossed it
 are removed; with `domain.outflow_buffer` they become buffer particles (Kind.OUTLET) instead, removed one
 kernel support past the face (a run starts with the buffer full: fill_outflow_buffers), whose density,
 pressure and velocity are set after every step to the Shepard average of their fluid neighbours (a zero-
@@ -23,8 +28,6 @@ and sees there the state it would see inside: a sound wave passes out (2% reflec
 reflected as from a free surface (65%). Each change of the particle set is followed by a neighbour rebuild, at
 most one per step (README, "Open boundaries": Cost).
 """
-
-import math
 
 import numpy as np
 
@@ -66,6 +69,20 @@ class Inflow:
             cross.append(first + dx * np.arange(n))
         grid = np.meshgrid(*cross, indexing="ij") if cross else []
         self.section = np.stack([g.ravel() for g in grid], axis=1) if cross else np.zeros((1, 0))
+        self.profile = spec.profile
+        self.factor = self.profile_factor(self._place(0.0))  # each column's speed over |U|
+
+    def profile_factor(self, pos) -> np.ndarray:
+        """u / U at positions `pos` by their transverse coordinates: 1 everywhere (a uniform profile), or
+        prod_a 4 s_a (1 - s_a), s_a = (x_a - lower_a) / (upper_a - lower_a) over the axes across the buffer,
+        1 at the section's centre and 0 at and beyond its sides (parabolic)."""
+        factor = np.ones(len(pos))
+        if self.profile == "parabolic":
+            for a in range(len(self.lower)):
+                if a != self.axis:
+                    s = (pos[:, a] - self.lower[a]) / (self.upper[a] - self.lower[a])
+                    factor *= np.clip(4.0 * s * (1.0 - s), 0.0, None)
+        return factor
 
     def _place(self, xi) -> np.ndarray:
         """Positions of the cross-section at distances xi downstream of the upstream face (rows of xi)."""
@@ -82,26 +99,40 @@ class Inflow:
         return self._place((np.arange(self.rows) + 0.5) * self.dx)
 
     def travelled(self, t) -> float:
-        """How far a buffer particle has gone along the axis since t = 0: |U| t, or with ramp_time T,
-        |U| S(t) of the smooth ramp (boundaries.bodies.smooth_ramp)."""
+        """How far a buffer particle moving at |U| (every one, or the parabola's centre) has gone along the
+        axis since t = 0: |U| t, or with ramp_time T, |U| S(t) of the smooth ramp
+        (boundaries.bodies.smooth_ramp); a column of the profile has gone its factor times that."""
         return self.speed * smooth_ramp(t, self.ramp)[0]
 
-    def velocity_at(self, t) -> np.ndarray:
-        """The buffer's velocity at time t (U, or U tau^2 (3 - 2 tau) during the ramp)."""
-        return self.velocity * smooth_ramp(t, self.ramp)[1]
+    def velocity_at(self, t, pos) -> np.ndarray:
+        """The buffer's velocity at time t at positions `pos` (rows): U, or U tau^2 (3 - 2 tau) during the
+        ramp, times the profile's factor there."""
+        return np.outer(self.profile_factor(pos), self.velocity * smooth_ramp(t, self.ramp)[1])
 
-    def acceleration_at(self, t) -> np.ndarray:
+    def acceleration_at(self, t, pos) -> np.ndarray:
         """d/dt of velocity_at (zero without a ramp, and after it)."""
-        return self.velocity * smooth_ramp(t, self.ramp)[2]
+        return np.outer(self.profile_factor(pos), self.velocity * smooth_ramp(t, self.ramp)[2])
 
-    def emitted(self, t) -> int:
-        """Rows emitted since t = 0."""
-        return int(math.floor(self.travelled(t) / self.dx + EMIT_TOL))
+    def emitted(self, t) -> np.ndarray:
+        """Rows each column (section point) has emitted since t = 0."""
+        return np.floor(self.factor * self.travelled(t) / self.dx + EMIT_TOL).astype(np.int64)
 
-    def rows_at(self, first, last, t) -> np.ndarray:
-        """Positions at time t of emitted rows first..last (1-based, inclusive)."""
-        m = np.arange(first, last + 1, dtype=np.float64)
-        return self._place((0.5 - m) * self.dx + self.travelled(t))
+    def rows_after(self, before, due, t) -> np.ndarray:
+        """Positions at time t of the rows each column emitted after its row `before` up to its row `due`
+        (per column, or one count for all; rows count from 1), in the order of the rows, then of the
+        columns."""
+        before, due = (np.broadcast_to(np.asarray(v, dtype=np.int64), self.factor.shape) for v in (before, due))
+        counts = np.maximum(due - before, 0)
+        column = np.repeat(np.arange(len(self.factor)), counts)
+        m = np.repeat(before, counts) + 1 + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        order = np.lexsort((column, m))
+        column, m = column[order], m[order]
+        pos = np.empty((len(m), len(self.lower)))
+        pos[:, self.axis] = self.upstream + self.sign * ((0.5 - m) * self.dx + self.factor[column] * self.travelled(t))
+        other = [a for a in range(len(self.lower)) if a != self.axis]
+        if other:
+            pos[:, other] = self.section[column]
+        return pos
 
     def in_section(self, pos) -> np.ndarray:
         """Mask of positions within the buffer's cross-section (any distance along its axis)."""
@@ -132,13 +163,15 @@ def make_inflows(scene) -> list:
 
 
 def prescribed_fields(scene, n, velocity) -> dict:
-    """Fields of n new inflow particles moving at `velocity`: rho0, its pressure, dx^d volumes and masses."""
+    """Fields of n new inflow particles moving at `velocity` (one, or a row each): rho0, its pressure, dx^d
+    volumes and masses."""
     from psph.schemes.eos import make_eos
 
     d, rho0 = scene.domain, scene.physics.density
     vol = d.dx ** d.dimension
     return {"kind": np.full(n, Kind.INLET, dtype=np.int8), "volume": np.full(n, vol), "volume0": np.full(n, vol),
-            "velocity": np.tile(velocity, (n, 1)), "density": np.full(n, rho0), "mass": np.full(n, rho0 * vol),
+            "velocity": np.broadcast_to(velocity, (n, d.dimension)).copy(), "density": np.full(n, rho0),
+            "mass": np.full(n, rho0 * vol),
             "pressure": np.full(n, float(make_eos(scene.physics).pressure(np.array([rho0]))[0]))}
 
 
@@ -149,7 +182,7 @@ def initial_inflow_particles(scene, comm, first_gid):
         return None
     inflows = make_inflows(scene)
     pos = [f.initial_positions() if comm.rank == 0 else np.zeros((0, scene.domain.dimension)) for f in inflows]
-    fields = [prescribed_fields(scene, len(x), f.velocity_at(0.0)) for f, x in zip(inflows, pos)]
+    fields = [prescribed_fields(scene, len(x), f.velocity_at(0.0, x)) for f, x in zip(inflows, pos)]
     n = sum(len(x) for x in pos)
     out = {k: np.concatenate([f[k] for f in fields]) for k in fields[0]}
     out["position"] = np.concatenate(pos)
@@ -161,9 +194,12 @@ def describe_open(scene) -> list:
     """The scene's inflow buffers and outflow faces, in words (for `psph info` and the run log)."""
     lines = []
     for k, f in enumerate(make_inflows(scene)):
+        parabolic = f.profile == "parabolic"
         lines.append(f"inflow[{k}]: buffer {tuple(f.lower)} - {tuple(f.upper)}, {f.rows} rows of "
-                     f"{len(f.section)} particles at velocity {tuple(f.velocity)}, a row every "
-                     f"{f.dx / f.speed:.4g} time units"
+                     f"{len(f.section)} particles at velocity {tuple(f.velocity)}"
+                     + (f" at the centre of a parabolic profile (the columns' mean speed {f.factor.mean():.4g} "
+                        "times it)" if parabolic else "")
+                     + f", a row every {f.dx / f.speed:.4g} time units" + (" at the centre" if parabolic else "")
                      + (f" once reached, smoothly over ramp_time = {f.ramp:g}" if f.ramp else ""))
     if scene.domain.outflow and scene.domain.outflow_buffer:
         lines.append(f"outflow faces {', '.join(scene.domain.outflow)}: fluid past them becomes a buffer one kernel "
@@ -205,7 +241,7 @@ class OpenBoundaries:
         self.outflow = scene.domain.outflow
         p = system.particles
         self.next_gid = int(allreduce_max(system.comm, int(p.owned("gid").max()) if p.n_owned else -1)) + 1
-        self.emitted = [0] * len(self.inflows)
+        self.emitted = [np.zeros(len(f.factor), dtype=np.int64) for f in self.inflows]  # rows per column
         self.totals = {"joined": 0, "emitted": 0, "removed": 0}
         # the fluid's mass budget: its mass at the start (or at a restart from a checkpoint without the budget),
         # and the mass of the particles that have joined it (inflow buffer; buffer particles carried back) or
@@ -275,7 +311,8 @@ class OpenBoundaries:
         self._check_backflow(system, pos, kind, t)
         for f in self.inflows:  # a rising velocity (ramp_time) is set, not left to the time integrator
             if f.ramp > 0.0:
-                p.owned("velocity")[(kind == Kind.INLET) & f.holds(pos)] = f.velocity_at(t)
+                rows = (kind == Kind.INLET) & f.holds(pos)
+                p.owned("velocity")[rows] = f.velocity_at(t, pos[rows])
         # a buffer particle that no buffer holds has passed its downstream face, however far: one moving more
         # than 2 dx a step once skipped the window (2 dx past the face) it had to be in to join, crossed the
         # domain as a buffer particle and left it unremoved (an audit: U dt = 3.2 dx, 64% of the mass flux)
@@ -301,9 +338,9 @@ class OpenBoundaries:
         new = []
         for k, f in enumerate(self.inflows):
             due = f.emitted(t)
-            if due > self.emitted[k]:
-                x = f.rows_at(self.emitted[k] + 1, due, t)
-                new.append((x, f.velocity_at(t)))
+            if (due > self.emitted[k]).any():
+                x = f.rows_after(self.emitted[k], due, t)
+                new.append((x, f.velocity_at(t, x)))
                 self.emitted[k] = due
         n_new = sum(len(x) for x, _ in new)
         counts = allreduce_sum(system.comm, np.array([joined.sum(), removed.sum(), mass[entered].sum(),
@@ -427,14 +464,16 @@ class OpenBoundaries:
                 "mass_balance_error": (total_mass - m["initial"] - m["in"] + m["out"]) / scale}
 
     def checkpoint_state(self) -> dict:
-        return {"next_gid": self.next_gid, "emitted": list(self.emitted), "totals": dict(self.totals),
+        return {"next_gid": self.next_gid, "emitted": [e.tolist() for e in self.emitted], "totals": dict(self.totals),
                 "mass": dict(self.mass)}
 
     def restore(self, state) -> None:
         if state is None:  # a checkpoint written before the scene had open boundaries (the budget: as above)
             return
         self.next_gid = int(state["next_gid"])
-        self.emitted = [int(e) for e in state["emitted"]]
+        # (a checkpoint of before profiles holds one count per buffer: every column's)
+        self.emitted = [np.broadcast_to(np.asarray(e, dtype=np.int64), f.factor.shape).copy()
+                        for e, f in zip(state["emitted"], self.inflows)]
         self.totals = {k: int(v) for k, v in state["totals"].items()}
         if "mass" in state:  # else (a checkpoint written before the budget) it starts from the restart's mass
             self.mass = {k: float(v) for k, v in state["mass"].items()}

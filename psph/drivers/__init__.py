@@ -22,7 +22,9 @@ def describe_model(scene) -> list:
     if init.drop_radius > 0:
         particles += f" filling a drop of radius {init.drop_radius:g} (free surface all round)"
     if init.velocity == "inflow":
-        particles += f"; initial velocity: the first inflow's, {tuple(scene.inflow[0].velocity)}"
+        first = scene.inflow[0]
+        particles += (f"; initial velocity: the first inflow's, {tuple(first.velocity)}"
+                      + (" in its parabolic profile across it" if first.profile == "parabolic" else ""))
     elif init.velocity == "uniform":
         particles += f"; initial velocity: uniform, {tuple(init.uniform_velocity)}"
     elif init.velocity != "zero":

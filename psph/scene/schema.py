@@ -105,13 +105,19 @@ class DomainSpec:
 class InflowSpec:
     lower: tuple[float, ...] = option(doc="lower corner of the inflow buffer (a box inside the domain)")
     upper: tuple[float, ...] = option(doc="upper corner of the inflow buffer")
-    velocity: tuple[float, ...] = option(doc="velocity of the fluid entering: along one axis, pointing from the "
-                                         "buffer into the domain through the buffer's face on that side")
+    velocity: tuple[float, ...] = option(doc="velocity of the fluid entering (with profile = parabolic, at the "
+                                         "centre): along one axis, pointing from the buffer into the domain "
+                                         "through the buffer's face on that side")
     density: str = option("extrapolated", doc="the buffer particles' density: extrapolated (the Shepard average "
                           "of the fluid's within a kernel support, the velocity staying prescribed: a velocity inlet "
                           "whose pressure follows the fluid) or prescribed (rho0, the pressure of rho0, which a flow "
                           "that needs a pressure at the inlet overfills; README, \"Open boundaries\")",
                           choices=("extrapolated", "prescribed"))
+    profile: str = option("uniform", doc="the velocity across the buffer: uniform (velocity everywhere), or "
+                          "parabolic (Poiseuille's: velocity at the centre of the buffer's cross-section, falling "
+                          "to 0 at its sides as prod 4 s (1 - s), s across each transverse axis from 0 to 1; mean "
+                          "2/3 of it in 2-D); each column of the buffer emits its rows at its own speed",
+                          choices=("uniform", "parabolic"))
     ramp_time: float = option(0.0, doc="time over which the velocity rises from rest, smoothly (tau^2 (3 - 2 "
                               "tau), tau = t / ramp_time, a body's ramp law), so that the flow does not start with "
                               "a pressure shock of rho0 c0 U; 0: the full velocity from t = 0", ge=0.0)
@@ -303,8 +309,8 @@ class InitialSpec:
                            "taylor_green vortex (2-D bi-periodic square), or elliptical_drop: u = A0 x, v = -A0 y "
                            "and p = rho0 A0^2 / 2 (R^2 - r^2) about the drop's centre, A0 = reference_velocity / "
                            "drop_radius (seed 002 eq. 3.19-3.20), or inflow: the fill region moves with the first "
-                           "inflow's velocity (a jet already on its way), or uniform: the fluid moves at "
-                           "initial.uniform_velocity",
+                           "inflow's velocity, in its profile (a jet already on its way), or uniform: the fluid "
+                           "moves at initial.uniform_velocity",
                            choices=("zero", "taylor_green", "elliptical_drop", "inflow", "uniform"))
     uniform_velocity: tuple[float, ...] = option((), doc="initial.velocity = uniform: the fluid's velocity at t = 0, "
                                                  "one entry per axis (the pressure stays initial.pressure's)")
@@ -870,6 +876,9 @@ class Scene:
         self._needs_2d_fluid(key)
         if not self.inflow or self.inflow[0].velocity[1] >= 0.0 or self.inflow[0].velocity[0] != 0.0:
             raise SceneError(key, "needs inflow[0] with a velocity [0, -U] (the jet falls along -y)")
+        if self.inflow[0].profile != "uniform":
+            raise SceneError("inflow[0].profile", "Taylor's wall pressure (diagnostics.impinging_jet) is a uniform "
+                             "jet's: give profile = \"uniform\"")
         if not self.bodies or self.bodies[0].shape != "rectangle" or self.bodies[0].angle != 0.0:
             raise SceneError(key, "needs bodies[0], an unrotated rectangle whose top is the plate")
 

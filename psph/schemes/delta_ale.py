@@ -276,7 +276,8 @@ class DeltaALE:
         the velocity itself after every step)."""
         for f in self.ramps:
             rows = (kind == Kind.INLET) & f.holds(p.owned("position"))
-            d_mom[rows] = f.acceleration_at(t) * (p.owned("mass")[rows, None] if self.variant == 0 else 1.0)
+            d_mom[rows] = (f.acceleration_at(t, p.owned("position")[rows])
+                           * (p.owned("mass")[rows, None] if self.variant == 0 else 1.0))
 
     def _fall_with_gravity(self, p, outlet, d_mom) -> None:
         """An outflow buffer's rows (`outlet`, owned) accelerate with gravity within a step: their state is the
