@@ -40,15 +40,31 @@ def positive_float(text: str) -> float:
     return value
 
 
-def positive_int(text: str) -> int:
+def positive_int(text: str, least=1) -> int:
     """argparse type: an integer >= 1 (a rank count, a size; also the benchmarks')."""
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    if value < least:
+        raise argparse.ArgumentTypeError(f"must be >= {least}, got {value}")
     return value
+
+
+def line_points(text: str) -> int:
+    """argparse type: psph plot --points, 2 to MAX_LINE_POINTS (a review: 0 and 1 were refused in two
+    wordings)."""
+    value = positive_int(text, least=-sys.maxsize)
+    if not 2 <= value <= MAX_LINE_POINTS:
+        raise argparse.ArgumentTypeError(f"a line takes 2 to {MAX_LINE_POINTS} points, got {value}")
+    return value
+
+
+def nonempty(text: str) -> str:
+    """argparse type: a path that is not empty (--figures '' wrote to the default)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a directory, got an empty string")
+    return text
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -88,11 +104,11 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("keys", help="list every scene key with its type, default and meaning")
     plot = sub.add_parser("plot", help="PNG figures of a run (fields, history) or of a study directory of runs")
     plot.add_argument("out_dir", help="a run's output directory, or a directory of runs")
-    plot.add_argument("--figures", help="where to write the PNGs (default: OUT_DIR/figures)")
+    plot.add_argument("--figures", type=nonempty, help="where to write the PNGs (default: OUT_DIR/figures)")
     plot.add_argument("--line", type=float, nargs="+", metavar="X",
                       help="instead: the last snapshot's pressure, density and velocity along the segment from "
                       "(x0, y0[, z0]) to (x1, y1[, z1]), given as x0 y0 [z0] x1 y1 [z1], in line.png and line.csv")
-    plot.add_argument("--points", type=positive_int, default=LINE_POINTS, metavar="N",
+    plot.add_argument("--points", type=line_points, default=LINE_POINTS, metavar="N",
                       help=f"points along --line (default {LINE_POINTS})")
     return parser
 
@@ -494,6 +510,7 @@ STABLE_CFL = {"riemann_ale": 0.8}
 # the largest Mach number U / c0 of a weakly compressible flow (psph run warns above it)
 MAX_MACH = 0.1
 LINE_POINTS = 200  # psph plot --line's default number of points
+MAX_LINE_POINTS = 100_000  # and its most (a review: 1e8 points ran for minutes)
 # PETSc options read only when PETSc finalises, after psph's check
 AT_FINALIZE = ("-options_left", "-options_view", "-malloc_dump", "-memory_view", "-objects_dump")
 

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from psph.cli import MAX_LINE_POINTS
 from psph.errors import UsageError
 
 # the scenes' own diagnostics against their references come after the general ones (the drop's semi-axes and
@@ -317,7 +318,6 @@ def plot_fields(run_dir: Path, fig_dir: Path):
 
 
 LINE_FIELDS = ("pressure", "density", "velocity")  # what a line cut samples, where a snapshot holds them
-MAX_LINE_POINTS = 100_000  # (a review: 1e8 points ran for minutes)
 
 
 def plot_line(run_dir: Path, fig_dir: Path, ends, points: int) -> Path:
@@ -346,7 +346,7 @@ def plot_line(run_dir: Path, fig_dir: Path, ends, points: int) -> Path:
         raise UsageError(f"--line: the ends' coordinates must be finite numbers, got {ends.ravel().tolist()}")
     if np.array_equal(ends[0], ends[1]) or not 2 <= points <= MAX_LINE_POINTS:
         raise UsageError("--line: the two ends coincide" if 2 <= points <= MAX_LINE_POINTS else
-                         f"--points: a line takes 2 to {MAX_LINE_POINTS} points, got {points}")
+                         f"argument --points: a line takes 2 to {MAX_LINE_POINTS} points, got {points}")
     for a in range(d.dimension):
         outside = (ends[:, a] < d.lower[a] - 1e-12) | (ends[:, a] > d.upper[a] + 1e-12)
         if outside.any():

@@ -70,8 +70,11 @@ def test_a_line_cut_in_3d_and_through_the_air(tmp_path):
     # (a review: nan passed and was told "no fluid"; a point or a single point drew nothing)
     (["0", "nan", "1", "0.5"], "--line: the ends' coordinates must be finite numbers, got [0.0, nan, 1.0, 0.5]"),
     (["0.5", "0.5", "0.5", "0.5"], "--line: the two ends coincide"),
-    (["0", "0.5", "1", "0.5", "--points", "1"], "--points: a line takes 2 to 100000 points, got 1"),
-    (["0", "0.5", "1", "0.5", "--points", "100000000"], "--points: a line takes 2 to 100000 points, got 100000000"),
+    (["0", "0.5", "1", "0.5", "--points", "1"], "argument --points: a line takes 2 to 100000 points, got 1"),
+    (["0", "0.5", "1", "0.5", "--points", "0"], "argument --points: a line takes 2 to 100000 points, got 0"),
+    (["0", "0.5", "1", "0.5", "--figures", ""], "argument --figures: expected a directory, got an empty string"),
+    (["0", "0.5", "1", "0.5", "--points", "100000000"],
+     "argument --points: a line takes 2 to 100000 points, got 100000000"),
 ])
 def test_a_bad_line_is_one_line_naming_it(tmp_path, args, words):
     out = taylor_green_run(tmp_path / "tg", 0.1)
