@@ -104,6 +104,10 @@ class WallTerms:
         self.rho0 = scene.physics.density
         self.clones = [b for b in self.bodies if b.spec.model == "clone"]
         self._fixed_trees = {}  # boundaries.clone.WallTerms._node_trees
+        # caches of what a stage would otherwise derive again (a speed audit: 20-24% of the dam break's and the
+        # cavity's time went to the walls' Python path); each says what it is valid for
+        self._near_rows = (None, None, None)  # _near_wall_rows: (the lists, a copy of the kinds, near_wall_rows)
+        self._fixed_placed = None  # _place: the wall_velocity array whose fixed bodies' rows it has written
         self.periodic = scene.domain.periodic
         self.ghost = _ghost_walls(scene, [b for b in self.bodies if b.spec.model == "ghost"])
 
@@ -185,6 +189,7 @@ class WallTerms:
             p.owned("ref_normal")[rows] = b.profile.normals[node]
             if not b.moves:
                 p.owned("normal")[rows] = b.profile.normals[node]
+        self._fixed_placed = None  # (wall_node changed: _place writes the fixed bodies' wall velocities again)
 
     # ------------------------------------------------------------ kinematics
     @property
@@ -205,9 +210,17 @@ class WallTerms:
             self._place(system, t, positions)
 
     def _place(self, system, t, positions):
+        """A fixed body's centre and wall velocities do not change with t: they are written once for the rows
+        as they are, again after anything that replaced the particle arrays (a rebuild's migration and sort, an
+        open boundary's emission or removal: Particles.set_owned and set_halo make new arrays, so the
+        wall_velocity array itself tells) or moved the nodes (link_nodes)."""
         p = system.particles
         body = p.owned("body")
+        fixed_placed = self._fixed_placed is p["wall_velocity"]
+        self._fixed_placed = p["wall_velocity"]
         for b in self.bodies:
+            if fixed_placed and not b.moves:
+                continue
             rows = np.flatnonzero(body == b.index)
             self.centers[b.index] = b.rigid(t)[0]
             if len(rows):  # the wall velocity each solid particle mirrors: its own closest node's
@@ -232,22 +245,22 @@ class WallTerms:
         normals = np.zeros((len(points), len(self.bodies), 2))
         dist = np.full((len(points), len(self.bodies)), np.inf)
         if len(points):
-            for b, (tree, nrm) in self._node_trees(t).items():
+            for b, (tree, nrm, _) in self._node_trees(t).items():
                 k = tree.query(points)[1]
                 dist[:, b] = contour_distance(tree.data, self.bodies[b].profile.ends, k, points)
                 normals[:, b] = nrm[k]
         return normals, dist
 
     def _node_trees(self, t):
-        """{body index: (k-d tree of its nodes at time t, their normals)} of the clone bodies; a fixed body's
-        built once."""
+        """{body index: (k-d tree of its nodes at time t, their normals, the normals with a zero row appended
+        for the tree's "no node", index tree.n)} of the clone bodies; a fixed body's built once."""
         from scipy.spatial import cKDTree
 
         trees = {}
         for b in self.clones:
             if b.index not in self._fixed_trees:
                 pos, nrm, _ = b.nodes(t)
-                trees[b.index] = (cKDTree(pos), nrm)
+                trees[b.index] = (cKDTree(pos), nrm, np.vstack([nrm, np.zeros((1, 2))]))
                 if not b.moves:
                     self._fixed_trees[b.index] = trees[b.index]
             else:
@@ -271,13 +284,16 @@ class WallTerms:
         if not len(rows) or not self.clones:
             return
         points = system.particles.owned("position")[rows]
-        near = []  # each body's nodes within reach: their normals, zero for none (tree.n stands for it)
-        for tree, normals in self._node_trees(t).values():
+        found = []  # each body's nodes within reach (tree.n: none)
+        close = np.zeros(len(rows), dtype=bool)  # the rows with a node within reach (the others keep du)
+        trees = list(self._node_trees(t).values())
+        for tree, _, _ in trees:
             _, nodes = tree.query(points, k=NEAR_NODES, distance_upper_bound=self.shift_reach)
-            near.append(np.vstack([normals, np.zeros((1, 2))])[nodes])
-        near = np.concatenate(near, axis=1)
-        close = np.abs(near).sum(axis=(1, 2)) > 0.0
-        off_walls(near[close], rows[close], du)
+            found.append(nodes)
+            close |= (nodes < tree.n).any(axis=1)
+        # the normals of the close rows' nodes, zero for none (unit normals: a row is close if any is nonzero)
+        near = np.concatenate([padded[nodes[close]] for (_, _, padded), nodes in zip(trees, found)], axis=1)
+        off_walls(near, rows[close], du)
 
     # ----------------------------------------------------------------- rhs
     def add(self, system, scheme, t, d_rho, d_mom):
@@ -308,7 +324,7 @@ class WallTerms:
 
     def _add_clones(self, system, scheme, t, du, switch, no_pull, d_rho, d_mom):
         p = system.particles
-        rows = near_wall_rows(p["kind"], system.nbr_ptr, system.nbr_idx)
+        rows = self._near_wall_rows(system)
         n_i, s_i = self.nearest_node_data(system, rows, t)
         clone_rhs(p["position"], p["volume"], p["density"], p["velocity"], du, p["pressure"], p["kind"],
                   p["body"], p["normal"], p["wall_distance"], p["wall_accel"], p["wall_velocity"], rows, n_i, s_i,
@@ -316,6 +332,17 @@ class WallTerms:
                   system.nbr_ptr, system.nbr_idx, system.kernel.params, scheme.c0, scheme.rho0, scheme.eos.tait,
                   scheme.mu, scheme.morris, self.gravity, self.ds, scheme.variant, scheme.shift.active,
                   switch, no_pull, self.centers, d_rho, d_mom, self.force, self.torque, self.particle_force)
+
+    def _near_wall_rows(self, system):
+        """near_wall_rows of the current lists, computed again only when the lists (new arrays at every
+        rebuild) or the kinds changed: it reads nothing else."""
+        kind, lists = system.particles["kind"], (system.nbr_ptr, system.nbr_idx)
+        cached_lists, cached_kind, rows = self._near_rows
+        if (cached_lists is None or cached_lists[0] is not lists[0] or cached_lists[1] is not lists[1]
+                or not np.array_equal(cached_kind, kind)):  # (open boundaries flip kinds in place, unrebuilt)
+            rows = near_wall_rows(kind, *lists)
+            self._near_rows = (lists, kind.copy(), rows)
+        return rows
 
     def viscous_weight(self, system, rows, t, directional) -> np.ndarray:
         """The no-slip clone walls' extra weight in the viscous operators for the owned fluid `rows` at time t,
@@ -326,7 +353,7 @@ class WallTerms:
         out = np.zeros((len(rows), 2, 2))
         if not self.clones or not self.no_slip.any():
             return out
-        near = near_wall_rows(p["kind"], system.nbr_ptr, system.nbr_idx)
+        near = self._near_wall_rows(system)
         at = np.searchsorted(rows, near)  # both sorted; near-wall rows are fluid rows
         _, s_i = self.nearest_node_data(system, near, t)
         part = np.zeros((len(near), 2, 2))

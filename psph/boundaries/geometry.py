@@ -154,21 +154,14 @@ def nearest_nodes(profile, points):
 def contour_distance(nodes, ends, closest, points) -> np.ndarray:
     """Distance of each of `points` to the contour, the polyline through the body `nodes` (`ends`: each node's
     neighbours along it, Profile.ends), over the two segments that meet at the point's closest node
-    `closest`. Seed 004 mirrors with the distances to the body contour (s_i, s_j after eq. 6); the distance to
-    the closest node, which psph took before, exceeds it by up to sqrt(s^2 + ds^2 / 4) - s with nodes ds
-    apart: 3.1% at s = dx/2 and 11.8% at s = dx/4 (a walls audit). On a polygon's sides the polyline is the
-    contour; along an ellipse it lies within ds^2 / (8 R) of it."""
-    points = np.asarray(points, dtype=np.float64)
-    a = nodes[closest]
-    rel = points - a
-    best = np.sqrt((rel * rel).sum(axis=1))
-    for side in (0, 1):
-        ab = nodes[ends[closest, side]] - a
-        length2 = (ab * ab).sum(axis=1)
-        along = np.clip((rel * ab).sum(axis=1) / np.where(length2 > 0.0, length2, 1.0), 0.0, 1.0)
-        gap = rel - along[:, None] * ab
-        best = np.minimum(best, np.sqrt((gap * gap).sum(axis=1)))
-    return best
+    `closest` (the kernel psph.compute.walls.contour_distance). Seed 004 mirrors with the distances to the body
+    contour (s_i, s_j after eq. 6); the distance to the closest node, which psph took before, exceeds it by up
+    to sqrt(s^2 + ds^2 / 4) - s with nodes ds apart: 3.1% at s = dx/2 and 11.8% at s = dx/4 (a walls audit).
+    On a polygon's sides the polyline is the contour; along an ellipse it lies within ds^2 / (8 R) of it."""
+    from psph.compute.walls import contour_distance as kernel
+
+    return kernel(np.ascontiguousarray(nodes, dtype=np.float64), np.ascontiguousarray(ends, dtype=np.int64),
+                  np.ascontiguousarray(closest, dtype=np.int64), np.ascontiguousarray(points, dtype=np.float64))
 
 
 def solid_particles(profile, spec, lattice_points, thickness, with_index=False):

@@ -123,6 +123,34 @@ def off_walls(near, rows, du):
 
 
 @njit(cache=True)
+def contour_distance(nodes, ends, closest, points):
+    """Distance of each of `points` (m, 2) to the contour through the body `nodes` (n, 2), over the two segments
+    [a, b] that meet at the point's closest node a = closest[r] (b = ends[a, 0] and ends[a, 1], its neighbours
+    along the contour, boundaries.geometry.Profile.ends): min(|x - a|, |x - a - s ab|) with
+    s = clip((x - a) . ab / |ab|^2, 0, 1), ab = b - a (s = 0 for a zero-length segment, an open line's end).
+    The arithmetic, term by term, of the numpy version it replaces (boundaries.geometry.contour_distance
+    calls it), which made about 12 temporaries at every right-hand side (a speed audit): the same bits. An
+    index out of range (a k-d tree's "not found", tree.n) raises IndexError, as numpy's indexing did."""
+    out = np.empty(points.shape[0])
+    for r in range(points.shape[0]):
+        a = closest[r]
+        if a < 0 or a >= nodes.shape[0]:
+            raise IndexError("contour_distance: a closest node index out of range")
+        rel0, rel1 = points[r, 0] - nodes[a, 0], points[r, 1] - nodes[a, 1]
+        best = np.sqrt(rel0 * rel0 + rel1 * rel1)
+        for side in range(2):
+            b = ends[a, side]
+            ab0, ab1 = nodes[b, 0] - nodes[a, 0], nodes[b, 1] - nodes[a, 1]
+            length2 = ab0 * ab0 + ab1 * ab1
+            along = (rel0 * ab0 + rel1 * ab1) / (length2 if length2 > 0.0 else 1.0)
+            along = np.minimum(np.maximum(along, 0.0), 1.0)  # (np.clip's, NaN kept)
+            gap0, gap1 = rel0 - along * ab0, rel1 - along * ab1
+            best = np.minimum(best, np.sqrt(gap0 * gap0 + gap1 * gap1))
+        out[r] = best
+    return out
+
+
+@njit(cache=True)
 def near_wall_rows(kind, ptr, idx):
     """Owned fluid rows (kind 0) with at least one solid neighbour (a wall's or a body's)."""
     out = np.zeros(ptr.size - 1, dtype=np.bool_)

@@ -138,6 +138,10 @@ def warm_up(dim: int, kernel_name: str, parts=PARTS) -> None:
                         0.1, 0, True, np.zeros(n, dtype=np.int8), np.zeros(n, dtype=np.int8), np.zeros((bodies, 2)),
                         scalar.copy(), vector.copy(), np.zeros((bodies, 2, 2)), np.zeros((bodies, 2)), np.zeros((n, 2)))
         walls.off_walls(np.zeros((1, 2, 2)), np.zeros(1, dtype=np.int64), vector.copy())
+        fixed_nodes = pos.copy()  # (a fixed body's nodes, and so its k-d tree's data, are read-only: Body.nodes)
+        fixed_nodes.flags.writeable = False
+        for nodes in (pos, fixed_nodes):
+            walls.contour_distance(nodes, np.zeros((n, 2), dtype=np.int64), np.zeros(n, dtype=np.int64), pos)
         walls.clone_viscous_weight(pos, vol, kind, np.zeros(n, dtype=np.int64), vector, scalar, rows,
                                    np.zeros((0, bodies)), np.zeros(bodies, dtype=np.bool_), ptr, idx, kp, 0.1,
                                    True, np.zeros((0, 2, 2)))

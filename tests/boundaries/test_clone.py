@@ -402,3 +402,59 @@ def test_off_walls_is_the_closest_admissible_vector():
             got = du[None, :].copy()
             off_walls(np.vstack([normals, np.zeros((1, 2))])[None], np.zeros(1, dtype=np.int64), got)
             assert np.allclose(got[0], best, atol=1e-6), (angle, du)
+
+
+def test_the_walls_caches_give_what_a_fresh_evaluation_does(tmp_path):
+    """WallTerms keeps what a right-hand side would derive again at every stage: the near-wall rows
+    (compute.walls.near_wall_rows, for the same lists and kinds) and the fixed bodies' wall velocities
+    (written once for the particle arrays as they are). Neither may go stale: a kind flipped in place with
+    the lists kept (an open boundary's outflow, boundaries.open), the rows reordered (a rebuild's sort), and a
+    moving body's solids at another time, give what a fresh WallTerms computes."""
+    from psph.boundaries.clone import WallTerms
+    from psph.compute.walls import near_wall_rows
+
+    scene = load_scene(CASES / "moving_square.toml", ["domain.dx=0.1"])
+    driver = FluidDriver(scene, MPI.COMM_SELF, tmp_path)
+    system, walls = driver.system, driver.scheme.walls
+    p = system.particles
+
+    def fresh_place(t):
+        """The solids' fields at time t as a WallTerms without caches writes them."""
+        kept = {name: p[name].copy() for name in ("wall_velocity", "velocity", "normal", "wall_accel")}
+        WallTerms(scene)._place(system, t, positions=False)
+        out = {name: p[name].copy() for name in kept}
+        for name, value in kept.items():
+            p[name][:] = value
+        return out
+
+    def assert_placed(t):
+        expected = fresh_place(t)
+        p.owned("wall_velocity")[p.owned("body") >= 0] = np.nan  # what a stale cache would leave there
+        walls._place(system, t, positions=False)
+        for name, value in expected.items():  # (the owned rows: the halo's are refreshed from them)
+            assert np.array_equal(p.owned(name), value[: p.n_owned]), (t, name)
+
+    tank = p["body"] == 0
+    walls.place(system, 0.5)
+    p["wall_velocity"][tank] = np.nan  # the tank's rows already written for these arrays: left alone
+    walls.place(system, 0.7)
+    assert np.isnan(p["wall_velocity"][tank]).all()
+    system.rebuild()  # new particle arrays: the fixed bodies' rows are written again
+    assert_placed(1.2)
+    walls.link_nodes(system)  # the nodes taken again (a restart): likewise
+    assert_placed(1.3)
+    moving = p.owned("body") == 1
+    assert not np.array_equal(fresh_place(0.6)["wall_velocity"][: p.n_owned][moving],
+                              fresh_place(1.4)["wall_velocity"][: p.n_owned][moving])
+
+    rows = walls._near_wall_rows(system)
+    assert np.array_equal(rows, near_wall_rows(p["kind"], system.nbr_ptr, system.nbr_idx)) and len(rows)
+    assert walls._near_wall_rows(system) is rows  # the same lists and kinds
+    p["kind"][rows[:3]] = Kind.OUTLET  # in place, the lists kept
+    changed = walls._near_wall_rows(system)
+    assert np.array_equal(changed, near_wall_rows(p["kind"], system.nbr_ptr, system.nbr_idx))
+    assert len(changed) == len(rows) - 3
+    p["kind"][rows[:3]] = Kind.FLUID
+    system.rebuild()
+    again = walls._near_wall_rows(system)
+    assert again is not rows and np.array_equal(again, near_wall_rows(p["kind"], system.nbr_ptr, system.nbr_idx))
