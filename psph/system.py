@@ -56,6 +56,8 @@ class ParticleSystem:
         self.nbr_idx = np.zeros(0, dtype=np.int32)
         self.rebuilds = 0
         self._reference = None
+        # separate_coincident's last search: (its lists, the local positions then, the closest pair's distance)
+        self._coincident_search = None
         self.where = {}  # the driver's step and time, for the reports of check_escaped
         self.rebuild(rebalance=decomposition is None)
 
@@ -204,7 +206,7 @@ class ParticleSystem:
         gid, so rank-independent). Kernel gradients vanish at r = 0, so no shifting law can split an
         exactly coincident pair by itself. Returns the global number of particles moved. Collective."""
         p = self.particles
-        rows = coincident_rows(p["position"], p["gid"], self.nbr_ptr, self.nbr_idx, tolerance)
+        rows = self._coincident_rows(tolerance)
         moved = int(allreduce_sum(self.comm, len(rows)))
         if moved:
             direction = gaussian_by_gid(0x5EED, p.owned("gid")[rows], p.dim)
@@ -212,6 +214,25 @@ class ParticleSystem:
             p.owned("position")[rows] += offset * direction
             self.update()
         return moved
+
+    def _coincident_rows(self, tolerance: float) -> np.ndarray:
+        """compute.neighbours.coincident_rows of the current positions, without the pass over every pair (a
+        speed audit: 3.5% of the cavity) while none of the pairs it measured last can have come within
+        `tolerance`: with the same lists (new arrays at every rebuild, and after any change of rows) and every
+        local row, halo included, at most `moved` from where it was then, a pair then r apart is now at least
+        r - 2 moved apart. The search is skipped if r - 2 moved > 2 tolerance (the factor 2 covers the round-off
+        of the distances, ~1e-16 of the coordinates, many orders below it), so the rows found are the same.
+        Not collective."""
+        p = self.particles
+        pos = p["position"]
+        last = self._coincident_search
+        if last is not None and last[0] is self.nbr_ptr and last[1] is self.nbr_idx and last[2].shape == pos.shape:
+            moved = max_displacement(pos, last[2], len(pos))  # (inf for a non-finite position: no skip)
+            if last[3] - 2.0 * moved > 2.0 * tolerance:
+                return np.zeros(0, dtype=np.int64)
+        rows, closest2 = coincident_rows(pos, p["gid"], self.nbr_ptr, self.nbr_idx, tolerance)
+        self._coincident_search = (self.nbr_ptr, self.nbr_idx, pos.copy(), np.sqrt(closest2))
+        return rows
 
     # ------------------------------------------------------------- numbering
     def global_rows(self, free_mask: np.ndarray) -> tuple:

@@ -332,9 +332,13 @@ def max_displacement(pos, ref, n):
 
 @njit(cache=True)
 def coincident_rows(pos, gid, ptr, idx, tol):
-    """Owned rows i with a neighbour j closer than `tol` and gid_j < gid_i (one of each close pair)."""
+    """Owned rows i with a neighbour j closer than `tol` and gid_j < gid_i (one of each close pair), and the
+    smallest squared distance |x_i - x_j|^2 over the pairs it measured (those with gid_j < gid_i, each row's up to
+    its first close pair; inf for none): system.System.separate_coincident skips the next search while the
+    particles have not moved enough since to bring any of these pairs within `tol`."""
     d = pos.shape[1]
     out = np.zeros(ptr.size - 1, dtype=np.bool_)
+    closest = np.inf
     for i in range(ptr.size - 1):
         for k in range(ptr[i], ptr[i + 1]):
             j = idx[k]
@@ -344,7 +348,9 @@ def coincident_rows(pos, gid, ptr, idx, tol):
             for a in range(d):
                 t = pos[i, a] - pos[j, a]
                 r2 += t * t
+            if r2 < closest:
+                closest = r2
             if r2 < tol * tol:
                 out[i] = True
                 break
-    return np.flatnonzero(out)
+    return np.flatnonzero(out), closest

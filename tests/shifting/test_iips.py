@@ -966,3 +966,31 @@ def test_lind_laws_2d_limit_is_where_its_fastest_wave_turns():
         moved = system.domain.minimum_image(p.owned("position") - start[p.owned("gid")])
         amplitudes.append(2.0 * float((moved[:, 0] * lind_wave(start[p.owned("gid"), 0] / dx)).mean()) / dx)
     assert abs(amplitudes[0]) < 1e-9 and abs(amplitudes[1]) > 1e-3, amplitudes
+
+
+def test_a_skipped_coincidence_search_misses_no_pair():
+    """System.separate_coincident skips compute.neighbours.coincident_rows while no pair of the same lists can
+    have come within the tolerance since its last search: a particle then moved onto its neighbour (same
+    lists, no rebuild), or brought almost within reach, is found and nudged exactly as by a fresh search, and
+    the lists' rebuild starts afresh."""
+    from psph.compute.neighbours import coincident_rows
+
+    scene = periodic_scene(n=20, sigma=0.1)
+    system = build_system(scene, MPI.COMM_SELF)
+    p = system.particles
+    tol, nudge = 1e-6 * system.kernel.h, 1e-3 * system.kernel.h
+    assert system.separate_coincident(tol, nudge) == 0  # a search, which measured the closest pair
+    assert system.separate_coincident(tol, nudge) == 0  # skipped: nothing moved
+    lists = system.nbr_ptr
+    i, j = 7, int(system.nbr_idx[system.nbr_ptr[7]])
+    p.owned("position")[i] = p["position"][j] + 0.5 * tol  # onto a neighbour, lists kept
+    system.refresh(["position"])
+    assert system.nbr_ptr is lists
+    expected = coincident_rows(p["position"], p["gid"], system.nbr_ptr, system.nbr_idx, tol)[0]
+    assert len(expected) == 1
+    moved_row = expected[0]
+    before = p.owned("position")[moved_row].copy()
+    assert system.separate_coincident(tol, nudge) == 1
+    assert np.isclose(np.linalg.norm(p.owned("position")[moved_row] - before), nudge, rtol=1e-12)
+    system.rebuild()
+    assert system.separate_coincident(tol, nudge) == 0  # searched again on the new lists: the pair is apart
