@@ -235,8 +235,8 @@ UNSTAMPED_ARGUMENTS = ("out", "overwrite", "no_run", "allow_large")
 
 
 def claim_out(parser, args) -> None:
-    """Refuse (parser.error on --out) a study's --out that holds the results of the same script with other
-    arguments, unless --overwrite: a second study into a default --out replaced the first one's runs and
+    """Refuse (parser.error on --out) a study's --out that holds the results of another script, or of this
+    one with other arguments, unless --overwrite: a second study into a default --out replaced the first one's runs and
     tables silently (a scripts audit). The stamp (STUDY_STAMP) is this study's from its first run or table
     on (stamp_out): a study refused before it wrote anything leaves none, and a stamp alone holds no
     results. A directory without a stamp (results made before stamps) is taken as it is."""

@@ -136,6 +136,8 @@ class InflowSpec:
             if not self.upper[a] > self.lower[a]:
                 raise SceneError(f"{path}.upper[{a}]", f"must exceed lower[{a}] = {self.lower[a]}, "
                                  f"got {self.upper[a]}")
+        if self.profile == "parabolic" and len(self.lower) == 1:
+            raise SceneError(f"{path}.profile", "a 1-D buffer has no cross-section for a profile to vary across")
         moving = [a for a, v in enumerate(self.velocity) if v != 0.0]
         if len(moving) != 1:
             raise SceneError(f"{path}.velocity", f"give exactly one non-zero component (the buffer's axis), got "

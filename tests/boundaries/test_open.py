@@ -227,6 +227,17 @@ def test_open_boundary_scenes_are_refused_by_key(sets, key):
     assert err.value.key == key, str(err.value)
 
 
+@pytest.mark.parametrize("scene, key", [
+    (lambda: apply_overrides(to_table(free_jet(1)), ["inflow.0.profile=parabolic"]), "inflow[0].profile"),
+    (lambda: apply_overrides(to_table(load_scene(CASES / "impinging_jet.toml")), ["inflow.0.profile=parabolic"]),
+     "inflow[0].profile"),  # Taylor's wall pressure is a uniform jet's
+])
+def test_a_parabolic_profile_where_it_cannot_be_is_refused_by_key(scene, key):
+    with pytest.raises(SceneError) as err:
+        scene_from_table(scene())
+    assert err.value.key == key, str(err.value)
+
+
 def test_impinging_jet_case_reads_and_refuses_a_thin_buffer():
     sc = load_scene(CASES / "impinging_jet.toml")
     assert sc.diagnostics.impinging_jet and sc.domain.outflow == ("x-", "x+")
