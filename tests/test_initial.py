@@ -70,3 +70,18 @@ def test_a_uniform_velocity_needs_one_entry_per_axis():
 
     with pytest.raises(SceneError, match=r"initial.uniform_velocity: initial.velocity = \"uniform\" needs 2 entries"):
         periodic_scene(dim=2, n=16, initial={"velocity": "uniform", "uniform_velocity": [1.0]})
+
+
+def test_a_uniform_velocity_not_below_the_speed_of_sound_is_refused():
+    """As an inflow's and a body's are: 1e160 ran to a time step of 0 at step 1."""
+    import pytest
+
+    from psph.errors import SceneError
+
+    for speed in (10.0, 1e160):  # (c0 = 10)
+        with pytest.raises(SceneError, match=r"initial.uniform_velocity: the fluid would start at .*, not below the "
+                                             r"speed of sound physics.sound_speed = 10"):
+            periodic_scene(dim=2, n=16, initial={"velocity": "uniform", "uniform_velocity": [speed, 0.0]},
+                           physics={"scheme": "delta_ale", "sound_speed": 10.0}, time={"t_end": 0.1})
+    periodic_scene(dim=2, n=16, initial={"velocity": "uniform", "uniform_velocity": [9.9, 0.0]},
+                   physics={"scheme": "delta_ale", "sound_speed": 10.0}, time={"t_end": 0.1})

@@ -729,6 +729,11 @@ class Scene:
         if self.initial.velocity == "uniform" and len(self.initial.uniform_velocity) != d.dimension:
             raise SceneError("initial.uniform_velocity", f"initial.velocity = \"uniform\" needs {d.dimension} "
                              f"entries (domain.dimension), got {list(self.initial.uniform_velocity)}")
+        if self.initial.velocity == "uniform" and fluid:  # (1e160 ran to a time step of 0 at step 1)
+            speed = math.hypot(*self.initial.uniform_velocity)
+            if not speed < self.physics.sound_speed:
+                raise _supersonic("initial.uniform_velocity", "the fluid would start", speed,
+                                  self.physics.sound_speed)
         if self.initial.velocity == "inflow" and not self.inflow:
             raise SceneError("initial.velocity", "inflow sets the fluid moving with the first [[inflow]]: the "
                              "scene has none")
