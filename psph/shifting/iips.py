@@ -59,8 +59,11 @@ BEST_FIELD = FieldSpec(SCRATCH_FIELDS[0], ("d",), scratch=True)
 GUESS_FIELD = FieldSpec(SCRATCH_FIELDS[1], ("d",), scratch=True)
 # the last Newton step (iips.backtrack halves it back; a field, so that it follows the particles)
 STEP_FIELD = FieldSpec(SCRATCH_FIELDS[2], ("d",), scratch=True)
-# block rows per rank of the trial system (trial); 16 for the matrix types written generically (SELL mangled 4
-# rows per rank on 3 ranks)
+# block rows of the trial system (trial), shared by the ranks, and the fewest a rank takes: 16 for the matrix types
+# written generically (SELL mangled 4 rows per rank on 3 ranks). The same system on up to 12 (3) ranks: with 4
+# block rows per rank, -iips_ksp_max_it 2 -iips_ksp_rtol 1e-10 passed the trial on 1 rank and not on 2 (a ranks
+# audit; at rtol 1e-10 BCGS + Jacobi takes 2 iterations at 4 block rows, 4 at 8, 11 at 48; 2 at rtol 1e-2)
+TRIAL_BLOCKS = 48
 TRIAL_ROWS = 4
 TRIAL_ROWS_GENERIC = 16
 # particles closer than COINCIDENT h count as coincident and are first nudged NUDGE h apart
@@ -264,15 +267,18 @@ class ImplicitShifting(Shifting):
         refused unless iips.on_failure = "reject" undoes the calls it fails). The matrix-free operator's trial
         matrix is AIJ (it reads no -iips_mat_type, which the run does not read either). An assembled operator of a
         type other than AIJ or BAIJ (-iips_mat_type sell, dense) is checked first (solvers.aij.check_mat_type:
-        SBAIJ and IS are refused) and tried on TRIAL_ROWS_GENERIC block rows per rank (PETSc 3.18's SELL mangles
-        4; GAMG on SELL or dense failed at the first IIPS call, after the run had written its output: a
-        PETSc-options audit). Collective."""
+        SBAIJ and IS are refused) and tried on TRIAL_ROWS_GENERIC block rows per rank at least (PETSc 3.18's
+        SELL mangles 4; GAMG on SELL or dense failed at the first IIPS call, after the run had written its
+        output: a PETSc-options audit). The system has TRIAL_BLOCKS block rows, shared by the ranks (each takes
+        at least its fewest). Collective."""
         assembled = isinstance(self.operator, AssembledOperator)
-        rows = TRIAL_ROWS
+        fewest = TRIAL_ROWS
         if assembled and family_of(self.solver.prefix) is None:
             with petsc_errors("creating the IIPS matrix"):
                 check_mat_type(self.solver.comm, self.solver.prefix)
-            rows = TRIAL_ROWS_GENERIC
+            fewest = TRIAL_ROWS_GENERIC
+        size, rank = self.solver.comm.size, self.solver.comm.rank
+        rows = max(fewest, TRIAL_BLOCKS // size + int(rank < TRIAL_BLOCKS % size))
         matrix = chain_matrix(self.solver.comm, rows, dim, self.solver.prefix if assembled else "psph_trial_")
         try:
             self.solver.trial(matrix.mat, capped=self.spec.on_failure == "reject")

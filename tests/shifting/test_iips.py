@@ -464,6 +464,25 @@ def test_solver_settings_survive_a_change_of_matrix_size():
         assert np.allclose(x.getArray(), 0.5)
 
 
+@pytest.mark.mpi
+def test_the_trial_system_is_the_same_on_any_rank_count(comm):
+    """The trial solve's system has TRIAL_BLOCKS block rows however many ranks share it (a ranks audit: with 4
+    per rank, -iips_ksp_max_it 2 -iips_ksp_rtol 1e-10 passed it on 1 rank and not on 2; BCGS + Jacobi takes
+    11 iterations on it at rtol 1e-10)."""
+    scene = periodic_scene(dim=2, n=10, shifting={"method": "iips"})
+    for max_it, passes in ((9, False), (13, True)):
+        with petsc_options(iips_ksp_max_it=max_it, iips_ksp_rtol=1e-10):
+            shifting = ImplicitShifting(scene.iips, comm)
+            try:
+                if passes:
+                    shifting.trial(2)
+                else:
+                    with pytest.raises(UsageError, match=f"max_it {max_it}\\) fails on a small well-posed test"):
+                        shifting.trial(2)
+            finally:
+                shifting.destroy()
+
+
 def test_an_option_type_error_is_every_ranks_at_the_trial_solve_only():
     """GAMG on a BAIJ matrix fails at the first solve with PETSc's error 56 (unsupported): at the trial solve
     that is the options' fault, the same on every rank (collective: a clean exit). The same code from a
