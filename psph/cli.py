@@ -41,7 +41,7 @@ def positive_float(text: str) -> float:
 
 
 def positive_int(text: str, least=1) -> int:
-    """argparse type: an integer >= 1 (a rank count, a size; also the benchmarks')."""
+    """argparse type: an integer >= 1 (a rank count, a size; also the benchmarks'), or >= least."""
     try:
         value = int(text)
     except ValueError:

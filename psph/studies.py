@@ -123,8 +123,9 @@ LAUNCHER_RANK_VARIABLES = ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK")
 
 
 def launcher_rank() -> int:
-    """This process' rank under mpiexec (0 outside it), from the launcher's environment: a script's arguments
-    are checked before MPI is imported."""
+    """This process' rank under mpiexec (0 outside it, and under a launcher that sets none of
+    LAUNCHER_RANK_VARIABLES, such as srun), from the launcher's environment: a script's arguments are checked
+    before MPI is imported."""
     return next((int(os.environ[v]) for v in LAUNCHER_RANK_VARIABLES if os.environ.get(v, "").isdigit()), 0)
 
 
@@ -216,7 +217,8 @@ def parse_args(parser, argv=None):
     parser.add_argument("--allow-large", action="store_true",
                         help="run scenes psph estimates too large for this machine (as psph run --allow-large)")
     parser.add_argument("--overwrite", action="store_true",
-                        help=f"replace the results another command left in --out (its {STUDY_STAMP} names it); "
+                        help=f"run into an --out that holds another command's results ({STUDY_STAMP} names it): "
+                             "its runs and tables are replaced as this study makes its own, the others are left; "
                              "the same command again needs no --overwrite")
     parser.epilog = "PETSc options (e.g. -iips_pc_type hypre) are passed to every run."
     ours, petsc = split_petsc_options(sys.argv[1:] if argv is None else list(argv))
@@ -230,8 +232,9 @@ def parse_args(parser, argv=None):
 
 
 STUDY_STAMP = "study.json"  # in a study's --out: the script and the arguments whose results it holds
-# arguments that change no result (--no-run tables the runs of the same arguments again)
-UNSTAMPED_ARGUMENTS = ("out", "overwrite", "no_run", "allow_large")
+# arguments that change no result: --no-run and ellipse.py's --in-progress table the runs of the same
+# arguments again, --rerun makes them again, dam_break_long.py's --jobs runs them side by side
+UNSTAMPED_ARGUMENTS = ("out", "overwrite", "no_run", "allow_large", "in_progress", "rerun", "jobs")
 
 
 def claim_out(parser, args) -> None:
@@ -271,7 +274,7 @@ def stamp_out() -> None:
     stamp, ours = _STUDY.pop("stamp", (None, None))
     if stamp is not None and launcher_rank() == 0:
         stamp.parent.mkdir(parents=True, exist_ok=True)
-        part = stamp.with_name(stamp.name + ".part")
+        part = stamp.with_name(f"{stamp.name}.{os.getpid()}.part")  # (several processes, a launcher unknown)
         part.write_text(json.dumps(ours, indent=1) + "\n")
         os.replace(part, stamp)
 

@@ -15,9 +15,10 @@ of the buffer's upstream face and D its depth:
 so every row travels on the same lattice and the buffer lets |U| rho0 dx^(d-1) of mass in per unit area
 and time, whatever the time step. With `profile = "parabolic"` each column of the buffer (a point of its
 cross-section, transverse coordinates s_a scaled to 0..1 across the section) moves at its own speed
-|U| prod_a 4 s_a (1 - s_a), Poiseuille's profile with U at the centre (its mean over a 2-D section 2/3 U,
-4/9 U over a 3-D one), and emits its own rows by the rule above at that speed. Which rows exist depends on t
-only: runs on any number of ranks emit the same particles with the same gids.
+|U| prod_a 4 s_a (1 - s_a), Poiseuille's profile with U at the centre (its mean over a 2-D section 2/3 U;
+over a 3-D one, the product of two parabolas, 4/9 U, which only approximates a square duct's), and emits its
+own rows by the rule above at that speed. Which rows exist depends on t only: runs on any number of ranks
+emit the same particles with the same gids.
 
 At an outflow face (domain.outflow) fluid particles that crossed it
 are removed; with `domain.outflow_buffer` they become buffer particles (Kind.OUTLET) instead, removed one
@@ -199,7 +200,7 @@ def describe_open(scene) -> list:
                      f"{len(f.section)} particles at velocity {tuple(f.velocity)}"
                      + (f" at the centre of a parabolic profile (the columns' mean speed {f.factor.mean():.4g} "
                         "times it)" if parabolic else "")
-                     + f", a row every {f.dx / f.speed:.4g} time units" + (" at the centre" if parabolic else "")
+                     + f", a row every {f.dx / f.speed:.4g} time units" + (" at speed U" if parabolic else "")
                      + (f" once reached, smoothly over ramp_time = {f.ramp:g}" if f.ramp else ""))
     if scene.domain.outflow and scene.domain.outflow_buffer:
         lines.append(f"outflow faces {', '.join(scene.domain.outflow)}: fluid past them becomes a buffer one kernel "

@@ -8,8 +8,8 @@ scalar numba function of (value, c0, rho0, tait), which the kernels call; `eleme
 array (psph.schemes.eos). (Numba ufuncs did the same, but numba rebuilt them in every process, cache or not:
 0.35-0.5 s of each run's start, a speed audit measured.)
 Out of range, Tait's density of p <= -B (the vacuum, rho = 0, where the pressure cannot fall lower) is 0, an
-overflow inf, and NaN stays NaN (psph.schemes.eos silences numpy's warnings; the fluid driver's checks name
-the particle).
+overflow inf, and NaN stays NaN (compiled, they warn of nothing; the fluid driver's checks name the
+particle).
 tests/schemes/test_delta_ale.py checks the inverses and c^2 = dp/drho by central differences.
 """
 

@@ -334,7 +334,7 @@ def max_displacement(pos, ref, n):
 def coincident_rows(pos, gid, ptr, idx, tol):
     """Owned rows i with a neighbour j closer than `tol` and gid_j < gid_i (one of each close pair), and the
     smallest squared distance |x_i - x_j|^2 over the pairs it measured (those with gid_j < gid_i, each row's up to
-    its first close pair; inf for none): system.System.separate_coincident skips the next search while the
+    its first close pair; inf for none): system.ParticleSystem.separate_coincident skips the next search while the
     particles have not moved enough since to bring any of these pairs within `tol`."""
     d = pos.shape[1]
     out = np.zeros(ptr.size - 1, dtype=np.bool_)

@@ -116,7 +116,8 @@ class InflowSpec:
     profile: str = option("uniform", doc="the velocity across the buffer: uniform (velocity everywhere), or "
                           "parabolic (Poiseuille's: velocity at the centre of the buffer's cross-section, falling "
                           "to 0 at its sides as prod 4 s (1 - s), s across each transverse axis from 0 to 1; mean "
-                          "2/3 of it in 2-D); each column of the buffer emits its rows at its own speed",
+                          "2/3 of it in 2-D; in 3-D the product of two parabolas, which only approximates a "
+                          "square duct's); each column of the buffer emits its rows at its own speed",
                           choices=("uniform", "parabolic"))
     ramp_time: float = option(0.0, doc="time over which the velocity rises from rest, smoothly (tau^2 (3 - 2 "
                               "tau), tau = t / ramp_time, a body's ramp law), so that the flow does not start with "

@@ -15,8 +15,9 @@ class EquationOfState:
         self.tait = name == "tait"
 
     def _apply(self, formula, values):
-        return formulas.elementwise(formula, np.asarray(values, dtype=np.float64), float(self.c0),
-                                    float(self.rho0), self.tait)
+        out = formulas.elementwise(formula, np.asarray(values, dtype=np.float64), float(self.c0), float(self.rho0),
+                                   self.tait)
+        return out[()] if out.ndim == 0 else out  # (a number for a number, as numpy's ufuncs give)
 
     def pressure(self, rho):
         return self._apply(formulas.PRESSURE, rho)
