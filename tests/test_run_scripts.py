@@ -182,6 +182,16 @@ def tank(out):
     figures(out, "speed.png")
 
 
+def riemann_walls(out):
+    run_script("riemann_walls", "--schemes", "riemann_ale", "--shiftings", "none", "--cavity-dx", 0.1,
+               "--cavity-t-end", 0.05, "--dam-dx", 0.1, "--dam-t-end", 0.05, "--out", out)
+    header, rows = table(out / "runs", rows=2)
+    assert [row[:3] for row in rows] == [["cavity", "riemann_ale", "none"], ["dam_break", "riemann_ale", "none"]]
+    fronts = [name for name in header if name.startswith("front")]  # (the dam break's, after t = 1)
+    finite(header, rows, skip=["flow", "scheme", "shifting", "stop", *fronts])
+    assert float(rows[0][header.index("t reached")]) == 0.05 and rows[0][-1] == "-"
+
+
 def iips_static(out):
     run_script("iips_static", "--resolutions", 0.1, "--ratios", 2.0, "--out", out)
     header, rows = table(out / "histories", rows=2)  # the two sigmas
@@ -320,7 +330,7 @@ def bench_flow(out):
 SCRIPTS = [iips_vs_explicit, elliptical_drop, dam_break, iips_tradeoff, iips_kinematic, free_surface, tank, ellipse,
            moving_square, iips_static, tgv_operator_error, cavity, tgv_tradeoff, impinging_jet, iips_pair_defects,
            stability_map, bench_memory, bench_iips, viscous_limit_check, bench_walls, bench_sums, bench_flow,
-           neuhauser_kinematic]
+           neuhauser_kinematic, riemann_walls]
 
 
 @pytest.mark.parametrize("script,args,message", [

@@ -319,7 +319,7 @@ class WallTerms:
             w = self.ghost
             ghost_rhs(p["position"], p["volume"], p["density"], p["velocity"], du, p["pressure"], rows, *images,
                       w["axis"], w["coord"], w["velocity"], w["no_slip"], system.kernel.params, scheme.c0,
-                      scheme.rho0, scheme.eos.tait, scheme.mu, scheme.morris, self.gravity, scheme.variant,
+                      scheme.rho0, scheme.eos.tait, scheme.mu, scheme.morris, self.gravity, scheme.wall_variant,
                       scheme.shift.active, switch, d_rho, d_mom)
 
     def _add_clones(self, system, scheme, t, du, switch, no_pull, d_rho, d_mom):
@@ -330,7 +330,7 @@ class WallTerms:
                   p["body"], p["normal"], p["wall_distance"], p["wall_accel"], p["wall_velocity"], rows, n_i, s_i,
                   self.no_slip,
                   system.nbr_ptr, system.nbr_idx, system.kernel.params, scheme.c0, scheme.rho0, scheme.eos.tait,
-                  scheme.mu, scheme.morris, self.gravity, self.ds, scheme.variant, scheme.shift.active,
+                  scheme.mu, scheme.morris, self.gravity, self.ds, scheme.wall_variant, scheme.shift.active,
                   switch, no_pull, self.centers, d_rho, d_mom, self.force, self.torque, self.particle_force)
 
     def _near_wall_rows(self, system):

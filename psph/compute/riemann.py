@@ -29,7 +29,7 @@ from numba import njit
 
 from psph.compute.eos import density, pressure, sound_speed
 from psph.compute.jit import per_dimension
-from psph.compute.sums import pair2, solve_symmetric
+from psph.compute.sums import pair2, solid, solve_symmetric
 
 
 @njit(cache=True, inline="always")
@@ -109,7 +109,7 @@ def _compile(d):
 
     @per_dimension(d)
     def riemann_ale_rhs(pos, vol, rho, mass, vel, v0, grad_rho, grad_vel, ptr, idx, cf, c0, rho0, tait, mu,
-                        morris, limited, low, gravity, d_vol, d_mass, d_mom):
+                        morris, limited, low, gravity, kind, fluid_only, d_vol, d_mass, d_mom):
         kk = 2.0 * (d + 2)
         x = np.zeros(3)
         e = np.zeros(3)
@@ -119,6 +119,8 @@ def _compile(d):
         mom = np.zeros(3)
         visc = np.zeros(3)
         for i in range(ptr.size - 1):
+            if fluid_only and solid(kind[i]):  # a solid's state is its body's (zero rates)
+                continue
             acc_v = 0.0
             acc_m = 0.0
             mom[:] = 0.0
@@ -189,10 +191,14 @@ def velocity_gradient(pos, vol, vel, pairs, out):
 
 
 def riemann_ale_rhs(pos, vol, rho, mass, vel, v0, grad_rho, grad_vel, pairs, c0, rho0, tait, mu, morris,
-                    gravity, d_vol, d_mass, d_mom, limited=True, low_dissipation=False):
+                    gravity, d_vol, d_mass, d_mom, limited=True, low_dissipation=False, kind=None):
     """dV/dt, dm/dt and d(m v)/dt of the rows of pairs (thesis eq. 5.48; module docstring). v0: the
     transport velocities of all local particles; grad_rho, grad_vel: renormalised gradients of all local
-    particles (halo included); gravity: a d-vector; limited = False: MUSCL without the minmod limiter."""
+    particles (halo included); gravity: a d-vector; limited = False: MUSCL without the minmod limiter.
+    kind (with walls, whose pairs psph.compute.walls adds): the solids' rows are left at zero (pairs filled
+    with fluid_only holds no solid neighbour)."""
+    fluid_only = kind is not None
     _KERNELS[pos.shape[1]][1](pos, vol, rho, mass, vel, v0, grad_rho, grad_vel, pairs.ptr, pairs.idx, pairs.f,
                               c0, rho0, tait, mu, morris, limited, low_dissipation,
-                              np.asarray(gravity, dtype=np.float64), d_vol, d_mass, d_mom)
+                              np.asarray(gravity, dtype=np.float64),
+                              kind if fluid_only else np.zeros(0, dtype=np.int8), fluid_only, d_vol, d_mass, d_mom)

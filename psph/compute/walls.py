@@ -36,36 +36,82 @@ changes beside a wall by -(V_i / rho_i) <div(rho du)>_wall more than eq. 9's V d
 cavity's volume budget: without that part in the density equation as well, its volume drifts less). The
 force of the walls on each fluid particle is accumulated per body (pressure and viscous parts) for the
 body forces; the torque about the body centre too.
+
+The Riemann SPH-ALE scheme (psph.schemes.riemann_ale) takes the same mirrored neighbours, with the wall
+treatment the thesis names for it (section 5.5: a partial Riemann problem at the fluid-solid interfaces,
+Marongiu 2007): the pair's pressure is p^E of the Riemann problem between i and its mirrored neighbour
+(_riemann_pair_pressure), the volume changes by the divergence of the transport velocity, and no mass
+crosses a wall (the variants RIEMANN_WALLS and RIEMANN_WALLS_LOW of the kernels below).
 """
 
 import numpy as np
 from numba import njit
 
 from psph.compute import eos
+from psph.compute.riemann import acoustic_riemann, low_dissipation_pressure
 from psph.compute.shift_velocity import fast_power
 from psph.compute.smoothing import kernel_f, kernel_w
 from psph.compute.sums import pair, solid
 
+# the wall kernels' `variant` for the Riemann SPH-ALE scheme (0-2: delta-ALE's, schemes.delta_ale.VARIANTS):
+# its acoustic solver, and with physics.riemann_dissipation = "low" Zhang et al.'s pressure
+RIEMANN_WALLS, RIEMANN_WALLS_LOW = 3, 4
+
+
+@njit(cache=True)
+def _riemann_pair_pressure(x0, x1, r, rho_i, p_i, ui0, ui1, rho_j, p_j, ud0, ud1, c0, rho0, tait, variant,
+                           pull_free):
+    """2 p^E, the Riemann scheme's pair pressure against a mirrored neighbour j (x = x_i - x_j, r = |x|):
+    the Riemann problem of psph.compute.riemann between i's own state (first order) and j's (eq. 8-9's
+    density, eq. 6's divergence velocity) along e = (x_j - x_i) / r. On a flat wall, with j i's mirror image
+    (s_j = s_i) and no body force, u_R = 2 u_b . n - u_L and p_R = p_L, and the acoustic
+    p^E = p_i + z (u_i - u_b) . n is the partial Riemann problem at a wall of Marongiu (2007), which the
+    thesis names (section 5.5): the wall moves at u_b and pushes back by the impedance z
+    (tests/boundaries/test_ghost.py). pull_free (the free-surface region without
+    physics.wall_adhesion): p^E >= 0, a wall that never pulls (p^E is the pressure on the wall itself; a
+    floor of (p_i + p_j) / 2, delta-ALE's pair, left a drop released under the roof in tension against it,
+    falling at 0.76 g)."""
+    e0, e1 = -x0 / r, -x1 / r
+    u_l, u_r = ui0 * e0 + ui1 * e1, ud0 * e0 + ud1 * e1
+    if variant == RIEMANN_WALLS_LOW:
+        p_s = low_dissipation_pressure(rho_i, u_l, rho_j, u_r, c0, rho0, tait)
+    else:
+        p_s = acoustic_riemann(rho_i, u_l, rho_j, u_r, c0, rho0, tait)[2]
+    if pull_free:
+        p_s = max(p_s, 0.0)
+    return 2.0 * p_s
+
 
 @njit(cache=True)
 def _wall_pair(x0, x1, rr, fv, rho_i, p_i, ui0, ui1, di0, di1, rho_j, p_j, ud0, ud1, ul0, ul1, dj0, dj1,
-               with_shift, switch, variant, morris):
+               with_shift, switch, variant, morris, c0, rho0, tait, pull_free):
     """One mirrored neighbour j of fluid particle i (2-D): x = x_i - x_j, rr = |x|, fv = F(r) V_j; j's
     divergence velocity ud, Laplacian velocity ul, shifting velocity dj, pressure and density. Returns the
     continuity sum's term, the pressure term (tensile switch applied), the viscous term (pi_ij, or Morris'
     with morris, as psph.compute.fluid), the du-term of the momentum and the plus-form pressure term (for
-    the force on the wall)."""
+    the force on the wall).
+    The Riemann scheme's variants (RIEMANN_WALLS, _LOW): the pressure term is 2 p^E
+    (_riemann_pair_pressure) in place of p_i + p_j; the continuity term is the divergence of the transport
+    velocity v0 = u + du, (v0_j - v0_i) . grad_i W_ij V_j (thesis eq. 5.48's volume flux); no mass crosses
+    a wall, so the mass and the convective momentum fluxes (and the du-terms) are zero."""
     w0, w1 = fv * x0, fv * x1
     cont = (ud0 - ui0) * w0 + (ud1 - ui1) * w1
-    pp = p_j + p_i
-    pq = p_j - p_i if switch else pp
+    if variant >= RIEMANN_WALLS:
+        pp = _riemann_pair_pressure(x0, x1, rr, rho_i, p_i, ui0, ui1, rho_j, p_j, ud0, ud1, c0, rho0, tait,
+                                    variant, pull_free)
+        pq = pp
+    else:
+        pp = p_j + p_i
+        pq = p_j - p_i if switch else pp
     if morris:
         v0, v1 = -2.0 * fv * (ul0 - ui0), -2.0 * fv * (ul1 - ui1)
     else:
         pi = -8.0 * ((ul0 - ui0) * x0 + (ul1 - ui1) * x1) / (rr * rr)  # K = 2 (d + 2), d = 2
         v0, v1 = pi * w0, pi * w1
     h0 = h1 = 0.0
-    if with_shift:
+    if with_shift and variant >= RIEMANN_WALLS:
+        cont += (dj0 - di0) * w0 + (dj1 - di1) * w1
+    elif with_shift:
         ddj = dj0 * w0 + dj1 * w1
         ddi = di0 * w0 + di1 * w1
         cont += (dj0 - di0) * w0 + (dj1 - di1) * w1 - (rho_j * ddj + rho_i * ddi) / rho_i
@@ -81,6 +127,13 @@ def _wall_pair(x0, x1, rr, fv, rho_i, p_i, ui0, ui1, di0, di1, rho_j, p_j, ud0, 
 
 @njit(cache=True)
 def _add_rates(i, rho_i, v_i, mu, variant, cont, gp0, gp1, vs0, vs1, sh0, sh1, d_rho, d_mom):
+    """Add a row's wall sums to its rates: d_rho and d(m u)/dt (variant 0) or du/dt (1, 2); the Riemann
+    scheme's (RIEMANN_WALLS, _LOW): d_rho is dV/dt (V_i times the continuity sum) and d_mom d(m u)/dt."""
+    if variant >= RIEMANN_WALLS:
+        d_rho[i] += v_i * cont
+        d_mom[i, 0] += v_i * (-gp0 + mu * vs0)
+        d_mom[i, 1] += v_i * (-gp1 + mu * vs1)
+        return
     d_rho[i] += -rho_i * cont
     if variant == 0:
         d_mom[i, 0] += v_i * (-gp0 + mu * vs0 + sh0)
@@ -221,6 +274,7 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
     of each solid particle's own closest node (u_b of eq. 6-7; the same as the fluid particle's closest
     node's on a smooth rigid wall, and the consistent choice at the corners of a lid).
     no_slip: per body; tait: Tait's equation of state, else the linear (psph.compute.eos).
+    variant: the scheme's (_add_rates; RIEMANN_WALLS, _LOW: d_rho receives dV/dt).
     tensile_switch: per particle, 1 where p_j - p_i replaces p_j + p_i in its pressure force when p_i < 0
     (eq. 3; 0 in the free-surface region and where the switch is off).
     no_pull: per particle, 1 where the wall may not pull the particle (the free-surface region without
@@ -297,7 +351,8 @@ def clone_rhs(pos, vol, rho, vel, du, prs, kind, body, normal, wall_dist, accel,
             c, q0, q1, v0, v1, h0, h1, f0, f1 = _wall_pair(
                 x0, x1, rr, kernel_f(rr, kp) * vol[j], rho_i, p_i, ui0, ui1, di0, di1,
                 eos.density(p_j, c0, rho0, tait), p_j, ud0, ud1, ul0, ul1,
-                dt * t0 - dn * n0, dt * t1 - dn * n1, with_shift, switch, variant, morris)
+                dt * t0 - dn * n0, dt * t1 - dn * n1, with_shift, switch, variant, morris, c0, rho0, tait,
+                pull_free)
             cont += c
             gp0 += q0
             gp1 += q1
@@ -443,7 +498,8 @@ def ghost_rhs(pos, vol, rho, vel, du, prs, rows, img_ptr, img_j, img_w, w_axis, 
             c, q0, q1, v0, v1, h0, h1, _, _ = _wall_pair(
                 x0, x1, rr, kernel_f(rr, kp) * vol[j], rho_i, p_i, ui0, ui1, di0, di1,
                 eos.density(p_g, c0, rho0, tait), p_g, ud[0], ud[1], ul[0], ul[1],
-                dd[0] if with_shift else 0.0, dd[1] if with_shift else 0.0, with_shift, switch, variant, morris)
+                dd[0] if with_shift else 0.0, dd[1] if with_shift else 0.0, with_shift, switch, variant, morris,
+                c0, rho0, tait, False)
             cont += c
             gp0 += q0
             gp1 += q1

@@ -391,7 +391,7 @@ class PhysicsSpec:
     scheme: str = option("none", doc="what moves the particles: none (a static distribution), kinematic "
                          "(advected by a frozen analytic velocity field, thesis 8.3.2), or a fluid scheme: "
                          "delta_ale, delta_ale_const_mass, delta_ale_const_volume (seed 001 eq. 13, 23, 25), "
-                         "riemann_ale (thesis eq. 5.48: Riemann fluxes, no diffusive terms; no bodies yet)",
+                         "riemann_ale (thesis eq. 5.48: Riemann fluxes, no diffusive terms)",
                          choices=("none", "kinematic") + FLUID_SCHEMES)
     velocity_field: str = option("taylor_green", doc="kinematic: the frozen field (thesis eq. 8.33; 2-D, a "
                                  "bi-periodic square)",
@@ -978,17 +978,17 @@ class Scene:
         return shifts and self.physics.scheme in (*FLUID_SCHEMES, "none") and bool(self.describe_free_surface())
 
     def surface_switches(self) -> bool:
-        """Whether a fluid scheme's switches know the free-surface region: a delta_ale scheme (not
-        riemann_ale) in a scene with a free surface (schemes.delta_ale.DeltaALE)."""
-        scheme = self.physics.scheme
-        return scheme in FLUID_SCHEMES and scheme != "riemann_ale" and bool(self.describe_free_surface())
+        """Whether a fluid scheme's switches know the free-surface region: a fluid scheme in a scene with a
+        free surface (schemes.delta_ale.DeltaALE; riemann_ale's only switch is its clone walls' no-pull)."""
+        return self.physics.scheme in FLUID_SCHEMES and bool(self.describe_free_surface())
 
     def switches_free_surface(self) -> bool:
         """Whether such a scheme detects the surface at every step: for its tensile switch (off in the
         free-surface region, seed 004 eq. 3), its diffusion switch (free_surface.lambda_diffusion, seed 001
         section 6.3) or its clone walls that never pull (physics.wall_adhesion = false)."""
         phys = self.physics
-        return self.surface_switches() and (phys.tensile_switch or self.free_surface.lambda_diffusion > 0.0
+        tensile = phys.tensile_switch and phys.scheme != "riemann_ale"  # (its fluxes have none)
+        return self.surface_switches() and (tensile or self.free_surface.lambda_diffusion > 0.0
                                             or (self.has_clone_walls() and not phys.wall_adhesion))
 
     def _set(self, key) -> bool:
@@ -1167,9 +1167,6 @@ class Scene:
                 raise SceneError("bodies", "solid bodies are 2-D (seed 004 gives the 2-D clone particles)")
             if not fluid and self.physics.scheme != "none":
                 raise SceneError("bodies", f"bodies need a fluid scheme or a static run, not {self.physics.scheme!r}")
-            if self.physics.scheme == "riemann_ale":
-                raise SceneError("bodies", "riemann_ale has no wall model yet (the thesis' partial Riemann problem "
-                                 "at walls is not implemented): use a delta_ale scheme")
             names = [b.name for b in self.bodies]
             if len(set(names)) != len(names):
                 raise SceneError("bodies", f"body names must be unique, got {names}")

@@ -45,6 +45,7 @@ class DeltaALE:
         phys = scene.physics
         self.name = phys.scheme
         self.variant = VARIANTS.get(phys.scheme, 0)  # riemann_ale: V, m and m u evolve, as in variant 0
+        self.wall_variant = self.variant  # the wall kernels' (psph.compute.walls)
         self.c0, self.rho0 = phys.sound_speed, phys.density
         self.nu = phys.kinematic_viscosity(scene.domain)
         self.mu = self.rho0 * self.nu
@@ -231,14 +232,20 @@ class DeltaALE:
             return True
         return (system.particles["surface_lambda"] > self.lambda_diffusion).astype(np.int8)
 
-    def rhs(self, system, t, dt) -> dict:
-        """d(state)/dt at the current state (owned rows). Collective (halo exchanges)."""
-        p = system.particles
-        walls = self.walls.active  # (the kernel's dispatch: solid neighbours or none)
-        self.walls.place(system, t, positions=False)  # solid velocities, normals, accelerations at the stage time
+    def place_walls(self, system, t) -> bool:
+        """The solids' velocities, normals and accelerations at the stage time t, halo included; whether the
+        scene has walls (the kernels' dispatch: solid neighbours or none). Collective."""
+        walls = self.walls.active
+        self.walls.place(system, t, positions=False)
         if walls:  # (a halo exchange: none without solids)
             with phase("walls"):
                 system.refresh(["normal", "wall_accel", "wall_velocity"])
+        return walls
+
+    def rhs(self, system, t, dt) -> dict:
+        """d(state)/dt at the current state (owned rows). Collective (halo exchanges)."""
+        p = system.particles
+        walls = self.place_walls(system, t)
         system.refresh(["density", "mass", "velocity", "volume", "pressure"])
         self.shift_and_density_gradient(system, t, dt, fluid_only=walls)
         du = self.shift.du(p)

@@ -6,12 +6,15 @@ replaces the delta-ALE family's diffusive terms D^rho and D^m. The transport vel
 explicit shifting law (du = 0 without one, and with IIPS, which moves the particles after the step) enters
 the fluxes directly: there are no separate du-terms. Viscosity, gravity and the equation of state are
 those of the delta-ALE family. Kernels in psph.compute.riemann; time step of the fluid driver (the CFL
-condition of eq. 5.52 and the viscous limit).
+condition of eq. 5.52 and the viscous limit). Walls and bodies (clone particles, fixed ghosts) enter
+through the Riemann problem between each fluid particle and its mirrored solid neighbours
+(psph.compute.walls: RIEMANN_WALLS); the fluid's own fluxes then skip the solids.
 """
 
 import numpy as np
 
 from psph.compute.riemann import riemann_ale_rhs, velocity_gradient
+from psph.compute.walls import RIEMANN_WALLS, RIEMANN_WALLS_LOW
 from psph.particles import FieldSpec
 from psph.schemes.delta_ale import DeltaALE
 
@@ -23,6 +26,7 @@ class RiemannALE(DeltaALE):
         self.limited = scene.physics.muscl_limiter == "minmod"
         self.low_dissipation = scene.physics.riemann_dissipation == "low"
         self.reads_grad_rho = True  # the MUSCL states (eq. 5.49)
+        self.wall_variant = RIEMANN_WALLS_LOW if self.low_dissipation else RIEMANN_WALLS
 
     def describe(self) -> list:
         limiter = "minmod" if self.limited else "no limiter"
@@ -36,7 +40,13 @@ class RiemannALE(DeltaALE):
             lines.append(f"gravity {tuple(self.gravity)}")
         if self.free_stream is not None:
             lines.append(f"free stream {tuple(self.free_stream)} reached at t = {self.free_stream_ramp:g}")
-        return lines + [self.shift.describe()]
+        if self.walls.active:
+            lines.append("walls: the Riemann problem between each fluid particle and its mirrored solid "
+                         "neighbours (a partial Riemann problem, Marongiu 2007), no mass through them")
+        if self.no_pull:
+            lines.append("clone walls in the free-surface region push and never pull: the Riemann pressure on "
+                         "them p^E >= 0 (physics.wall_adhesion = false)")
+        return lines + [self.shift.describe()] + self.walls.describe()
 
     def field_specs(self):
         return super().field_specs() + [FieldSpec("grad_velocity", ("d", "d"))]
@@ -64,8 +74,9 @@ class RiemannALE(DeltaALE):
     def rhs(self, system, t, dt) -> dict:
         """d(state)/dt of the owned particles. Collective (halo exchanges)."""
         p = system.particles
+        walls = self.place_walls(system, t)
         system.refresh(["density", "mass", "velocity", "volume", "pressure"])
-        self.shift_and_density_gradient(system, t, dt, fluid_only=False)
+        self.shift_and_density_gradient(system, t, dt, fluid_only=walls)
         v0 = self.shift.transport(p, owned=False)
         velocity_gradient(p["position"], p["volume"], p["velocity"], self.pairs, p["grad_velocity"])
         system.refresh(["grad_rho", "grad_velocity"])
@@ -74,7 +85,8 @@ class RiemannALE(DeltaALE):
         riemann_ale_rhs(p["position"], p["volume"], p["density"], p["mass"], p["velocity"], v0, p["grad_rho"],
                         p["grad_velocity"], self.pairs, self.c0, self.rho0, self.tait, self.mu, self.morris,
                         self.gravity, d_vol, d_mass, d_mom, limited=self.limited,
-                        low_dissipation=self.low_dissipation)
+                        low_dissipation=self.low_dissipation, kind=p["kind"] if walls else None)
+        self.walls.add(system, self, t, d_vol, d_mom)
         if self.free_stream is not None:
             self._drive_free_stream(system, t, d_mom)
         return {"position": v0[:n].copy(), "volume": d_vol, "mass": d_mass, "momentum": d_mom}

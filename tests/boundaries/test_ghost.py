@@ -5,12 +5,12 @@ ghost walls are in test_wall_flows.py)."""
 import numpy as np
 import pytest
 
-from psph.compute import fluid
+from psph.compute import fluid, riemann
 from psph.compute.neighbours import build_neighbour_lists
 from psph.compute.shift_velocity import corrected_grad_c
 from psph.compute.smoothing import make_kernel
 from psph.compute.sums import renormalisation_and_grad_c
-from psph.compute.walls import NO_MATRIX, ghost_grad_c, ghost_images, ghost_rhs
+from psph.compute.walls import NO_MATRIX, RIEMANN_WALLS, RIEMANN_WALLS_LOW, ghost_grad_c, ghost_images, ghost_rhs
 
 C0, RHO0, MU = 10.0, 1.0, 0.01
 LID = np.array([0.7, 0.0])
@@ -161,3 +161,41 @@ def test_images_complete_the_concentration_gradient_and_the_renormalisation_matr
                  grad, mat)
     assert np.abs(mat - middle).max() < 1e-10 * np.abs(middle).max() and np.abs(grad).max() < 1e-10 * truncated
 
+
+
+@pytest.mark.parametrize("variant", [RIEMANN_WALLS, RIEMANN_WALLS_LOW])
+@pytest.mark.parametrize("u_y", [-0.3, 0.3])
+def test_the_riemann_wall_is_the_partial_riemann_problem(variant, u_y):
+    """The Riemann SPH-ALE scheme's wall pair: a particle at s above a wall at rest meets its own image at -s
+    (its only one). Its momentum rate is -V_i 2 p* F(2 s) V_i x_ig with Marongiu's partial Riemann problem,
+    p* = p_i + rho c0 (u_i . n) (n = -y into the wall) for the acoustic solver, Zhang et al.'s
+    p_i + rho beta (u_l - u_r) / 2, beta = min(3 max(u_l - u_r, 0), c0) for the low-dissipation one (u_l - u_r =
+    -2 u_y); its volume rate V_i (v0_g - v0_i) . F V_i x_ig with the transport velocity's normal part reversed;
+    nothing tangential, and no viscosity (mu = 0)."""
+    dx, s = 1.0 / 12, 0.3 / 12
+    kern = make_kernel("wendland_c6", 2, 2.0 * dx)
+    rho = 1.02
+    f = dict(pos=np.array([[0.5, s]]), vol=np.array([dx * dx]), rho=np.array([rho]),
+             prs=np.array([C0 * C0 * (rho - RHO0)]), vel=np.array([[0.4, u_y]]), du=np.array([[0.05, -0.02]]))
+    walls = box_walls()
+    ptr, idx = build_neighbour_lists(f["pos"], 1, 1.1 * kern.support)
+    rows = np.arange(1)
+    images = ghost_images(f["pos"], np.zeros(1, dtype=np.int8), rows, walls, ptr, idx, kern.support)
+    d_vol, d_mom = np.zeros(1), np.zeros((1, 2))
+    ghost_rhs(f["pos"], f["vol"], f["rho"], f["vel"], f["du"], f["prs"], rows, *images, walls["axis"],
+              walls["coord"], walls["velocity"], True, kern.params, C0, RHO0, False, 0.0, False, np.zeros(2), variant,
+              True, np.zeros(1, dtype=np.int8), d_vol, d_mom)
+    jump = -2.0 * u_y
+    if variant == RIEMANN_WALLS:
+        p_star = f["prs"][0] + rho * C0 * (-u_y)
+    else:
+        p_star = f["prs"][0] + 0.5 * rho * min(3.0 * max(jump, 0.0), C0) * jump
+    fv = float(kern.radial(2.0 * s)) * f["vol"][0]
+    v_i = f["vol"][0]
+    assert d_mom[0, 0] == pytest.approx(0.0, abs=1e-12)
+    assert d_mom[0, 1] == pytest.approx(-v_i * 2.0 * p_star * fv * 2.0 * s, rel=1e-12)
+    v0_y = u_y + f["du"][0, 1]
+    assert d_vol[0] == pytest.approx(v_i * (-2.0 * v0_y) * fv * 2.0 * s, rel=1e-12)
+    # the acoustic solver's p* against the module's own solver, called with the pair's states
+    if variant == RIEMANN_WALLS:
+        assert riemann.acoustic_riemann(rho, -u_y, rho, u_y, C0, RHO0, False)[2] == pytest.approx(p_star, rel=1e-14)

@@ -68,6 +68,19 @@ def test_couette_startup_follows_the_analytic_transient(tmp_path):
     assert v_max < 5e-3 and morris < 0.25 * errors[2.0]
 
 
+@pytest.mark.long
+def test_couette_startup_in_the_riemann_scheme(tmp_path):
+    """The same start-up with the Riemann scheme, its walls the Riemann problem against the mirrored clones
+    (no-slip: the viscous operator's Laplacian velocity, eq. 7). With Morris' operator the acoustic solver's
+    dissipation adds its own viscosity (0.0074 against delta-ALE's 0.0018); Zhang et al.'s low-dissipation
+    pressure, which dissipates only where particles approach, is as accurate as delta-ALE (0.0018)."""
+    riemann = ["physics.scheme=riemann_ale", "physics.viscosity=morris"]
+    error, v_max = couette_error(run(tmp_path, "couette.toml", "acoustic", *riemann))
+    assert v_max < 5e-3 and error < 0.01
+    low, v_max = couette_error(run(tmp_path, "couette.toml", "low", *riemann, "physics.riemann_dissipation=low"))
+    assert v_max < 5e-3 and low < 0.003 and low < 0.5 * error
+
+
 def test_plates_as_wide_as_the_periodic_domain_are_the_plates_of_any_width(tmp_path):
     """A box spanning the periodic x axis is its plates (boundaries.bodies._periodic_plates): as wide as the
     domain (0.5), wider (0.6, 0.61) or as the scene has it (10), the Couette flow is the same, and the same
@@ -153,12 +166,16 @@ def test_cavity_with_iips_nfts_keeps_its_volume(tmp_path):
 
 
 @pytest.mark.parametrize("model", ["clone", "ghost"])
+@pytest.mark.parametrize("scheme", ["delta_ale", "riemann_ale"])
 @pytest.mark.long
-def test_hydrostatic_tank_stays_at_rest(tmp_path, model):
+def test_hydrostatic_tank_stays_at_rest(tmp_path, model, scheme):
     """Water at rest under gravity stays at rest: the spurious velocity after t sqrt(g/H) = 3 is below
     1e-3 sqrt(gH) at dx = H/20, mass is conserved to round-off, and the bottom pressure is rho g H; with
-    clone particles and with the fixed-ghost baseline (images carry p_j + rho_j g . (x_g - x_j))."""
-    out = run(tmp_path, "hydrostatic_tank.toml", "tank", "domain.dx=0.05", "time.t_end=3.0", *walls(model))
+    clone particles and with the fixed-ghost baseline (images carry p_j + rho_j g . (x_g - x_j)), in
+    delta-ALE-SPH and in the Riemann scheme (its walls: the partial Riemann problem). The clone walls carry
+    the water's weight (force_y_tank, 2 rho g H per unit depth; the ghost box's forces are not kept)."""
+    out = run(tmp_path, "hydrostatic_tank.toml", "tank", "domain.dx=0.05", "time.t_end=3.0", *walls(model),
+              f"physics.scheme={scheme}")
     rows = read_history(out / "history.csv")
     assert max(r["max_speed"] for r in rows[len(rows) // 2:]) < 1e-3
     mass = np.array([r["total_mass"] for r in rows])
@@ -168,22 +185,29 @@ def test_hydrostatic_tank_stays_at_rest(tmp_path, model):
     y, p = snap["position"][fluid, 1], snap["pressure"][fluid]
     deep = y < 0.3
     assert np.abs(p[deep] - (1.0 - y[deep])).max() < 0.03
+    if model == "clone":
+        assert rows[-1]["force_y_tank"] == pytest.approx(-2.0, rel=0.02)
 
 
 HANGING = ["domain.dx=0.05", "initial.fill_lower=[2.5, 2.8]", "initial.fill_upper=[2.7, 3.0]",
            "initial.pressure=zero", "diagnostics.dam_break=false", "output.probes=[]", "shifting.method=none",
            "time.t_end=1.0", "output.every=0"]
+# the dam break in the Riemann scheme (its diffusion switch belongs to delta-ALE)
+RIEMANN = {"delta_ale": [], "riemann_ale": ["physics.scheme=riemann_ale", "free_surface.lambda_diffusion=0"]}
 
 
+@pytest.mark.parametrize("scheme", ["delta_ale", "riemann_ale"])
 @pytest.mark.parametrize("adhesion", [False, True])
-def test_a_drop_under_the_roof_falls_unless_the_walls_adhere(tmp_path, adhesion):
+def test_a_drop_under_the_roof_falls_unless_the_walls_adhere(tmp_path, adhesion, scheme):
     """A 4 x 4 block of water released under the dam-break tank's roof (clone walls, gravity 1). With seed
     004's solid pressures (eq. 8-9, physics.wall_adhesion = true) the hydrostatic extension above the top
     row is negative: it holds that row on the roof (at t = 2 still within dx/2 of it, the block stretched
     to 1.5 below it). Without adhesion (the default) the wall never pulls where the fluid would need it to
     stay: the whole block falls, its top row by 0.4 at t = 1 (free fall: 0.5) and its mean velocity within
-    10% of free fall's -g t."""
-    out = run(tmp_path, "dam_break.toml", "drop", *HANGING, f"physics.wall_adhesion={str(adhesion).lower()}")
+    10% of free fall's -g t. The Riemann scheme's wall pressure p^E never pulls there: its fall is free fall's
+    (-1.000; with p^E >= (p_i + p_j) / 2, delta-ALE's pair, the top row's tension held it to -0.76)."""
+    out = run(tmp_path, "dam_break.toml", "drop", *HANGING, *RIEMANN[scheme],
+              f"physics.wall_adhesion={str(adhesion).lower()}")
     snap, _ = last_snapshot(out)
     fluid = snap["kind"] == Kind.FLUID
     y, vy = snap["position"][fluid, 1], snap["velocity"][fluid, 1]
@@ -194,8 +218,9 @@ def test_a_drop_under_the_roof_falls_unless_the_walls_adhere(tmp_path, adhesion)
         assert y.max() < 2.975 - 0.3 and -1.15 < vy.mean() < -0.9, (y.max(), vy.mean())  # free fall: vy = -1
 
 
+@pytest.mark.parametrize("scheme", ["delta_ale", "riemann_ale"])
 @pytest.mark.parametrize("adhesion", [False, True])
-def test_at_rest_under_the_roof_the_top_row_feels_no_pull_unless_the_walls_adhere(tmp_path, adhesion):
+def test_at_rest_under_the_roof_the_top_row_feels_no_pull_unless_the_walls_adhere(tmp_path, adhesion, scheme):
     """The same block at t = 0, p = 0 everywhere: eq. 8-9 carried to the roof gives a wall pressure of
     -rho g s_i < 0 above the top row (the normals point into the solid: the wall node is x_i + s_i n_i),
     so without adhesion its solid neighbours' pressures are 0 and, with p_i = 0, the roof exerts no pressure
@@ -203,7 +228,7 @@ def test_at_rest_under_the_roof_the_top_row_feels_no_pull_unless_the_walls_adher
     at x_i - s_i n_i the wall pressure read +rho g s_i and the roof pulled here too.)"""
     from psph.drivers.fluid import FluidDriver
 
-    sets = HANGING + [f"physics.wall_adhesion={str(adhesion).lower()}"]
+    sets = HANGING + RIEMANN[scheme] + [f"physics.wall_adhesion={str(adhesion).lower()}"]
     driver = FluidDriver(load_scene(CASES / "dam_break.toml", sets), MPI.COMM_SELF, tmp_path, log=lambda m: None)
     system, scheme = driver.system, driver.scheme
     scheme.detect_surface(system)

@@ -157,6 +157,10 @@ def test_riemann_ale_run_matches_serial(comm, mpi_tmp_path, shifting, update, th
                            "time.integrator=rk4"], EXACT),
     ("taylor_green.toml", ["shifting.method=none", "iips.update=none", "physics.scheme=riemann_ale",
                            "physics.riemann_dissipation=low"], EXACT),
+    ("lid_driven_cavity.toml", ["physics.scheme=riemann_ale", "shifting.method=iips", "iips.threshold=0.02",
+                                "iips.update=nfts", "initial.sigma_over_dx=0.05"], 1e-7),
+    ("dam_break.toml", ["physics.scheme=riemann_ale", "free_surface.lambda_diffusion=0", "shifting.method=none",
+                        "physics.riemann_dissipation=low"], EXACT),
     ("inclined_ellipse.toml", ["domain.dx=0.2", "physics.free_stream_ramp=0.05"], ROUNDOFF),
     ("moving_square.toml", ["domain.dx=0.1", "time.t_end=0.3", "bodies.1.motion.law=ramp",
                             "bodies.1.motion.ramp_time=0.1", "bodies.1.motion.velocity=[0.3, 0.0]",
@@ -164,10 +168,11 @@ def test_riemann_ale_run_matches_serial(comm, mpi_tmp_path, shifting, update, th
                             "bodies.1.motion.period=0.2"], ROUNDOFF)])  # (the scene's IIPS)
 def test_scene_runs_match_serial(comm, mpi_tmp_path, case, sets, tol):
     """Shipped scenes, with two Taylor-Green runs for Tait with RK4 and for the low-dissipation Riemann
-    solver. Walls across ranks: solid particles in halos, the clones mirrored from each rank's own fluid
-    rows, the forces on the bodies summed over the ranks. The moving square, put across a border between ranks
-    (x = 5 on 2 ranks, about 3.3 on 3) and rocking by its own rotation law as it translates, carries its
-    solid particles from rank to rank."""
+    solver, and the cavity and the dam break (its walls that never pull) in the Riemann scheme. Walls across
+    ranks: solid particles in halos, the clones mirrored from each rank's own fluid rows, the forces on the
+    bodies summed over the ranks. The moving square, put across a border between ranks (x = 5 on 2 ranks,
+    about 3.3 on 3) and rocking by its own rotation law as it translates, carries its solid particles from
+    rank to rank."""
     from psph.scene.load import load_scene
     from tests.helpers import CASES
 
@@ -181,12 +186,14 @@ def test_scene_runs_match_serial(comm, mpi_tmp_path, case, sets, tol):
             assert sum(n > 0 for n in comm.allgather(square)) >= 2
 
 
-def test_ghost_walls_match_serial(comm, mpi_tmp_path):
+@pytest.mark.parametrize("scheme", ["delta_ale", "riemann_ale"])
+def test_ghost_walls_match_serial(comm, mpi_tmp_path, scheme):
     """Ghost walls across ranks: each rank mirrors its owned and halo fluid rows."""
     from psph.scene.load import apply_overrides, scene_from_table
     from tests.scene.test_scene import ghost_cavity
 
-    table = apply_overrides(ghost_cavity(), ["domain.dx=0.05", "time.t_end=0.05", "output.every=0"])
+    table = apply_overrides(ghost_cavity(), ["domain.dx=0.05", "time.t_end=0.05", "output.every=0",
+                                             f"physics.scheme={scheme}"])
     assert_matches_serial(scene_from_table(table), comm, mpi_tmp_path, EXACT)
 
 

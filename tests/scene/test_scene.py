@@ -163,12 +163,15 @@ def test_ghost_walls_are_refused_where_they_do_not_apply(changes, key, words):
 
 
 @pytest.mark.parametrize("model", ["clone", "ghost"])
-def test_riemann_ale_refuses_bodies(model):
-    """The Riemann SPH-ALE scheme has no wall model (the thesis' partial Riemann problem): bodies are refused
-    by name instead of running without walls."""
-    with pytest.raises(SceneError) as info:
-        scene_from_table(ghost_cavity(**{"bodies.0.model": model, "physics.scheme": "riemann_ale"}))
-    assert info.value.key == "bodies" and "riemann_ale has no wall model" in str(info.value)
+def test_riemann_ale_takes_walls_and_says_how(model):
+    """The Riemann SPH-ALE scheme takes both wall models (the Riemann problem against the mirrored solids,
+    psph.compute.walls) and its description names them."""
+    from psph.schemes import make_scheme
+
+    scene = scene_from_table(ghost_cavity(**{"bodies.0.model": model, "physics.scheme": "riemann_ale"}))
+    lines = make_scheme(scene).describe()
+    assert any("partial Riemann problem" in line for line in lines)
+    assert any(("clone particles" if model == "clone" else "fixed ghost particles") in line for line in lines)
 
 
 @pytest.mark.parametrize("scheme, key, accepted", [
