@@ -20,8 +20,8 @@ front at t = 1 and 2 (in H; Ritter's dry-bed bound is 2 + 2 t) and the time it r
 The Riemann scheme's volumes follow the transport velocity and its mass the fluxes: a particle moved towards
 a wall shrinks and gives its mass to its neighbours without a density change, so nothing pushes it back,
 and a law built on the concentration (C = sum_j W_ij V_j) moves more particles into the smaller ones'
-place. psph stops such a run when a volume has drifted by physics.max_volume_variation (README, "Fluid
-schemes").
+place. psph stops such a run when a volume has drifted by physics.max_volume_variation (README, "Walls in
+the Riemann scheme").
 """
 
 import argparse

@@ -331,8 +331,8 @@ def test_a_packed_start_from_another_scene_is_refused_naming_the_key(tmp_path):
 
 def test_the_packed_drop_follows_the_analytic_ellipse_and_the_lattice_drop_does_not(tmp_path):
     """Seed 002 fig. 16: from the lattice the drop's particles clump along the stretched lattice lines and
-    its semi-axes leave the analytic ones; packed, they follow them (docs/results.md: 11% against 0.18% at
-    R/dx = 20)."""
+    its semi-axes leave the analytic ones; packed, they follow them (docs/results.md, "Particle packing and the
+    elliptical drop": 11% against 0.13% at R/dx = 20, t A0 = 1)."""
     errors = {}
     for start, sets in (("packed", []), ("lattice", ["--set", "packing.iterations=0"])):
         res = run_psph("run", DROP, "--out", tmp_path / start, "--set", "domain.dx=0.1", "--set", "output.every=0",

@@ -146,10 +146,10 @@ class FreeSurface(NoFreeSurface):
         support (the impinging jet's sheet along the plate), which IIPS moved with a cut support too. So is
         the fluid within a kernel support of an inflow buffer's particle: the buffer's fields are prescribed,
         so the NFTS update's fluxes between it and a moved neighbour made or lost mass (the impinging jet at
-        H/dx = 10: the mass budget off by 1.8% at t U/H = 10, 0.35% with this band; README). The bands are
-        taken where detect() found the particles (fields outflow_band, inflow_band), so that the unknowns
-        stay those of the call's start. IIPS measures its Linf(grad C) (threshold, stall, divergence) over
-        these; the history's L2/Linf(grad C) over interior()."""
+        H/dx = 10: the mass budget off by 1.8% at t U/H = 10, 0.35% with this band; docs/results.md, "Impinging
+        jet"). The bands are taken where detect() found the particles (fields outflow_band, inflow_band), so
+        that the unknowns stay those of the call's start. IIPS measures its Linf(grad C) (threshold, stall,
+        divergence) over these; the history's L2/Linf(grad C) over interior()."""
         unknowns = self.interior(system)
         for band in (BAND, INFLOW_BAND):
             if band.name in system.particles:

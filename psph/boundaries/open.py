@@ -25,7 +25,7 @@ are removed; with `domain.outflow_buffer` they become buffer particles (Kind.OUT
 kernel support past the face (a run starts with the buffer full: fill_outflow_buffers), whose density,
 pressure and velocity are set after every step to the Shepard average of their fluid neighbours (a zero-
 gradient extrapolation, compute.sums.shepard_from_fluid). The fluid beside the face then has a full support
-and sees there the state it would see inside: a sound wave passes out (2% reflected) instead of being
+and sees there the state it would see inside: a sound wave passes out (2.4% reflected) instead of being
 reflected as from a free surface (65%). Each change of the particle set is followed by a neighbour rebuild, at
 most one per step (README, "Open boundaries": Cost).
 """

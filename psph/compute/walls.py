@@ -32,10 +32,10 @@ term (div(rho u du) for delta_ale, div(u du) - u_i div(du) for the other variant
 the diffusive terms D^rho and D^m act between fluid particles only. Their part of <div(rho du)> enters the
 density equation and not delta_ale's mass equation (seed 001 eq. 13 has it in both): a clone has no mass
 to give or take, so there it would change the fluid's total mass, which eq. 13 conserves. V = m / rho then
-changes beside a wall by -(V_i / rho_i) <div(rho du)>_wall more than eq. 9's V div(u + du) (README, the
-cavity's volume budget: without that part in the density equation as well, its volume drifts less). The
-force of the walls on each fluid particle is accumulated per body (pressure and viscous parts) for the
-body forces; the torque about the body centre too.
+changes beside a wall by -(V_i / rho_i) <div(rho du)>_wall more than eq. 9's V div(u + du) (docs/results.md,
+"Walls", the cavity's volume budget: without that part in the density equation as well, its volume drifts
+less). The force of the walls on each fluid particle is accumulated per body (pressure and viscous parts) for
+the body forces; the torque about the body centre too.
 
 The Riemann SPH-ALE scheme (psph.schemes.riemann_ale) takes the same mirrored neighbours, with the wall
 treatment the thesis names for it (section 5.5: a partial Riemann problem at the fluid-solid interfaces,

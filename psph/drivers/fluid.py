@@ -344,7 +344,8 @@ class FluidDriver(Driver):
     def pre_procedure(self) -> dict:
         """The static pre-procedure (iips.pre_newton IIPS iterations, for every shifting method) before the
         fluid fields exist: from a perturbed lattice (initial.sigma_over_dx) it gives a relaxed start that
-        the flow cannot strain into a squeezed lattice as it does the Cartesian one (docs/results.md, Taylor-Green).
+        the flow cannot strain into a squeezed lattice as it does the Cartesian one (docs/results.md, "From a
+        relaxed start, with Morris' viscous operator").
         The initial condition is then set again at the moved positions. Collective."""
         start = time.perf_counter()
         with self.sim.diagnose_failures(lambda: (0, 0.0)):  # the state at a failure is written
@@ -425,7 +426,8 @@ class FluidDriver(Driver):
             totals["iips_calls"] += int(report.iterations > 0)
             if report.failed:
                 totals["iips_failures"] += 1
-                # how far the kept iterate moved a particle: a stalled call's can be several dx (docs/results.md, jet)
+                # how far the kept iterate moved a particle: a stalled call's can be several dx (docs/results.md,
+                # "Impinging jet")
                 largest = f"; largest displacement {moved / self.scene.domain.dx:.2g} dx" if moved > 0.0 else ""
                 sim.log(f"step {step}, t = {t:.4g}: {report.message}{largest}")
                 self.kept_stall = moved / self.scene.domain.dx

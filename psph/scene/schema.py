@@ -49,7 +49,7 @@ class DomainSpec:
                                       "(README, \"Open boundaries\")")
     outflow_buffer: bool = option(False, doc="keep the fluid past an outflow face for one kernel support, its "
                                   "density and velocity extrapolated from the fluid every step, so that sound "
-                                  "leaves (2% of a pulse reflected, against 65% without: README, \"Open "
+                                  "leaves (2.4% of a pulse reflected, against 65% without: README, \"Open "
                                   "boundaries\")")
 
     def check(self, path):
@@ -336,7 +336,8 @@ class PackingSpec:
                              "and by fixed frame particles outside every free surface (removed afterwards)", ge=0)
     alpha: float = option(0.01, doc="damping zeta = alpha sqrt(beta) / V0^(1/d) (seed 002 eq. 2.15 suggests "
                           "1e-3 to 5e-3; 0.01 levels the drop's grad Gamma 46 times further in 1000 "
-                          "iterations than 0.002: README, Particle packing)", gt=0.0, le=1.0)
+                          "iterations than 0.002: docs/results.md, \"Particle packing and the "
+                          "elliptical drop\")", gt=0.0, le=1.0)
     cfl: float = option(1.0, doc="time step cfl V0^(1/d) / sqrt(beta) (seed 002 eq. 2.17: 1), at most "
                         "cfl h / (2 sqrt(beta))", gt=0.0, le=2.0)
     tolerance: float = option(1e-8, doc="stop once the specific kinetic energy sum_i |u_i|^2 / 2 falls below this "

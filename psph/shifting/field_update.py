@@ -197,9 +197,9 @@ class MovingLeastSquares(NoFieldUpdate):
         old = np.concatenate([p.owned("old_fields"), got["old_fields"]])
         # the fluid's rows only: solids and inflow particles keep their own fields (IIPS moved neither); with
         # moved_only, so do the fluid particles IIPS held (a free-surface region), where a fit is a smoothing,
-        # one-sided at the surface (a free-surface audit: the elliptical drop's semi-axis error at t = 0.5, dx
-        # = 0.05, 0.0044 with every fluid particle re-fitted, 0.00086 without the held ones; but the impinging
-        # jet rings without that smoothing: README)
+        # one-sided at the surface (README, "Field update in flows": the elliptical drop's semi-axis error at
+        # t = 0.5, dx = 0.05, 0.0044 with every fluid particle re-fitted, 0.00084 without the held ones; but the
+        # impinging jet rings without that smoothing)
         fitted = p.owned("kind") == Kind.FLUID
         if self.moved_only:  # by the call's displacement, not the positions: a rebuild within the call wraps
             # them across periodic edges (a review: 419 of 518 held particles re-fitted so)

@@ -270,11 +270,12 @@ def test_the_jets_mass_budget(tmp_path, sets, bound):
     balances the fluid's mass. Without shifting or buffer, and with the inflow buffer's density prescribed,
     to round-off: each particle keeps its mass (all start with rho0 dx^2, so the mass diffusion D^m moves
     none; the scene's setting). With it extrapolated, D^m passes the fluid mass to and from the buffer, whose
-    own is held: 7.3e-4 of it by t = 1.5 (README, "Open boundaries"). The outflow buffer's particles take the
-    extrapolated density's mass, which D^m then exchanges with the fluid beside them, and delta+'s ALE
-    fluxes exchange mass with the buffers' particles (whose fields are prescribed): the budget shows both
-    (README, "Open boundaries"). IIPS + NFTS: 1.3e-3 (D^m beside the buffers; the NFTS fluxes themselves
-    conserve mass now that IIPS leaves the fluid beside the inflow buffer in place: 8.6e-3 before)."""
+    own is held: 7.3e-4 of it by t = 1.5 (measured here; README, "Open boundaries", gives the cause, not this
+    figure). The outflow buffer's particles take the extrapolated density's mass, which D^m then exchanges
+    with the fluid beside them, and delta+'s ALE fluxes exchange mass with the buffers' particles (whose
+    fields are prescribed): the budget shows both (README, "Open boundaries"). IIPS + NFTS: 1.3e-3 (D^m beside
+    the buffers; the NFTS fluxes themselves conserve mass now that IIPS leaves the fluid beside the inflow
+    buffer in place: 8.6e-3 before)."""
     driver = FluidDriver(coarse_jet(1.5, *sets), MPI.COMM_SELF, tmp_path)
     driver.run()
     rows = read_history(tmp_path / "history.csv")
@@ -752,7 +753,7 @@ def test_an_inflow_whose_density_follows_the_fluid_keeps_a_walled_channel_s_mass
     "prescribed") keeps pushing rows in at U against it, and the fluid piles up: its mass grew 7% by t = 3
     (10% by t = 8, 19% with delta+), at densities within 1.5% of rho0 (the volume sum grows with it). With
     the buffer's density extrapolated from the fluid (the default) it grows 1.7% (2% by t = 8, 6% with
-    delta+: README "Known issues", details in docs/results.md)."""
+    delta+: README, "Open boundaries"; docs/results.md, "An inflow that needs a pressure gains mass")."""
     growth = {}
     for density in ("prescribed", "extrapolated"):
         with FluidDriver(scene_from_table(walled_channel(density)), MPI.COMM_SELF, tmp_path / density,

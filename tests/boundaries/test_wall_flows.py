@@ -151,9 +151,11 @@ def test_couette_with_iips_next_to_the_walls(tmp_path):
 @pytest.mark.long
 def test_cavity_with_iips_nfts_keeps_its_volume(tmp_path):
     """Clone walls with delta+ leak volume through the du terms (-2 sum V du . grad C, above all in the lid's
-    corners: eps_V = 0.38% at t = 2.4, L/dx = 25, README). IIPS + NFTS, the cavity scene's own shifting, has
-    no du terms, and its fictitious step lets neither mass nor momentum cross a wall: mass to round-off
-    (before, the mirrored steps' flux lost 0.14% by t = 2.4) and eps_V within 0.1%."""
+    corners: eps_V = 0.38% at t = 2.4, L/dx = 25, from `psph run cases/lid_driven_cavity.toml --set domain.dx=0.04
+    --set time.t_end=2.4 --set shifting.method=delta_plus --set iips.update=none`; docs/results.md, "Walls", gives
+    the leak at t = 6). IIPS + NFTS, the cavity scene's own shifting, has no du terms, and its fictitious step
+    lets neither mass nor momentum cross a wall: mass to round-off (before, the mirrored steps' flux lost 0.14%
+    by t = 2.4) and eps_V within 0.1%."""
     scene = load_scene(CASES / "lid_driven_cavity.toml")
     assert (scene.shifting.method, scene.iips.update, scene.iips.threshold) == ("iips", "nfts", 0.08)
     out = run(tmp_path, "lid_driven_cavity.toml", "cavity_iips", "domain.dx=0.04", "time.t_end=2.5",

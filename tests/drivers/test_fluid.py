@@ -36,7 +36,8 @@ def test_taylor_green_conserves_mass_and_follows_the_decay(tmp_path, method):
     assert np.abs(mom).max() < 1e-12  # periodic box, no gravity, no tensile switch
     assert abs(rows[-1]["kinetic_energy_error"]) < 0.1  # 20 x 20 particles: coarse
     assert rows[-1]["L2_vx_error"] < 0.05
-    # the stagnation points squeeze the lattice's rows together (docs/results.md, "At h/dx = 3")
+    # the stagnation points squeeze the lattice's rows together (docs/results.md, "With seed 001's viscous operator
+    # (eq. 11)": At h/dx = 3)
     spacing = [r["min_spacing"] for r in rows]
     assert spacing[0] == pytest.approx(1.0) and 0.2 < min(spacing) < 0.9
 
@@ -124,7 +125,7 @@ def test_riemann_ale_iips_reproduces_the_thesis_row_from_a_relaxed_start(tmp_pat
     pre-procedure) reproduces the thesis' Table 9.1 row at the two coarsest resolutions: L2|v_x - v_xA| at
     t = 1 within 6% of 0.1111 and 0.0189 (measured: 0.110 and 0.0182, then 0.00194 against the thesis'
     0.0020 at dx = 0.0125), converging at a rate above 2.4 (2.6; thesis 2.55). With the minmod limiter it
-    does not (0.152 and 0.0485; docs/results.md)."""
+    does not (0.152 and 0.0485: results/tgv_riemann_relaxed/convergence.md)."""
     errors = []
     for dx in (0.05, 0.025):
         res, out = tgv(tmp_path, f"riemann_nfts_{dx}", dx=dx, t_end=1.0, scene=CASES / "taylor_green_thesis.toml")

@@ -51,8 +51,8 @@ def run(anchored, timeout):
 
 @pytest.mark.long
 def test_a_petsc_object_left_on_one_rank_does_not_hang_the_next_one():
-    """The 3-rank test run hung about once in three under load (docs/results.md, Known issues: details;
-    before the fix): two ranks in a collective, the third in MPI_Comm_dup. Here the same mechanism on 2 ranks
+    """The 3-rank test run hung, rarely (docs/results.md, "The rare hang of the 3-rank MPI tests"; before the
+    fix): two ranks in a collective, the third in MPI_Comm_dup. Here the same mechanism on 2 ranks
     completes, and without petsc_comm it hangs: both ranks have reached the object's remaking (start-up was
     not what took the time) and 20 s later neither has left the collective after it."""
     code, out = run(True, timeout=120)

@@ -87,7 +87,8 @@ def test_no_slip_clone_walls_shorten_the_viscous_step_and_a_poiseuille_flow_stay
     than the lattice's limit (556 steps to t = 1 for Morris', 1501 for pi_ij), the run reaches the steady
     profile u = 4 y (1 - y) within 1.5% (779 steps). With pi_ij (Monaghan's viscosity) the clone pair's
     block is (1 + rho) (e.t) F V e t^T: counted as F V e e^T + rho F V t t^T it took 2782 steps (a review),
-    with its symmetric part 1831; the error, 6.7%, is pi_ij's anisotropy (README, "Viscous operators")."""
+    with its symmetric part 1831; the error, 6.7%, is pi_ij's anisotropy (README, "Fluid schemes and
+    shifting laws": The viscous limit)."""
     import h5py
 
     from tests.scene.test_fuzz import toml_document

@@ -113,10 +113,10 @@ def test_a_plain_remap_of_the_moved_particles_leaves_the_ones_iips_held_alone(tm
     """IIPS holds a free surface's region (README, Free surfaces). The thesis' remap (section 9.1.2, "for
     each particle in the fluid domain", iips.mls_fit = "fluid") re-fits those particles too, from one-sided
     supports at the surface; "moved" leaves them alone (a free-surface audit: the elliptical drop's
-    semi-axis error at t = 0.5 is 0.0044 with mls2, 0.00086 so). A call on the drop re-fits the particles it
-    moved, and the held ones with "fluid" only. With x periodic, the rebuild between the call and the update
-    wraps the positions, which moved 419 of 518 held particles by round-off or a period (a review): "moved"
-    reads the call's own displacements, and leaves them alone all the same."""
+    semi-axis error at t = 0.5 is 0.0044 with mls2, 0.00084 so: README, "Field update in flows"). A call on
+    the drop re-fits the particles it moved, and the held ones with "fluid" only. With x periodic, the rebuild
+    between the call and the update wraps the positions, which moved 419 of 518 held particles by round-off or
+    a period (a review): "moved" reads the call's own displacements, and leaves them alone all the same."""
     from psph.scene.load import load_scene
     from tests.helpers import CASES
 
