@@ -596,16 +596,25 @@ def scene_warnings(scene, restart=None) -> list:
             warnings.append(f"inflow[{k}].ramp_time = {inflow.ramp_time:g} is not shorter than time.t_end = "
                             f"{scene.time.t_end:g}: the buffer does not reach its velocity within the run")
     method = scene.shifting.method
-    if phys.scheme == "riemann_ale" and scene.bodies and (
+    moving = [f"bodies[{k}] {b.name!r}" for k, b in enumerate(scene.bodies)
+              if b.motion.law != "fixed" or b.motion.turning_law != "fixed"]
+    if phys.scheme == "riemann_ale" and moving and method != "none":
+        warnings.append(f"a moving body ({', '.join(moving)}) in physics.scheme = \"riemann_ale\" with "
+                        f"shifting.method = {method!r}: the fluid at its corners shrinks as it does next to a fixed "
+                        "wall, and sooner (SPHERIC 6's moving square at dx = 0.1 stopped with a volume drifted by 50% "
+                        "at t = 0.66 with delta_plus, 1.95 with neuhauser and its P^F, 0.93 with IIPS, 0.67 with "
+                        "IIPS + NFTS); without shifting it ran to t = 2 (run_scripts/riemann_walls.py)")
+    elif phys.scheme == "riemann_ale" and scene.bodies and (
             (method in EXPLICIT_LAWS and not (method == "neuhauser" and scene.shifting.fictitious_pressure))
             or (method == "iips" and iips.update == "nfts")):
         how = f"iips.update = {iips.update!r}" if method == "iips" else f"shifting.method = {method!r}"
         warnings.append(f"walls in physics.scheme = \"riemann_ale\" with {how}: the scheme's volumes follow the "
                         "shift and nothing pushes a particle shifted towards a wall back, so the particles there "
                         "shrink and the shift fills their place (the lid-driven cavity at dx = 0.04 stopped with "
-                        "a volume drifted by 50% at t = 0.67 with delta_plus, 0.66 with neuhauser, 3.6 with IIPS + "
-                        "NFTS); shifting.method = \"neuhauser\" with shifting.fictitious_pressure = true (thesis "
-                        "eq. 7.3-7.4), iips with iips.update = \"none\" or \"mls2\", or no shifting ran to t = 5 "
+                        "a volume drifted by 50% at t = 0.67 with delta_plus, 0.52-1.2 with lind, skillen, oger and "
+                        "neuhauser's P_S, 3.6 with IIPS + NFTS); shifting.method = \"neuhauser\" with "
+                        "shifting.fictitious_pressure = true (thesis eq. 7.3-7.4), iips with iips.update = \"none\" "
+                        "or \"mls2\", or no shifting ran to t = 5, though a volume drifted by 8-45% "
                         "(run_scripts/riemann_walls.py)")
     if phys.scheme == "riemann_ale" and scene.time.cfl > STABLE_CFL["riemann_ale"]:
         warnings.append(f"time.cfl = {scene.time.cfl:g} with physics.scheme = \"riemann_ale\": the scheme "

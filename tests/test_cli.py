@@ -972,11 +972,21 @@ def test_a_sound_speed_slow_against_gravity_waves_is_warned_about(case, sets, wa
     ("lid_driven_cavity", ["physics.scheme=riemann_ale", "shifting.method=none", "iips.update=none"], None),
     ("lid_driven_cavity", [], None),  # delta-ALE's density pushes a squeezed particle back
     ("taylor_green", ["physics.scheme=riemann_ale", "shifting.method=delta_plus", "iips.update=none"], None),
+    # a moving body: every shifting measured stopped SPHERIC 6's square, even the ones fixed walls take
+    ("moving_square", ["physics.scheme=riemann_ale"], "a moving body (bodies[1] 'square')"),
+    ("moving_square", ["physics.scheme=riemann_ale", "shifting.method=neuhauser", "shifting.fictitious_pressure=true",
+                       "iips.update=none"],
+     "with shifting.method = 'neuhauser'"),
+    ("moving_square", ["physics.scheme=riemann_ale", "shifting.method=iips", "iips.update=none"],
+     "with shifting.method = 'iips'"),
+    ("moving_square", ["physics.scheme=riemann_ale", "shifting.method=none", "iips.update=none"], None),
+    ("moving_square", [], None),
 ])
 def test_shifting_that_shrinks_the_riemann_schemes_particles_at_walls_is_warned_about(case, sets, warned):
     """Walls in the Riemann scheme with a shift the volumes cannot hold against (run_scripts/riemann_walls.py:
-    the cavity stopped with a volume drifted by 50% at t = 0.67 with delta_plus): warned at set-up, naming the
-    settings that ran; without walls (Taylor-Green) or in delta-ALE-SPH, not."""
+    the cavity stopped with a volume drifted by 50% at t = 0.67 with delta_plus), or around a moving body with
+    any shifting: warned at set-up (once), naming the settings that ran; without walls (Taylor-Green) or in
+    delta-ALE-SPH, not."""
     from psph.cli import scene_warnings
     from psph.scene.load import load_scene
 

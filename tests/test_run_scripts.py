@@ -184,9 +184,11 @@ def tank(out):
 
 def riemann_walls(out):
     run_script("riemann_walls", "--schemes", "riemann_ale", "--shiftings", "none", "--cavity-dx", 0.1,
-               "--cavity-t-end", 0.05, "--dam-dx", 0.1, "--dam-t-end", 0.05, "--out", out)
-    header, rows = table(out / "runs", rows=2)
-    assert [row[:3] for row in rows] == [["cavity", "riemann_ale", "none"], ["dam_break", "riemann_ale", "none"]]
+               "--cavity-t-end", 0.05, "--dam-dx", 0.1, "--dam-t-end", 0.05, "--square-dx", 0.2, "--square-t-end",
+               0.05, "--out", out)
+    header, rows = table(out / "runs", rows=3)
+    assert [row[0] for row in rows] == ["cavity", "dam_break", "moving_square"]
+    assert all(row[1:3] == ["riemann_ale", "none"] for row in rows)
     fronts = [name for name in header if name.startswith("front")]  # (the dam break's, after t = 1)
     finite(header, rows, skip=["flow", "scheme", "shifting", "stop", *fronts])
     assert float(rows[0][header.index("t reached")]) == 0.05 and rows[0][-1] == "-"

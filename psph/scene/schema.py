@@ -1212,8 +1212,10 @@ class Scene:
         if self.free_surface.lambda_diffusion > 0.0 and not (fluid and surface
                                                                and self.physics.scheme != "riemann_ale"):
             raise SceneError("free_surface.lambda_diffusion", "switches the diffusive terms of a delta_ale scheme off "
-                             "near a free surface: this scene has " + ("no free surface" if not surface else
-                                                                     f"physics.scheme = {self.physics.scheme!r}"))
+                             "near a free surface: this scene has " + (
+                                 "no free surface" if not surface else f"physics.scheme = {self.physics.scheme!r}"
+                                 + (", whose fluxes have no diffusive terms: set it to 0"
+                                    if self.physics.scheme == "riemann_ale" else "")))
         if fluid and method == "explicit_iterative":
             raise SceneError("shifting.method", "explicit_iterative is for static and kinematic runs; fluid "
                              "schemes take iips or an explicit law (lind, skillen, oger, delta_plus, neuhauser)")

@@ -408,7 +408,8 @@ def test_packing_is_accepted_with_clone_walls_and_a_free_surface():
 
 @pytest.mark.parametrize("scene,sets,key,words", [
     ("lid_driven_cavity", ["free_surface.lambda_diffusion=0.2"], "free_surface.lambda_diffusion", "no free surface"),
-    ("dam_break", ["physics.scheme=riemann_ale", "bodies=[]"], "free_surface.lambda_diffusion", "riemann_ale"),
+    ("dam_break", ["physics.scheme=riemann_ale", "bodies=[]"], "free_surface.lambda_diffusion",
+     "no diffusive terms: set it to 0"),
     ("dam_break", ["physics.gravity=[0, 1]", "initial.pressure=zero"], "diagnostics.dam_break", "gravity along -y"),
     # a hydrostatic start needs gravity along -y (a fuzzing audit: a zero pressure, or of the wrong sign, else)
     ("dam_break", ["physics.gravity=[0, 1]"], "initial.pressure", "needs gravity along -y"),
