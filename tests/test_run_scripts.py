@@ -173,12 +173,15 @@ def ellipse(out):
 
 
 def tank(out):
-    run_script("tank", "--resolutions", 8, "--trapezoid-resolutions", 5, "--t-end", 0.2, "--out", out)
-    header, rows = table(out / "spurious", rows=3)
-    assert [row[:2] for row in rows] == [["box", "clone"], ["box", "ghost"], ["trapezoid", "clone"]]
+    run_script("tank", "--resolutions", 8, "--trapezoid-resolutions", 5, "--t-end", 0.2, "--schemes", "delta_ale",
+               "riemann_ale", "--out", out)
+    header, rows = table(out / "spurious", rows=6)
+    assert [row[:3] for row in rows] == [[tank, walls, scheme] for tank, walls in
+                                         [("box", "clone"), ("box", "ghost"), ("trapezoid", "clone")]
+                                         for scheme in ("delta_ale", "riemann_ale")]
     weight = next(name for name in header if name.startswith("weight on the tank"))
-    finite(header, rows, skip=["tank", "walls", weight])
-    finite(header, [rows[0], rows[2]], only=[weight])  # ghost walls report no force (nan)
+    finite(header, rows, skip=["tank", "walls", "scheme", weight])
+    finite(header, [row for row in rows if row[1] == "clone"], only=[weight])  # ghost walls report no force (nan)
     figures(out, "speed.png")
 
 
@@ -192,6 +195,16 @@ def riemann_walls(out):
     fronts = [name for name in header if name.startswith("front")]  # (the dam break's, after t = 1)
     finite(header, rows, skip=["flow", "scheme", "shifting", "stop", *fronts])
     assert float(rows[0][header.index("t reached")]) == 0.05 and rows[0][-1] == "-"
+
+
+def couette(out):
+    run_script("couette", "--schemes", "delta_ale", "riemann_low", "--viscosities", "morris", "--resolutions", 10,
+               20, "--t-end", 0.05, "--out", out)
+    header, rows = table(out / "runs", rows=4)
+    assert [row[:3] for row in rows] == [["delta_ale", "morris", "10"], ["delta_ale", "morris", "20"],
+                                         ["riemann_low", "morris", "10"], ["riemann_low", "morris", "20"]]
+    finite(header, rows, skip=["scheme", "viscosity", "order"])
+    finite(header, [rows[1], rows[3]], only=["order"])  # between the two resolutions
 
 
 def iips_static(out):
@@ -332,7 +345,7 @@ def bench_flow(out):
 SCRIPTS = [iips_vs_explicit, elliptical_drop, dam_break, iips_tradeoff, iips_kinematic, free_surface, tank, ellipse,
            moving_square, iips_static, tgv_operator_error, cavity, tgv_tradeoff, impinging_jet, iips_pair_defects,
            stability_map, bench_memory, bench_iips, viscous_limit_check, bench_walls, bench_sums, bench_flow,
-           neuhauser_kinematic, riemann_walls]
+           neuhauser_kinematic, riemann_walls, couette]
 
 
 @pytest.mark.parametrize("script,args,message", [
