@@ -601,9 +601,10 @@ def scene_warnings(scene, restart=None) -> list:
     if phys.scheme == "riemann_ale" and moving and method != "none":
         warnings.append(f"a moving body ({', '.join(moving)}) in physics.scheme = \"riemann_ale\" with "
                         f"shifting.method = {method!r}: the fluid at its corners shrinks as it does next to a fixed "
-                        "wall, and sooner (SPHERIC 6's moving square at dx = 0.1 stopped with a volume drifted by 50% "
-                        "at t = 0.66 with delta_plus, 1.95 with neuhauser and its P^F, 0.93 with IIPS, 0.67 with "
-                        "IIPS + NFTS); without shifting it ran to t = 2 (run_scripts/riemann_walls.py)")
+                        "wall, and the shifts fixed walls take do not hold it (SPHERIC 6's moving square at dx = 0.1 "
+                        "stopped with a volume drifted by 50% at t = 0.66 with delta_plus, 1.95 with neuhauser and "
+                        "its P^F, 0.93 with IIPS, 0.67 with IIPS + NFTS; with the low-dissipation pressure IIPS "
+                        "ran); without shifting it ran to t = 2 (run_scripts/riemann_walls.py)")
     elif phys.scheme == "riemann_ale" and scene.bodies and (
             (method in EXPLICIT_LAWS and not (method == "neuhauser" and scene.shifting.fictitious_pressure))
             or (method == "iips" and iips.update == "nfts")):

@@ -15,10 +15,11 @@ P^F of thesis eq. 7.3-7.4, which ties the shift to the volume); iips (IIPS, fiel
 (IIPS with the NFTS update, thesis ch. 9); and on request the other explicit laws (lind, skillen, oger),
 neuhauser (its constant P_S) and iips_mls2 (IIPS with the second-order MLS update). Writes, in --out
 (results/riemann_walls), runs.md and .csv: the time each run reached (and the stop's reason where psph
-stopped it), the largest |V/V0 - 1| and |rho/rho0 - 1| over the run (history.csv's max_volume_variation
-and max_density_variation), the mean and the least V/V0 of the fluid within dx of a wall at the end (the
-box's sides; the moving square's sides), the mass drift, and for the dam break the surge front at t = 1
-and 2 (in H; Ritter's dry-bed bound is 2 + 2 t) and the time it reaches the right wall.
+stopped it), the largest |V/V0 - 1| and |rho/rho0 - 1| over the history's rows (every 10 steps: a stop's
+own value is in its message; history.csv's max_volume_variation and max_density_variation), the mean and
+the least V/V0 of the fluid within dx of a wall at the end (the box's sides; the moving square's sides), the
+mass drift, and for the dam break the surge front at t = 1 and 2 (in H; Ritter's dry-bed bound is 2 + 2 t)
+and the time it reaches the right wall.
 --no-run makes the table from the runs already in --out.
 
 The Riemann scheme's volumes follow the transport velocity and its mass the fluxes: a particle moved towards

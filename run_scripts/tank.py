@@ -38,7 +38,7 @@ from psph.studies import (
 )
 
 TANKS = {"box": "hydrostatic_tank.toml", "trapezoid": "trapezoidal_tank.toml"}
-DEEP = 0.3  # the pressure's error below the free surface's band, y < DEEP H
+DEEP = 0.3  # the pressure's error in the water's lowest 30% (y < DEEP H), by the floor, away from the surface
 SCHEMES = {"delta_ale": [], "riemann_ale": ["physics.scheme=riemann_ale"],
            "riemann_low": ["physics.scheme=riemann_ale", "physics.riemann_dissipation=low"]}
 

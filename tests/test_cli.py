@@ -976,9 +976,13 @@ def test_a_sound_speed_slow_against_gravity_waves_is_warned_about(case, sets, wa
     ("moving_square", ["physics.scheme=riemann_ale"], "a moving body (bodies[1] 'square')"),
     ("moving_square", ["physics.scheme=riemann_ale", "shifting.method=neuhauser", "shifting.fictitious_pressure=true",
                        "iips.update=none"],
-     "with shifting.method = 'neuhauser'"),
-    ("moving_square", ["physics.scheme=riemann_ale", "shifting.method=iips", "iips.update=none"],
-     "with shifting.method = 'iips'"),
+     "a moving body (bodies[1] 'square') in physics.scheme = \"riemann_ale\" with shifting.method = 'neuhauser'"),
+    ("moving_square", ["physics.scheme=riemann_ale", "physics.riemann_dissipation=low", "shifting.method=iips",
+                       "iips.update=none"],
+     "a moving body (bodies[1] 'square') in physics.scheme = \"riemann_ale\" with shifting.method = 'iips'"),
+    ("moving_square", ["physics.scheme=riemann_ale", "bodies.1.motion.law=fixed", "bodies.1.motion.velocity=[]",
+                       "bodies.1.motion.rotation_law=constant", "bodies.1.motion.angular_velocity=1.0"],
+     "a moving body (bodies[1] 'square')"),  # turning only
     ("moving_square", ["physics.scheme=riemann_ale", "shifting.method=none", "iips.update=none"], None),
     ("moving_square", [], None),
 ])
