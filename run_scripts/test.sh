@@ -2,7 +2,7 @@
 # Set up if needed, then run the test suite: everything on 1 rank, then the MPI tests on 2 and 3 ranks.
 #   run_scripts/test.sh [extra pytest arguments for the serial run, e.g. -n 0 for one process]
 # The serial run spreads its tests over two pytest-xdist workers (the machines have two cores); on a fresh
-# checkout the whole takes 10 to 17 minutes (README).
+# checkout the whole takes 10 to 30 minutes (README).
 set -euo pipefail
 "$(dirname "${BASH_SOURCE[0]}")/setup.sh"
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
