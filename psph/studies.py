@@ -402,6 +402,10 @@ def _same_command(a, b, code=True) -> bool:
 # the lid-driven cavity scene, and the overrides of each wall model: clone particles with IIPS + NFTS (the
 # scene's), or seed 001's setting (section 6.2): the fixed ghost particles of a straight wall
 # (bodies[0].model = "ghost") with delta+ shifting (IIPS needs clone walls)
+# the fluid schemes the wall studies compare, as --set overrides (riemann_low: the Riemann scheme with Zhang et
+# al.'s low-dissipation pressure; README, "Walls in the Riemann scheme")
+SCHEME_SETS = {"delta_ale": [], "riemann_ale": ["physics.scheme=riemann_ale"],
+               "riemann_low": ["physics.scheme=riemann_ale", "physics.riemann_dissipation=low"]}
 CAVITY = CASES / "lid_driven_cavity.toml"
 CAVITY_DELTA_PLUS = ["shifting.method=delta_plus", "iips.update=none"]
 CAVITY_WALLS = {"clone": [], "ghost": ["bodies.0.model=ghost", *CAVITY_DELTA_PLUS]}

@@ -24,6 +24,7 @@ from psph.particles import Kind
 from psph.scene.load import load_scene
 from psph.studies import (
     CASES,
+    SCHEME_SETS,
     RunStopped,
     command_line,
     last_snapshot,
@@ -36,8 +37,6 @@ from psph.studies import (
     write_table,
 )
 
-SCHEMES = {"delta_ale": [], "riemann_ale": ["physics.scheme=riemann_ale"],
-           "riemann_low": ["physics.scheme=riemann_ale", "physics.riemann_dissipation=low"]}
 SCENE = CASES / "couette.toml"  # its lengths in H, velocities in U (the plate's)
 
 
@@ -52,7 +51,7 @@ def couette_errors(out, nu):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/couette"))
-    parser.add_argument("--schemes", nargs="+", default=list(SCHEMES), choices=list(SCHEMES))
+    parser.add_argument("--schemes", nargs="+", default=list(SCHEME_SETS), choices=list(SCHEME_SETS))
     parser.add_argument("--viscosities", nargs="+", default=["monaghan", "morris"], choices=["monaghan", "morris"])
     parser.add_argument("--resolutions", type=positive_int, nargs="+", default=[20, 40], help="H/dx")
     parser.add_argument("--t-end", type=positive_float, default=1.0, help="t U / H")
@@ -72,7 +71,7 @@ def main():
                 try:
                     run = run_scene(SCENE, args.out / f"{scheme}_{viscosity}_h{n}",
                                     sets=[f"domain.dx={1.0 / n}", f"time.t_end={args.t_end}", "output.every=0",
-                                          f"physics.viscosity={viscosity}", *SCHEMES[scheme]])
+                                          f"physics.viscosity={viscosity}", *SCHEME_SETS[scheme]])
                 except RunStopped as err:  # diagnosed: its state and history are written
                     rows.append([scheme, viscosity, n, *[np.nan] * 5, stop_message(err).removeprefix("psph: error: ")])
                     previous = None

@@ -39,6 +39,7 @@ from psph.particles import Kind
 from psph.scene.load import load_scene
 from psph.studies import (
     CASES,
+    SCHEME_SETS,
     NotRun,
     RunStopped,
     command_line,
@@ -63,11 +64,9 @@ EXTRA_SHIFTINGS = {
     **{law: [f"shifting.method={law}", "iips.update=none"] for law in ("lind", "skillen", "oger", "neuhauser")},
     "iips_mls2": ["shifting.method=iips", "iips.update=mls2"],
 }
-RIEMANN = {"cavity": ["physics.scheme=riemann_ale"],
-           "dam_break": ["physics.scheme=riemann_ale", "free_surface.lambda_diffusion=0"],
-           "moving_square": ["physics.scheme=riemann_ale"]}
-SCHEMES = {"delta_ale": {flow: [] for flow in FLOWS}, "riemann_ale": RIEMANN,
-           "riemann_low": {flow: [*sets, "physics.riemann_dissipation=low"] for flow, sets in RIEMANN.items()}}
+# per flow; the dam break's diffusion switch belongs to delta-ALE (the Riemann fluxes have no diffusive terms)
+SCHEMES = {scheme: {flow: [*sets, *(["free_surface.lambda_diffusion=0"] if sets and flow == "dam_break" else [])]
+                    for flow in FLOWS} for scheme, sets in SCHEME_SETS.items()}
 RIGHT_WALL = 5.367  # cases/dam_break.toml: the tank's length (H = 1)
 
 

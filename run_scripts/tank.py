@@ -27,6 +27,7 @@ import numpy as np
 from psph.particles import Kind
 from psph.studies import (
     CASES,
+    SCHEME_SETS,
     command_line,
     last_snapshot,
     parse_args,
@@ -39,8 +40,6 @@ from psph.studies import (
 
 TANKS = {"box": "hydrostatic_tank.toml", "trapezoid": "trapezoidal_tank.toml"}
 DEEP = 0.3  # the pressure's error in the water's lowest 30% (y < DEEP H), by the floor, away from the surface
-SCHEMES = {"delta_ale": [], "riemann_ale": ["physics.scheme=riemann_ale"],
-           "riemann_low": ["physics.scheme=riemann_ale", "physics.riemann_dissipation=low"]}
 
 
 def pressure_error(out, depth=1.0):
@@ -63,7 +62,7 @@ def main():
     parser.add_argument("--trapezoid-resolutions", type=positive_int, nargs="+", default=[25, 50],
                         help="H/dx (seed 002)")
     parser.add_argument("--walls", nargs="+", default=["clone", "ghost"], choices=["clone", "ghost"])
-    parser.add_argument("--schemes", nargs="+", default=["delta_ale"], choices=list(SCHEMES))
+    parser.add_argument("--schemes", nargs="+", default=["delta_ale"], choices=list(SCHEME_SETS))
     args = parse_args(parser)
     rows, histories = [], {}
     cases = [(tank, walls, scheme, n) for tank in args.tanks for walls in (args.walls if tank == "box" else ["clone"])
@@ -72,7 +71,7 @@ def main():
         name = (f"{walls}_h{n}" if tank == "box" else f"{tank}_h{n}") + ("" if scheme == "delta_ale" else f"_{scheme}")
         run = run_scene(CASES / TANKS[tank], args.out / name, ranks=args.ranks,
                         sets=[f"domain.dx={1.0 / n}", f"time.t_end={args.t_end}", "output.every=0",
-                              "output.history_every=20", f"bodies.0.model={walls}", *SCHEMES[scheme]])
+                              "output.history_every=20", f"bodies.0.model={walls}", *SCHEME_SETS[scheme]])
         h = run.history
         t = np.array([r["time"] for r in h])
         speed = np.array([r["max_speed"] for r in h])
