@@ -440,6 +440,75 @@ def tag(label) -> str:
     return label.replace(" ", "").replace("+", "_").replace("=", "")
 
 
+def after(rows, key, t0, t1=np.inf):
+    """The values of a history column (cl: pressure + viscous) over t0 <= t <= t1."""
+    rows = [r for r in rows if t0 <= r["time"] <= t1]
+    if key == "cl":
+        return np.array([r["cl_pressure"] + r["cl_viscous"] for r in rows])
+    return np.array([r[key] for r in rows])
+
+
+def mean_after(rows, key, t0, t1=np.inf):
+    """The mean of after(...), nan without rows."""
+    values = after(rows, key, t0, t1)
+    return float(values.mean()) if values.size else float("nan")
+
+
+def in_progress(scene_path, out, sets, compare=(("domain", "dx"), ("time", "t_end"))):
+    """A Run of the scene at `scene_path` with `sets`, read from a directory whose run the study did not finish
+    (or that was resumed by hand with `psph run --restart`, stopped, or run by hand): its history so far, the
+    scene of its command, the particle count of its latest checkpoint, and its summary once it has one.
+    Refuses (SystemExit, one line) a directory without a summary or a checkpoint, and a run whose scene
+    differs in a key of `compare` ((section, key), or (section,) for a whole section, such as the bodies)."""
+    import h5py
+
+    from psph.scene.load import load_scene
+    from psph.scene.validate import to_table
+
+    scene = to_table(load_scene(scene_path, sets))
+    out = Path(out)
+    checkpoints = sorted(out.glob("checkpoint_*.h5"))
+    summary_path = out / "summary.json"
+    if not (out / "history.csv").exists() or not (checkpoints or summary_path.exists()):
+        raise SystemExit(f"{out}: no run in progress (no checkpoint or summary, and history)")
+    if summary_path.exists():  # finished (a hand restart, or a run by hand, writes no study stamp)
+        summary = json.loads(summary_path.read_text())
+        saved = summary["scene"]
+    else:
+        with h5py.File(checkpoints[-1]) as f:
+            summary = {"scene": scene, "n_particles": len(f["particles/gid"])}
+            saved = json.loads(bytes(f["state"][()]).decode())["scene"]
+    for path in compare:
+        mine, theirs = scene, saved
+        for key in path:
+            mine, theirs = mine.get(key), theirs.get(key)
+        if json.dumps(mine, sort_keys=True) != json.dumps(theirs, sort_keys=True):  # (tuples as lists)
+            name = ".".join(path)
+            raise SystemExit(f"{out}: its run has {name} = {theirs}, the study {mine}" if len(path) > 1 else
+                             f"{out}: its run's {name} differ from the study's")
+    return Run(out, summary, read_history(out / "history.csv"))
+
+
+def long_run(scene, out, sets, ranks=1, in_progress_ok=False, rerun=False, compare=(("domain", "dx"),
+                                                                                     ("time", "t_end"))):
+    """A study's run that takes hours (ellipse.py, triangle.py): a finished run of this very command in `out`
+    is read back, never run again (unless `rerun`); with `in_progress_ok` (the study's --in-progress) a run
+    still going, stopped, resumed or run by hand is tabled from what it has written (in_progress, checking the
+    keys `compare`); any other run there stops the study (SystemExit) rather than being run over; an empty
+    `out` is run."""
+    try:
+        return run_scene(scene, out, sets=sets, ranks=ranks, only_finished=not rerun)
+    except NotRun:
+        out = Path(out)
+        if in_progress_ok:
+            return in_progress(scene, out, sets, compare)
+        if any(out.glob("checkpoint_*.h5")) or (out / "history.csv").exists():
+            raise SystemExit(f"{out} holds a run that is not a finished run of this study's command (one in "
+                             "progress, resumed or run by hand): tabulate it with --in-progress, or replace it "
+                             "with --rerun") from None
+        return run_scene(scene, out, sets=sets, ranks=ranks, reuse=False)
+
+
 def dominant_frequency(times, values, t0=0.0, oversample=64, periods=3) -> float:
     """Frequency of the largest peak in the periodogram of values(t) over t >= t0 (history rows need not be
     evenly spaced: they are interpolated onto an even grid of the same number of samples). The window is

@@ -20,7 +20,6 @@ run over, unless --rerun is given. `--in-progress` never starts a run.
 """
 
 import argparse
-import json
 from pathlib import Path
 
 import h5py
@@ -30,38 +29,22 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from psph.io.history import read_history  # noqa: E402
 from psph.particles import Kind  # noqa: E402
-from psph.scene.load import load_scene  # noqa: E402
-from psph.scene.validate import to_table  # noqa: E402
 from psph.studies import (  # noqa: E402
     CASES,
-    NotRun,
-    Run,
+    after,
     command_line,
     dominant_frequency,
     last_snapshot,
+    long_run,
+    mean_after,
     parse_args,
     plot_histories,
     positive_float,
     positive_int,
-    run_scene,
     write_histories,
     write_table,
 )
-
-
-def after(rows, key, t0, t1=np.inf):
-    """The values of a history column (cl: pressure + viscous) over t0 <= t <= t1."""
-    rows = [r for r in rows if t0 <= r["time"] <= t1]
-    if key == "cl":
-        return np.array([r["cl_pressure"] + r["cl_viscous"] for r in rows])
-    return np.array([r[key] for r in rows])
-
-
-def mean_after(rows, key, t0, t1=np.inf):
-    values = after(rows, key, t0, t1)
-    return float(values.mean()) if values.size else float("nan")
 
 
 def wake_return_time(scene):
@@ -81,27 +64,6 @@ def latest_state(run):
             if float(f.attrs["time"]) > t:
                 return {k: f["particles"][k][:] for k in f["particles"]}, float(f.attrs["time"])
     return snap, t
-
-
-def in_progress(out, sets):
-    """A Run read from a directory whose run the study did not finish (or that was resumed by hand with
-    `psph run --restart`): its history so far, the scene of its command, the particle count of its latest
-    checkpoint, and its summary once it has one. Refuses a run of another resolution or end time."""
-    scene = to_table(load_scene(CASES / "inclined_ellipse.toml", sets))
-    checkpoints = sorted(out.glob("checkpoint_*.h5"))
-    if not checkpoints or not (out / "history.csv").exists():
-        raise SystemExit(f"{out}: no run in progress (no checkpoint and history)")
-    with h5py.File(checkpoints[-1]) as f:
-        n_particles = len(f["particles/gid"])
-        saved = json.loads(bytes(f["state"][()]).decode())["scene"]
-    for section, key in (("domain", "dx"), ("time", "t_end")):
-        if saved[section][key] != scene[section][key]:
-            raise SystemExit(f"{out}: its run has {section}.{key} = {saved[section][key]}, the study "
-                             f"{scene[section][key]}")
-    summary = {"scene": scene, "n_particles": n_particles}
-    if (out / "summary.json").exists():  # finished (a hand restart writes no study stamp)
-        summary = json.loads((out / "summary.json").read_text())
-    return Run(out, summary, read_history(out / "history.csv"))
 
 
 def plot_variations(run, n, rho0, path):
@@ -143,20 +105,9 @@ def main():
         sets = [f"domain.dx={1.0 / n}", f"time.t_end={args.t_end}", f"output.every={args.t_end / 5}",
                 "output.history_every=20", "output.checkpoint_minutes=15"]
         out = args.out / f"a{n}"
-        try:  # a finished run of this very command is read back, never run again (unless --rerun)
-            run = run_scene(CASES / "inclined_ellipse.toml", out, sets=sets, ranks=args.ranks,
-                            only_finished=not args.rerun)
-        except NotRun:
-            if args.in_progress:
-                run = in_progress(out, sets)
-                if run.history[-1]["time"] < args.t_end * (1.0 - 1e-12):
-                    partial.append(n)
-            elif any(out.glob("checkpoint_*.h5")) or (out / "history.csv").exists():
-                raise SystemExit(f"{out} holds a run that is not a finished run of this study's command (one "
-                                 "in progress, or resumed by hand): tabulate it with --in-progress, or replace "
-                                 "it with --rerun") from None
-            else:
-                run = run_scene(CASES / "inclined_ellipse.toml", out, sets=sets, ranks=args.ranks, reuse=False)
+        run = long_run(CASES / "inclined_ellipse.toml", out, sets, args.ranks, args.in_progress, args.rerun)
+        if run.history[-1]["time"] < args.t_end * (1.0 - 1e-12):
+            partial.append(n)
         runs[n] = run
         rows = run.history
         mass = np.array([r["total_mass"] for r in rows])

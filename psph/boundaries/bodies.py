@@ -17,9 +17,12 @@ from psph.boundaries.geometry import (
     distance_to_polygon,
     ellipse_profile,
     inside,
+    nearest_nodes,
+    polygon_centroid,
     polygon_profile,
     rectangle_profile,
     shape_spec,
+    sharp_corner_points,
     solid_particles,
 )
 from psph.particles import Kind
@@ -87,18 +90,19 @@ class Body:
         """`domain` (the scene's DomainSpec): along a periodic axis, which it spans, a container is its plates,
         continued across the axis' edges (_periodic_plates)."""
         self.spec, self.index, self.name = spec, index, spec.name
+        self.dx = dx
         ds = dx / 4.0
         if spec.shape == "ellipse":
             self.profile = ellipse_profile(spec.center, spec.size, spec.angle, ds, fluid_inside=False)
         elif spec.shape == "polygon":
-            self.profile = polygon_profile(spec.vertices, ds)
+            self.profile = polygon_profile(spec.vertices, ds, fluid_inside=spec.container)
         else:
             self.profile = rectangle_profile(spec.center, spec.size, spec.angle, ds,
                                              fluid_inside=spec.shape == "box")
         periodic = tuple(domain.periodic) if domain is not None and spec.container else (False, False)
         if any(periodic):
             self.profile = _periodic_plates(self.profile, domain, ds)
-        self.center0 = np.asarray(spec.center or np.mean(spec.vertices, axis=0), dtype=np.float64)
+        self.center0 = np.asarray(spec.center or polygon_centroid(spec.vertices), dtype=np.float64)
         self.velocity = np.asarray(spec.motion.velocity or (0.0, 0.0), dtype=np.float64)
         # drag acts along the flow seen from the body: against its motion, or along the free stream (+x
         # without one) for a body at rest
@@ -168,10 +172,20 @@ class Body:
 
     def solid_particles(self, lattice, volumes, thickness):
         """Reference positions, normals, distances, closest nodes and volumes of this body's solid particles
-        (from the `lattice` points and their `volumes`)."""
+        (from the `lattice` points and their `volumes`; a polygon's corners sharper than 90 degrees on the
+        solid side get one more each, with a lattice point's volume, geometry.sharp_corner_points)."""
         pos, node, dist, kept = solid_particles(self.profile, shape_spec(self.spec), lattice, thickness,
                                                 with_index=True)
-        return pos, self.profile.normals[node], dist, node, volumes[kept]
+        vol = volumes[kept]
+        if self.spec.shape == "polygon":
+            tips, corners = sharp_corner_points(self.spec.vertices, self.spec.container, self.dx)
+            # each takes its corner's node (the bisector's normal: the nearest node is one of the two beside the
+            # corner, whichever a tie gives, which broke a symmetric flow's symmetry), dx/2 from the contour
+            tip_node = nearest_nodes(self.profile, corners)[0]
+            pos, node = np.vstack([pos, tips]), np.concatenate([node, tip_node])
+            dist = np.concatenate([dist, np.full(len(tips), 0.5 * self.dx)])
+            vol = np.concatenate([vol, np.full(len(tips), self.dx ** 2)])
+        return pos, self.profile.normals[node], dist, node, vol
 
 
 def _rot(angle_deg):
@@ -245,7 +259,7 @@ def check_placement(scene) -> None:
                              f"{extent:g} thick, less than 2 dx = {2 * dx:g}: no solid particle would fill it")
         if b.shape == "polygon":
             _check_polygon_walls(b, path, dx)
-        if b.shape == "polygon" and any(d.periodic):
+        if b.container and b.shape == "polygon" and any(d.periodic):
             raise SceneError(f"{path}.shape", f"{b.name!r}: a polygon closes the fluid on every side, which a "
                              "periodic axis does not allow (domain.periodic; a box spanning one keeps its plates)")
         if b.container and any(d.periodic) and b.angle != 0.0:
@@ -295,7 +309,8 @@ def check_placement(scene) -> None:
         for k, body in immersed:
             x, normals = nodes[k]  # (the normals point into the body)
             # later than t = 0, the motion took it there (its own, or the other body's in an overlap)
-            key = f"bodies[{k}].center" if t == 0.0 or not body.moves else f"bodies[{k}].motion"
+            placed = "vertices" if body.spec.shape == "polygon" else "center"
+            key = f"bodies[{k}].{placed}" if t == 0.0 or not body.moves else f"bodies[{k}].motion"
             for a in range(2):
                 if x[:, a].min() < lower[a] + margin[a] or x[:, a].max() > upper[a] - margin[a]:
                     raise SceneError(key, f"{body.name!r} leaves the domain along axis {a} "
@@ -320,12 +335,13 @@ def check_placement(scene) -> None:
 
 
 def _check_polygon_walls(spec, path, dx) -> None:
-    """Refuse a polygon (a container) whose solid is thinner than 2 dx between two of its sides that share
-    no corner (a partition between two parts of the fluid), which its bounding box does not show: no solid
-    particle fills it, and fluid crossed it unseen (a failure audit: a tank's partition 0.8 dx thick let 63
-    particles through, and the run ended with exit 0). From points along every side (dx from its ends), a
-    probe 2 dx long into the solid along the side's normal must meet no other side but its neighbours (the
-    solid coming to a point at a corner, a weir's crest or a sill, is no partition: a review)."""
+    """Refuse a polygon whose solid is thinner than 2 dx between two of its sides that share no corner (a
+    container's partition between two parts of the fluid, an immersed body's thin plate), which its bounding
+    box does not show: no solid particle fills it, and fluid crossed it unseen (a failure audit: a tank's
+    partition 0.8 dx thick let 63 particles through, and the run ended with exit 0). From points along every
+    side (dx from its ends), a probe 2 dx long into the solid (out of a container, into an immersed body)
+    along the side's normal must meet no other side but its neighbours (the solid coming to a point at a
+    corner, a weir's crest or a sill, is no partition: a review)."""
     from psph.errors import SceneError
 
     v = np.asarray(spec.vertices, dtype=float)
@@ -340,7 +356,8 @@ def _check_polygon_walls(spec, path, dx) -> None:
         length = float(np.hypot(*edge))
         if length <= 2.0 * dx:
             continue
-        outward = np.array([edge[1], -edge[0]]) / length * np.sign(area)  # (counter-clockwise: to the right)
+        # into the solid: out of the polygon (to the right of a counter-clockwise side) for a container
+        outward = np.array([edge[1], -edge[0]]) / length * np.sign(area) * (1.0 if spec.container else -1.0)
         points = start + np.arange(dx, length - dx + 1e-9 * dx, 0.5 * dx)[:, None] * edge / length
         others = [j for j in range(n) if j not in (i, (i - 1) % n, (i + 1) % n)]
         if not others:
@@ -362,7 +379,8 @@ def _check_polygon_walls(spec, path, dx) -> None:
 
 
 def within_walls(spec, points) -> np.ndarray:
-    """Distance of points inside a container (box or polygon) to its walls."""
+    """Distance of points inside a container (box or polygon) to its walls (of any point to an immersed
+    polygon's sides)."""
     if spec.shape == "polygon":
         return distance_to_polygon(spec.vertices, points)
     local = np.abs((points - np.asarray(spec.center)) @ _rot(spec.angle))

@@ -119,7 +119,8 @@ class WallTerms:
             lid = f", lid velocity {tuple(b.lid_velocity)}" if b.lid.any() else ""
             model = ("clone particles with local mirroring (seed 004 eq. 5-9)" if b.spec.model == "clone" else
                      "fixed ghost particles, mirror images of the fluid (seed 001 section 6.2)")
-            out.append(f"body {b.name!r}: {b.spec.shape}, {b.spec.wall.replace('_', '-')}, {how}{lid}; {model}")
+            shape = "immersed polygon" if b.spec.shape == "polygon" and not b.spec.container else b.spec.shape
+            out.append(f"body {b.name!r}: {shape}, {b.spec.wall.replace('_', '-')}, {how}{lid}; {model}")
         return out
 
     def trespassers(self, pos, t, margin, gid):
@@ -134,8 +135,11 @@ class WallTerms:
             center, rot = b.rigid(t)[:2]
             angle = b.spec.angle + np.degrees(np.arctan2(rot[1, 0], rot[0, 0]))
             shape = "ellipse" if b.spec.shape == "ellipse" else "rectangle"
-            if b.spec.shape == "polygon":  # fixed
+            if b.spec.shape == "polygon" and b.spec.container:  # fixed
                 bad = ~inside(shape_spec(b.spec), pos) & (within_walls(b.spec, pos) > margin)
+            elif b.spec.shape == "polygon":  # immersed: in its reference configuration
+                reference = (pos - center) @ rot + b.center0
+                bad = inside(shape_spec(b.spec), reference) & (within_walls(b.spec, reference) > margin)
             elif b.spec.shape == "box":
                 bad = ~inside((shape, center, [s + 2.0 * margin for s in b.spec.size], angle), pos)
             else:

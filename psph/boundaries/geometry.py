@@ -12,8 +12,9 @@ Distances to the profile (s_i, s_j: "the distances of the particles i and j from
 004 after eq. 6) are to the polyline through the body nodes (contour_distance), not to the closest node.
 
 Shapes: `box` (the fluid is inside: the outer walls of a tank or cavity), `rectangle` and `ellipse` (the
-fluid is outside: immersed bodies), each with a centre, a size and an angle; `polygon` (the fluid is
-inside: a tank of any straight-sided shape, e.g. seed 002's trapezoidal tank), given by its corners.
+fluid is outside: immersed bodies), each with a centre, a size and an angle; `polygon`, given by its
+corners: the fluid inside (a tank of any straight-sided shape, e.g. seed 002's trapezoidal tank) or outside
+(an immersed body: seed 004's triangular cylinder).
 """
 
 from dataclasses import dataclass
@@ -93,9 +94,11 @@ def counterclockwise(vertices) -> np.ndarray:
     return v if area2 > 0 else v[::-1].copy()
 
 
-def polygon_profile(vertices, ds) -> Profile:
-    """Nodes every ~ds along a polygon's sides, the fluid inside; the normal points out of the polygon
-    (out of the fluid) and a corner node takes the bisector of its two sides' normals."""
+def polygon_profile(vertices, ds, fluid_inside=True) -> Profile:
+    """Nodes every ~ds along a polygon's sides, from its first corner counter-clockwise; the normal points
+    out of the fluid (out of the polygon with the fluid inside, into it for an immersed body) and a corner
+    node takes the bisector of its two sides' normals, as a rectangle's do (rectangle_profile: a polygon with
+    a rectangle's corners, from its lower left one, has the same nodes and normals)."""
     v = counterclockwise(vertices)
     edges = np.roll(v, -1, axis=0) - v
     lengths = np.linalg.norm(edges, axis=1)
@@ -107,7 +110,38 @@ def polygon_profile(vertices, ds) -> Profile:
             nodes.append(v[k] + edges[k] * s / count)
             n = outward[k] + (outward[k - 1] if s == 0 else 0.0)
             normals.append(n / np.linalg.norm(n))
-    return Profile(np.array(nodes), np.array(normals), True)
+    normals = np.array(normals)
+    return Profile(np.array(nodes), normals if fluid_inside else -normals, fluid_inside)
+
+
+def polygon_centroid(vertices) -> np.ndarray:
+    """The area centroid of a simple polygon (the shoelace formula)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    w = np.roll(v, -1, axis=0)
+    cross = v[:, 0] * w[:, 1] - w[:, 0] * v[:, 1]
+    return ((v + w) * cross[:, None]).sum(axis=0) / (3.0 * cross.sum())
+
+
+def sharp_corner_points(vertices, fluid_inside, dx) -> tuple:
+    """One point in the solid at each corner of a polygon whose solid side is narrower than 90 degrees (an
+    immersed triangle's corners, a weir's crest): on the corner's bisector, dx/2 from both sides, where the
+    lattice's first row would stand. Lattice points fill such a tip only from 1.2-1.8 dx behind the corner (a
+    60-degree corner at dx = D/10, D/20, D/50, D the side), which leaves the fluid there no solid to mirror:
+    the triangular cylinder's fluid entered it and the run stopped. Seed 004 fills a body along its normals
+    instead, which reaches the tip. Returns (points, their corners)."""
+    v = counterclockwise(vertices)
+    before, after = np.roll(v, 1, axis=0) - v, np.roll(v, -1, axis=0) - v
+    before /= np.linalg.norm(before, axis=1)[:, None]
+    after /= np.linalg.norm(after, axis=1)[:, None]
+    # the interior angle at each corner (counter-clockwise: convex where the turn is anticlockwise)
+    convex = before[:, 0] * after[:, 1] - before[:, 1] * after[:, 0] < 0.0
+    opening = np.arccos(np.clip((before * after).sum(axis=1), -1.0, 1.0))
+    interior = np.where(convex, opening, 2.0 * np.pi - opening)
+    solid = 2.0 * np.pi - interior if fluid_inside else interior
+    bisector = (before + after) * np.where(convex == (not fluid_inside), 1.0, -1.0)[:, None]
+    sharp = solid < 0.5 * np.pi - 1e-9
+    bisector = bisector[sharp] / np.linalg.norm(bisector[sharp], axis=1)[:, None]
+    return v[sharp] + bisector * (0.5 * dx / np.sin(0.5 * solid[sharp]))[:, None], v[sharp]
 
 
 def distance_to_polygon(vertices, points) -> np.ndarray:

@@ -204,8 +204,9 @@ def describe_open(scene) -> list:
                      + (f" once reached, smoothly over ramp_time = {f.ramp:g}" if f.ramp else ""))
     if scene.domain.outflow and scene.domain.outflow_buffer:
         lines.append(f"outflow faces {', '.join(scene.domain.outflow)}: fluid past them becomes a buffer one kernel "
-                     "support deep, its density and velocity extrapolated from the fluid (Shepard average), "
-                     "then is removed")
+                     "support deep, its density and velocity extrapolated from the fluid (Shepard average)"
+                     + (f", its pressure relaxed to (1 - {scene.domain.outflow_relaxation:g}) times the fluid's"
+                        if scene.domain.outflow_relaxation else "") + ", then is removed")
     elif scene.domain.outflow:
         lines.append(f"outflow faces {', '.join(scene.domain.outflow)}: fluid particles past them are removed")
     return lines
@@ -250,6 +251,7 @@ class OpenBoundaries:
         fluid = p.owned("kind") == Kind.FLUID
         self.mass = {"initial": allreduce_sum(system.comm, float(p.owned("mass")[fluid].sum())), "in": 0.0, "out": 0.0}
         self.buffer = scene.domain.outflow_buffer
+        self.relaxation = scene.domain.outflow_relaxation
         from psph.schemes.eos import make_eos
 
         self.eos = make_eos(scene.physics)
@@ -441,6 +443,9 @@ class OpenBoundaries:
         rows = np.flatnonzero(p.owned("kind") == Kind.OUTLET)
         shepard_from_fluid(p["position"], p["volume"], p["kind"], rows, system.nbr_ptr, system.nbr_idx,
                            system.kernel.params, p["density"], p["velocity"], 0.0, 0.0)
+        if self.relaxation:  # p_buffer = (1 - a) p_fluid, through the equation of state (linear or Tait)
+            rho = p.owned("density")
+            rho[rows] = self.eos.density((1.0 - self.relaxation) * self.eos.pressure(rho[rows]))
         if extrapolated:  # the inflow buffers' density only: their velocity stays prescribed
             held = np.zeros(p.n_owned, dtype=bool)
             for f in extrapolated:

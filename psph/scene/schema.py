@@ -51,6 +51,11 @@ class DomainSpec:
                                   "density and velocity extrapolated from the fluid every step, so that sound "
                                   "leaves (2.4% of a pulse reflected, against 65% without: README, \"Open "
                                   "boundaries\")")
+    outflow_relaxation: float = option(0.0, doc="outflow buffer: its pressure (1 - a) times the fluid's it is "
+                                       "extrapolated from, a pull towards p = 0 that fixes the pressure level, "
+                                       "which the zero-gradient buffer leaves free (a flow started from rest kept "
+                                       "filling up), at the cost of a weak reflection (6.5% of a pulse at a = "
+                                       "0.02: README, \"Open boundaries\")", ge=0.0, le=1.0)
 
     def check(self, path):
         faces = OUTFLOW_FACES[: 2 * self.dimension]
@@ -64,6 +69,9 @@ class DomainSpec:
             raise SceneError(f"{path}.outflow", f"faces listed twice: {list(self.outflow)}")
         if self.outflow_buffer and not self.outflow:
             raise SceneError(f"{path}.outflow_buffer", "there is no outflow face (domain.outflow) to buffer")
+        if self.outflow_relaxation and not self.outflow_buffer:
+            raise SceneError(f"{path}.outflow_relaxation", "relaxes the outflow buffer's pressure: give "
+                             "domain.outflow_buffer = true")
         for a in range(self.dimension):
             if not self.upper[a] > self.lower[a]:
                 raise SceneError(f"{path}.upper[{a}]", f"must exceed lower[{a}] = {self.lower[a]}, "
@@ -179,14 +187,18 @@ class MotionSpec:
 @dataclass(frozen=True)
 class BodySpec:
     name: str = option(doc="body name (suffix of its force columns when a scene has several)")
-    shape: str = option(doc="box or polygon (fluid inside: tank or cavity walls), rectangle or ellipse (immersed)",
+    shape: str = option(doc="box or polygon (fluid inside: tank or cavity walls), rectangle or ellipse (immersed); "
+                        "a polygon with fluid = \"outside\" is immersed too",
                         choices=("box", "polygon", "rectangle", "ellipse"))
     center: tuple[float, ...] = option((), doc="centre (not for a polygon)")
     size: tuple[float, ...] = option((), doc="box/rectangle: width and height; ellipse: semi-axes a and b (not for "
                                      "a polygon)", gt=0.0)
     angle: float = option(0.0, doc="rotation of the shape [degrees] (not for a polygon)")
     vertices: tuple[tuple[float, ...], ...] = option((), doc="polygon: its corners [[x, y], ...] in order, either "
-                                                    "sense (the fluid is inside)")
+                                                    "sense")
+    fluid: str = option("", doc="polygon only: where the fluid is, inside (a tank: the default) or outside (an "
+                        "immersed body, which may move, turning about its area centroid)",
+                        choices=("", "inside", "outside"))
     wall: str = option("no_slip", doc="no_slip or free_slip", choices=("no_slip", "free_slip"))
     model: str = option("clone", doc="clone: solid particles with local mirroring (seed 004); ghost: fixed ghost "
                         "particles, mirror images of the fluid across a straight wall (seed 001 section 6.2; "
@@ -200,11 +212,14 @@ class BodySpec:
     @property
     def container(self) -> bool:
         """Whether the fluid is inside (tank walls) rather than around (an immersed body)."""
-        return self.shape in ("box", "polygon")
+        return self.shape == "box" or (self.shape == "polygon" and self.fluid != "outside")
 
     def check(self, path):
         if not self.name.strip():
             raise SceneError(f"{path}.name", "give the body a name (its force columns carry it)")
+        if self.fluid and self.shape != "polygon":
+            raise SceneError(f"{path}.fluid", f"a {self.shape} has the fluid "
+                             f"{'inside' if self.shape == 'box' else 'outside'}: fluid is a polygon's key")
         if self.shape == "polygon":
             self._check_polygon(path)
         else:
@@ -231,7 +246,8 @@ class BodySpec:
         if self.container and (m.law != "fixed" or m.turning_law != "fixed"):
             key = "law" if m.law != "fixed" else "rotation_law"
             raise SceneError(f"{path}.motion.{key}", f"a {self.shape} (the fluid's container) stays fixed"
-                             + (" (give the lid a velocity instead)" if self.shape == "box" else ""))
+                             + (" (give the lid a velocity instead)" if self.shape == "box" else
+                                " (fluid = \"outside\" makes it an immersed body, which may move)"))
         if m.velocity and len(m.velocity) != 2:
             raise SceneError(f"{path}.motion.velocity", f"give 2 entries, got {len(m.velocity)}")
         turns = m.turning_law == m.law and m.angular_velocity  # the law moves the rotation
