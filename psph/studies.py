@@ -457,7 +457,8 @@ def mean_after(rows, key, t0, t1=np.inf):
 def in_progress(scene_path, out, sets, compare=(("domain", "dx"), ("time", "t_end"))):
     """A Run of the scene at `scene_path` with `sets`, read from a directory whose run the study did not finish
     (or that was resumed by hand with `psph run --restart`, stopped, or run by hand): its history so far, the
-    scene of its command, the particle count of its latest checkpoint, and its summary once it has one.
+    scene of its command, the particle count of its latest checkpoint, and its summary once it has one
+    (without one, a run psph stopped has its log's last line, the stop, as the summary's "stopped").
     Refuses (SystemExit, one line) a directory without a summary or a checkpoint, and a run whose scene
     differs in a key of `compare` ((section, key), or (section,) for a whole section, such as the bodies)."""
     import h5py
@@ -478,6 +479,9 @@ def in_progress(scene_path, out, sets, compare=(("domain", "dx"), ("time", "t_en
         with h5py.File(checkpoints[-1]) as f:
             summary = {"scene": scene, "n_particles": len(f["particles/gid"])}
             saved = json.loads(bytes(f["state"][()]).decode())["scene"]
+        log = (out / "psph.log").read_text().strip().splitlines() if (out / "psph.log").exists() else []
+        if log and log[-1].startswith("psph: error:"):  # a diagnosed stop: its message, as run_scene's RunStopped
+            summary["stopped"] = log[-1]
     for path in compare:
         mine, theirs = scene, saved
         for key in path:

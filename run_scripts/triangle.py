@@ -5,8 +5,9 @@ number against the seed's Table I.
         [--t-end 60] [--ranks 1] [--in-progress] [--rerun]
 
 For each D/dx (the seed's N) and each orientation it runs cases/triangular_cylinder.toml to t_end and
-writes, in --out (results/triangle): forces.md and .csv, over the second half of the time reached: the
-mean drag C_D, the oscillation amplitudes (half the range) of C_D, C_L and C_M (pressure + viscous parts,
+writes, in --out (results/triangle): forces.md and .csv, over the second half of the time reached and
+from a running mean over 0.5 D / U (SMOOTHING; the forces' particle noise): the mean drag C_D, the
+oscillation amplitudes (half the range) of C_D, C_L and C_M (pressure + viscous parts,
 2 F / (rho0 U^2 D) and 2 M / (rho0 U^2 D^2) about the centroid, D the side: the seed's eq. 10) and the
 Strouhal number f D / U of the lift's dominant frequency (studies.dominant_frequency), with the seed's
 Table I below them; cd.png, cl.png, cm.png (the coefficients against t U / D). A run psph stopped (a
@@ -49,6 +50,7 @@ SCENE = CASES / "triangular_cylinder.toml"
 CORNERS = {"upstream": [], "downstream": ["bodies.2.vertices=[[0.5773502691896258, 0.0], [-0.2886751345948129, 0.5], "
                                           "[-0.2886751345948129, -0.5]]"]}
 # seed 004 Table I: C_D mean and amplitude, C_L amplitude, C_M amplitude, St
+SMOOTHING = 0.5  # t U / D: the running mean the amplitudes and the Strouhal number are taken from
 SEED = [("seed 004: delta+-SPH, N = 50", 3.05, 0.455, 0.721, 0.464, 0.191),
         ("seed 004: delta+-SPH, N = 100", 2.87, 0.475, 0.709, 0.400, 0.199),
         ("seed 004: delta+-SPH, N = 200", 2.73, 0.402, 0.700, 0.349, 0.210),
@@ -63,6 +65,17 @@ def total(rows, part, t0):
 
 def half_range(values) -> float:
     return float(0.5 * np.ptp(values)) if values.size else float("nan")
+
+
+def smoothed(times, values, width=SMOOTHING):
+    """values(t) on an even grid of as many samples, as a running mean over `width` (t U / D): the forces'
+    particle noise at N = 10 (about +-0.5 in C_D from one history row, 10 steps, to the next) would set the
+    half range; the shedding's period is about 5."""
+    if values.size < 2:
+        return values
+    grid = np.linspace(times[0], times[-1], times.size)
+    samples = max(1, int(round(width / (grid[1] - grid[0]))))
+    return np.convolve(np.interp(grid, times, values), np.ones(samples) / samples, mode="valid")
 
 
 def main():
@@ -91,20 +104,24 @@ def main():
             try:
                 run = long_run(SCENE, out, sets, args.ranks, args.in_progress, args.rerun,
                                compare=(("domain", "dx"), ("time", "t_end"), ("bodies",)))
-            except RunStopped as err:  # diagnosed: its history is written; no window to average over
+                stopped = run.summary.get("stopped")  # (a run by hand that psph stopped, --in-progress)
+            except RunStopped as err:
+                stopped = stop_message(err)
+            if stopped:  # diagnosed: its history is written; no window to average over
                 history = read_history(out / "history.csv")
                 rows.append([label, "-", *[None] * 5, f"stopped at {history[-1]['time']:.3g}",
-                             stop_message(err).removeprefix("psph: error: ")])
+                             stopped.removeprefix("psph: error: ")])
             else:
                 history = run.history
                 reached = history[-1]["time"]
                 t0 = 0.5 * reached
-                cd, cl, cm = (total(history, part, t0) for part in ("cd", "cl", "cm"))
+                times = after(history, "time", t0)
+                cd, cl, cm = (smoothed(times, total(history, part, t0)) for part in ("cd", "cl", "cm"))
                 rows.append([label, run.summary["n_particles"], float(cd.mean()), half_range(cd), half_range(cl),
                              half_range(cm),
                              # a lift of round-off (the symmetric start) sheds nothing
-                             dominant_frequency(after(history, "time", t0), cl) if half_range(cl) > 1e-6 else np.nan,
-                             f"{t0:.3g}-{reached:.3g}", "-"])
+                             dominant_frequency(np.linspace(times[0], times[-1], cl.size), cl)
+                             if half_range(cl) > 1e-6 else np.nan, f"{t0:.3g}-{reached:.3g}", "-"])
             print(rows[-1], flush=True)
             t = after(history, "time", 0.0)
             for part in curves:
@@ -114,7 +131,8 @@ def main():
     print(write_table(args.out / "forces", ["run", "particles", "C_D mean", "C_D amplitude", "C_L amplitude",
                                             "C_M amplitude", "St", "window t U / D", "stop"], rows, labels=2,
                       title="Triangular cylinder at Re = 1000 (seed 004 section IV.1): force coefficients over the "
-                            "second half of the time reached, amplitudes half the range",
+                            f"second half of the time reached, running means over {SMOOTHING:g} D / U, amplitudes "
+                            "half their range",
                       note="Command: " + command_line()))
     for part, name in (("cd", "C_D"), ("cl", "C_L"), ("cm", "C_M")):
         plot_histories(args.out / f"{part}.png", curves[part], "t U / D", name,
