@@ -16,7 +16,8 @@ fluid particle into the triangle, a density out of range) is a row with the time
 The seed's figure of the section (its Fig. 4) is not in its text, so both orientations are run: `upstream`,
 a corner pointing into the stream and the opposite side, normal to it, at the rear (the scene's), and
 `downstream`, the triangle turned by 180 degrees. The seed's resolutions are N = 50 to 200 (360 000
-particles and more); N = 10 runs to t U/D = 60 in about 50 minutes on one core of this machine.
+particles and more); N = 10 ran to t U/D = 60 in 71 minutes on one core of this machine (partly beside
+the test suite).
 
 --in-progress tabulates a run still going, stopped before t_end (SIGTERM writes a checkpoint), or run by
 hand with the study's settings (`psph run cases/triangular_cylinder.toml --out OUT/upstream_n10`), from its
