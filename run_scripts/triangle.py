@@ -50,8 +50,8 @@ SCENE = CASES / "triangular_cylinder.toml"
 # the scene's triangle (a corner upstream) turned by 180 degrees about its centroid
 CORNERS = {"upstream": [], "downstream": ["bodies.2.vertices=[[0.5773502691896258, 0.0], [-0.2886751345948129, 0.5], "
                                           "[-0.2886751345948129, -0.5]]"]}
-# seed 004 Table I: C_D mean and amplitude, C_L amplitude, C_M amplitude, St
 SMOOTHING = 0.5  # t U / D: the running mean the amplitudes and the Strouhal number are taken from
+# seed 004 Table I: C_D mean and amplitude, C_L amplitude, C_M amplitude, St
 SEED = [("seed 004: delta+-SPH, N = 50", 3.05, 0.455, 0.721, 0.464, 0.191),
         ("seed 004: delta+-SPH, N = 100", 2.87, 0.475, 0.709, 0.400, 0.199),
         ("seed 004: delta+-SPH, N = 200", 2.73, 0.402, 0.700, 0.349, 0.210),
@@ -69,20 +69,32 @@ def half_range(values) -> float:
 
 
 def smoothed(times, values, width=SMOOTHING):
-    """values(t) on an even grid of as many samples, as a running mean over `width` (t U / D): the forces'
-    particle noise at N = 10 (about +-0.5 in C_D from one history row, 10 steps, to the next) would set the
-    half range; the shedding's period is about 5."""
+    """(times, values) of values(t) on an even grid of as many samples, as a running mean over `width`
+    (t U / D; the times are the means' centres, width less than the span): the forces' particle noise at
+    N = 10 (about +-0.5 in C_D from one history row, 10 steps, to the next) would set the half range; the
+    shedding's period is about 5."""
     if values.size < 2:
-        return values
+        return times, values
     grid = np.linspace(times[0], times[-1], times.size)
     samples = max(1, int(round(width / (grid[1] - grid[0]))))
-    return np.convolve(np.interp(grid, times, values), np.ones(samples) / samples, mode="valid")
+    means = np.convolve(np.interp(grid, times, values), np.ones(samples) / samples, mode="valid")
+    return grid[:means.size] + 0.5 * (samples - 1) * (grid[1] - grid[0]), means
+
+
+def resolution(text) -> int:
+    """D/dx, refused in one line unless it puts the inflow buffer's face (0.8 D past the domain's edge) and
+    the plates' (0.5 D) on the particle lattice."""
+    n = positive_int(text)
+    if not (0.8 * n).is_integer() or not (0.5 * n).is_integer():
+        raise argparse.ArgumentTypeError(f"D/dx = {n} puts the inflow buffer's face or the plates off the particle "
+                                         "lattice (give a multiple of 10)")
+    return n
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("results/triangle"))
-    parser.add_argument("--resolutions", type=positive_int, nargs="+", default=[10], help="D/dx (the seed's N)")
+    parser.add_argument("--resolutions", type=resolution, nargs="+", default=[10], help="D/dx (the seed's N)")
     parser.add_argument("--corners", nargs="+", default=list(CORNERS), choices=list(CORNERS),
                         help="the orientation: a corner pointing upstream, or downstream")
     parser.add_argument("--t-end", type=positive_float, default=60.0, help="t U / D")
@@ -91,10 +103,6 @@ def main():
                         help="tabulate finished runs and, for the others, what they have written so far")
     parser.add_argument("--rerun", action="store_true", help="run again, over what the run directories hold")
     args = parse_args(parser)
-    for n in args.resolutions:  # the buffer's face (0.8 D past the domain's edge) and the plates' (0.5 D)
-        if not (0.8 * n).is_integer() or not (0.5 * n).is_integer():
-            parser.error(f"argument --resolutions: D/dx = {n} puts the inflow buffer's face or the plates off the "
-                         "particle lattice (give a multiple of 10)")
     args.out.mkdir(parents=True, exist_ok=True)
     rows, curves = [], {"cd": [], "cl": [], "cm": []}
     for corner in args.corners:
@@ -117,11 +125,12 @@ def main():
                 reached = history[-1]["time"]
                 t0 = 0.5 * reached
                 times = after(history, "time", t0)
-                cd, cl, cm = (smoothed(times, total(history, part, t0)) for part in ("cd", "cl", "cm"))
+                (_, cd), (grid, cl), (_, cm) = (smoothed(times, total(history, part, t0))
+                                                for part in ("cd", "cl", "cm"))
                 rows.append([label, run.summary["n_particles"], float(cd.mean()), half_range(cd), half_range(cl),
                              half_range(cm),
                              # a lift of round-off (the symmetric start) sheds nothing
-                             dominant_frequency(np.linspace(times[0], times[-1], cl.size), cl)
+                             dominant_frequency(grid, cl)
                              if half_range(cl) > 1e-6 else np.nan, f"{t0:.3g}-{reached:.3g}", "-"])
             print(rows[-1], flush=True)
             t = after(history, "time", 0.0)
