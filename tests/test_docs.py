@@ -14,7 +14,8 @@ README = ROOT / "README.md"
 
 # tiny runs that between them write every family of history columns and summary keys: static, kinematic and
 # flow runs; IIPS with NFTS and with MLS; probes; clone walls, gravity, a free surface, the dam break's
-# diagnostics; open boundaries, an immersed body, the jet's diagnostics; packing and the drop's reference
+# diagnostics; open boundaries (a non-reflecting inflow), an immersed body, the jet's diagnostics; packing
+# and the drop's reference
 RUNS = {
     "static": ("static_perturbed", "domain.dx=0.1", "shifting.method=iips", "iips.max_newton=2"),
     "kinematic": ("kinematic_tgv", "domain.dx=0.1", "time.t_end=0.02", "iips.pre_newton=2"),
@@ -22,7 +23,7 @@ RUNS = {
                      "output.probes=[[0.5,0.5]]"),
     "dam_break": ("dam_break", "domain.dx=0.2", "time.t_end=0.05", "shifting.method=iips", "iips.update=mls2"),
     "jet": ("impinging_jet", "domain.dx=0.2", "domain.upper=[4.0,7.0]", "inflow.0.upper=[1.0,6.8]",
-            "time.t_end=0.05"),
+            "time.t_end=0.05", "inflow.0.density=extrapolated", "inflow.0.non_reflecting_time=1.0"),
     "drop": ("elliptical_drop", "domain.dx=0.1", "time.t_end=0.02", "packing.iterations=5",
              "shifting.method=iips", "iips.update=mls2"),
 }

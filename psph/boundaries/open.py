@@ -18,7 +18,9 @@ cross-section, transverse coordinates s_a scaled to 0..1 across the section) mov
 |U| prod_a 4 s_a (1 - s_a), Poiseuille's profile with U at the centre (its mean over a 2-D section 2/3 U;
 over a 3-D one, the product of two parabolas, 4/9 U, which only approximates a square duct's), and emits its
 own rows by the rule above at that speed. Which rows exist depends on t only: runs on any number of ranks
-emit the same particles with the same gids.
+emit the same particles with the same gids. A non-reflecting buffer (`non_reflecting_time`) moves at U plus
+an acoustic speed it takes from the fluid after every step (OpenBoundaries.follow_sound), and its rows
+follow its travel, which depends on the fluid's means over all ranks too (the same to round-off).
 
 At an outflow face (domain.outflow) fluid particles that crossed it
 are removed; with `domain.outflow_buffer` they become buffer particles (Kind.OUTLET) instead, removed one
@@ -72,6 +74,10 @@ class Inflow:
         self.section = np.stack([g.ravel() for g in grid], axis=1) if cross else np.zeros((1, 0))
         self.profile = spec.profile
         self.factor = self.profile_factor(self._place(0.0))  # each column's speed over |U|
+        # a non-reflecting buffer (spec.non_reflecting_time; OpenBoundaries.follow_sound): the speed it moves at
+        # above the prescribed one (its acoustic part), the distance that has added to its travel, the pressure
+        # level its characteristic holds, and when these were last brought up to date
+        self.acoustic, self.offset, self.level, self.updated = 0.0, 0.0, None, 0.0
 
     def profile_factor(self, pos) -> np.ndarray:
         """u / U at positions `pos` by their transverse coordinates: 1 everywhere (a uniform profile), or
@@ -102,13 +108,16 @@ class Inflow:
     def travelled(self, t) -> float:
         """How far a buffer particle moving at |U| (every one, or the parabola's centre) has gone along the
         axis since t = 0: |U| t, or with ramp_time T, |U| S(t) of the smooth ramp
-        (boundaries.bodies.smooth_ramp); a column of the profile has gone its factor times that."""
-        return self.speed * smooth_ramp(t, self.ramp)[0]
+        (boundaries.bodies.smooth_ramp); a column of the profile has gone its factor times that. A
+        non-reflecting buffer has gone `offset` further, its acoustic speed integrated over the steps."""
+        return self.speed * smooth_ramp(t, self.ramp)[0] + self.offset
 
     def velocity_at(self, t, pos) -> np.ndarray:
         """The buffer's velocity at time t at positions `pos` (rows): U, or U tau^2 (3 - 2 tau) during the
-        ramp, times the profile's factor there."""
-        return np.outer(self.profile_factor(pos), self.velocity * smooth_ramp(t, self.ramp)[1])
+        ramp, times the profile's factor there; a non-reflecting buffer's acoustic speed added."""
+        along = np.zeros_like(self.velocity)
+        along[self.axis] = self.sign * self.acoustic
+        return np.outer(self.profile_factor(pos), self.velocity * smooth_ramp(t, self.ramp)[1] + along)
 
     def acceleration_at(self, t, pos) -> np.ndarray:
         """d/dt of velocity_at (zero without a ramp, and after it)."""
@@ -201,7 +210,9 @@ def describe_open(scene) -> list:
                      + (f" at the centre of a parabolic profile (the columns' mean speed {f.factor.mean():.4g} "
                         "times it)" if parabolic else "")
                      + f", a row every {f.dx / f.speed:.4g} time units" + (" at speed U" if parabolic else "")
-                     + (f" once reached, smoothly over ramp_time = {f.ramp:g}" if f.ramp else ""))
+                     + (f" once reached, smoothly over ramp_time = {f.ramp:g}" if f.ramp else "")
+                     + (f"; non-reflecting: its speed follows the sound leaving the fluid, against a pressure level "
+                        f"relaxed over {f.spec.non_reflecting_time:g}" if f.spec.non_reflecting_time else ""))
     if scene.domain.outflow and scene.domain.outflow_buffer:
         lines.append(f"outflow faces {', '.join(scene.domain.outflow)}: fluid past them becomes a buffer one kernel "
                      "support deep, its density and velocity extrapolated from the fluid (Shepard average)"
@@ -255,6 +266,9 @@ class OpenBoundaries:
         from psph.schemes.eos import make_eos
 
         self.eos = make_eos(scene.physics)
+        self.impedance = scene.physics.density * scene.physics.sound_speed
+        for f in self.inflows:
+            f.level = float(self.eos.pressure(np.array([scene.physics.density]))[0])
 
     def start(self, system) -> int:
         """At the start of a run (not a restart): fill the outflow buffers (fill_outflow_buffers), then set
@@ -312,8 +326,9 @@ class OpenBoundaries:
         p = system.particles
         pos, kind = p.owned("position"), p.owned("kind")
         self._check_backflow(system, pos, kind, t)
+        self.follow_sound(system, t)
         for f in self.inflows:  # a rising velocity (ramp_time) is set, not left to the time integrator
-            if f.ramp > 0.0:
+            if f.ramp > 0.0 or f.spec.non_reflecting_time > 0.0:
                 rows = (kind == Kind.INLET) & f.holds(pos)
                 p.owned("velocity")[rows] = f.velocity_at(t, pos[rows])
         # a buffer particle that no buffer holds has passed its downstream face, however far: one moving more
@@ -368,6 +383,50 @@ class OpenBoundaries:
         for key in self.totals:
             self.totals[key] += out[key]
         return out
+
+    def follow_sound(self, system, t) -> None:
+        """At time t, after a step: each non-reflecting buffer (inflow.non_reflecting_time = T > 0) adds the
+        distance its acoustic speed a moved it during the step to its travel (Inflow.offset), then takes a new
+        a from the fluid beside its downstream face (within h of it, across its section; means over all
+        ranks): with p and u that fluid's mean pressure and speed along the inflow, U(t) the prescribed
+        speed and P the pressure level,
+
+            P  <-  P + (p - P) (1 - exp(-dt / T))
+            a   =  ((u - U) - (p - P) / (rho0 c0)) / 2,
+
+        so that U + a = (J+ - J-) / (2 rho0 c0) for the outgoing characteristic J- = p - rho0 c0 u of that
+        fluid and the incoming one J+ = P + rho0 c0 U (linear acoustics, one dimension along the axis; Poinsot
+        and Lele's characteristic inflow, J. Comput. Phys. 101, 1992, with the pressure target relaxed). A
+        sound wave running upstream (p' = -rho0 c0 u') leaves with the buffer at u and the fluid's pressure
+        (its density extrapolated), where a velocity inlet reflects it. When the fluid is steady at P (changes
+        much slower than T), u = U + a gives a = 0: the mean speed is U. The buffer never moves backwards (a >=
+        -U). Rows are emitted and move on its travel, so they stay a lattice. Collective."""
+        inlets = [f for f in self.inflows if f.spec.non_reflecting_time > 0.0]
+        if not inlets:
+            return
+        p = system.particles
+        pos, velocity = p.owned("position"), p.owned("velocity")
+        fluid = p.owned("kind") == Kind.FLUID
+        pressure = self.eos.pressure(p.owned("density"))
+        # the fluid within h of the face: the upstream half of a pulse 5 dx wide came back 6.2% from a buffer
+        # that read the fluid within h, 16% within 2 h (the band's mean lags the wave at the face), 6.1% within
+        # 0.6 h (tests/boundaries/test_open.py)
+        band = self.scene.domain.h
+        sums = np.zeros((len(inlets), 3))
+        for k, f in enumerate(inlets):
+            xi = f.sign * (pos[:, f.axis] - f.upstream) - f.depth
+            near = fluid & f.in_section(pos) & (xi > 0.0) & (xi < band)
+            sums[k] = near.sum(), pressure[near].sum(), f.sign * velocity[near, f.axis].sum()
+        sums = allreduce_sum(system.comm, sums)
+        for f, (n, p_sum, u_sum) in zip(inlets, sums):
+            dt, f.updated = t - f.updated, t
+            f.offset += f.acoustic * dt
+            if not n:  # no fluid beside the face (yet): the prescribed speed
+                f.acoustic = 0.0
+                continue
+            u, p_mean, speed = u_sum / n, p_sum / n, f.speed * smooth_ramp(t, f.ramp)[1]
+            f.level += (p_mean - f.level) * -np.expm1(-dt / f.spec.non_reflecting_time)
+            f.acoustic = max(0.5 * ((u - speed) - (p_mean - f.level) / self.impedance), -speed)
 
     def _orphans(self, system) -> np.ndarray:
         """Owned outflow-buffer particles with no fluid particle within the neighbour lists' radius (a kernel
@@ -463,15 +522,21 @@ class OpenBoundaries:
         """history.csv's mass budget from the fluid's `total_mass` now: the mass that has entered and left
         the fluid, and the error of the balance total_mass - initial - in + out relative to the initial mass
         (to the mass that came in, for a fluid that starts empty), zero to round-off when the scheme moves no
-        mass between the fluid and the buffers' particles."""
+        mass between the fluid and the buffers' particles; and each non-reflecting buffer's speed along its
+        axis, its acoustic part included (inflow_speed_k, k its place in [[inflow]])."""
         m = self.mass
         scale = m["initial"] or m["in"] or 1.0
-        return {"mass_in": m["in"], "mass_out": m["out"],
-                "mass_balance_error": (total_mass - m["initial"] - m["in"] + m["out"]) / scale}
+        out = {"mass_in": m["in"], "mass_out": m["out"],
+               "mass_balance_error": (total_mass - m["initial"] - m["in"] + m["out"]) / scale}
+        for k, f in enumerate(self.inflows):  # a non-reflecting buffer's speed (its acoustic part included)
+            if f.spec.non_reflecting_time > 0.0:
+                out[f"inflow_speed_{k}"] = f.speed * smooth_ramp(f.updated, f.ramp)[1] + f.acoustic
+        return out
 
     def checkpoint_state(self) -> dict:
         return {"next_gid": self.next_gid, "emitted": [e.tolist() for e in self.emitted], "totals": dict(self.totals),
-                "mass": dict(self.mass)}
+                "mass": dict(self.mass),
+                "acoustic": [[f.acoustic, f.offset, f.level, f.updated] for f in self.inflows]}
 
     def restore(self, state) -> None:
         if state is None:  # a checkpoint written before the scene had open boundaries (the budget: as above)
@@ -483,6 +548,8 @@ class OpenBoundaries:
         self.totals = {k: int(v) for k, v in state["totals"].items()}
         if "mass" in state:  # else (a checkpoint written before the budget) it starts from the restart's mass
             self.mass = {k: float(v) for k, v in state["mass"].items()}
+        for f, values in zip(self.inflows, state.get("acoustic", ())):  # (none before non-reflecting buffers)
+            f.acoustic, f.offset, f.level, f.updated = (float(v) for v in values)
 
 
 def make_open_boundaries(scene, system):

@@ -130,6 +130,12 @@ class InflowSpec:
     ramp_time: float = option(0.0, doc="time over which the velocity rises from rest, smoothly (tau^2 (3 - 2 "
                               "tau), tau = t / ramp_time, a body's ramp law), so that the flow does not start with "
                               "a pressure shock of rho0 c0 U; 0: the full velocity from t = 0", ge=0.0)
+    non_reflecting_time: float = option(0.0, doc="0: a velocity inlet, which reflects sound as a wall does; T > 0: "
+                                        "sound leaves through it (density = extrapolated, a uniform profile): the "
+                                        "buffer's speed follows the fluid's outgoing characteristic p - rho0 c0 u "
+                                        "beside it, against a pressure level that relaxes to the fluid's over T, so "
+                                        "that changes much faster than T leave and the mean speed stays the "
+                                        "prescribed one (README, \"Open boundaries\")", ge=0.0)
 
     def check(self, path):
         lengths = {"lower": len(self.lower), "upper": len(self.upper), "velocity": len(self.velocity)}
@@ -151,6 +157,12 @@ class InflowSpec:
         if len(moving) != 1:
             raise SceneError(f"{path}.velocity", f"give exactly one non-zero component (the buffer's axis), got "
                              f"{list(self.velocity)}")
+        if self.non_reflecting_time > 0.0:
+            for key, value, needed in (("density", self.density, "extrapolated"), ("profile", self.profile, "uniform")):
+                if value != needed:
+                    raise SceneError(f"{path}.{key}", f"non_reflecting_time needs {key} = {needed!r}, got {value!r}: "
+                                     "the buffer's pressure follows the fluid's, and the whole section moves at one "
+                                     "speed")
 
     @property
     def axis(self) -> int:
