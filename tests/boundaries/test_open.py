@@ -129,12 +129,15 @@ def test_a_ramped_inflow_starts_a_jet_from_rest_without_the_impulsive_start_s_sh
     assert np.abs(expected[:, 1] + 0.5).max() < 1e-12
 
 
-@pytest.mark.parametrize("dim,density", [(1, "prescribed"), (2, "prescribed"), (3, "prescribed"), (2, "extrapolated")])
+@pytest.mark.parametrize("dim,density", [(1, "prescribed"), (2, "prescribed"), (3, "prescribed"), (2, "extrapolated"),
+                                         (1, "non_reflecting"), (3, "non_reflecting")])
 def test_uniform_jet_through_inflow_and_outflow_stays_exact(tmp_path, dim, density):
     """Six rows enter and six leave in t = 0.6: the fluid keeps its count, velocity U and rho0 to round-off,
     every gid is unique, and history.csv's mass stays constant (with the buffer's density extrapolated from
-    the fluid too: rho0 there)."""
-    sc = scene_from_table(apply_overrides(to_table(free_jet(dim)), [f"inflow.0.density={density}"]))
+    the fluid too: rho0 there; and non-reflecting, its acoustic speed 0)."""
+    sets = ["inflow.0.density=extrapolated", "inflow.0.non_reflecting_time=1.0"] if density == "non_reflecting" \
+        else [f"inflow.0.density={density}"]
+    sc = scene_from_table(apply_overrides(to_table(free_jet(dim)), sets))
     driver = FluidDriver(sc, MPI.COMM_SELF, tmp_path)
     p = driver.system.particles
     fluid0 = int(np.count_nonzero(p.owned("kind") == Kind.FLUID))
@@ -158,6 +161,8 @@ def test_uniform_jet_through_inflow_and_outflow_stays_exact(tmp_path, dim, densi
     assert rows[-1]["mass_in"] == pytest.approx(6 * row_mass, rel=1e-12)
     assert rows[-1]["mass_out"] == pytest.approx(6 * row_mass, rel=1e-12)
     assert max(abs(r["mass_balance_error"]) for r in rows) < 1e-12
+    if density == "non_reflecting":
+        assert max(abs(r["inflow_speed_0"] - 1.0) for r in rows[1:]) < 1e-12
 
 
 def test_a_retried_step_emits_joins_and_removes_its_rows_once(tmp_path):
